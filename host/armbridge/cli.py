@@ -1,0 +1,66 @@
+"""The `armbridge` command line: one program, one subcommand per job.
+
+Each subcommand lives beside the code it drives; this module only wires them
+up and turns user-facing errors into one clear line (a traceback only with
+--debug).
+"""
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from armbridge.errors import ArmbridgeError
+
+app = typer.Typer(
+    help="Host runtime for research robot arms: emulate boards, run plans, record telemetry.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+_debug = False
+
+
+@app.callback()
+def _main(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on errors.")) -> None:
+    global _debug
+    _debug = debug
+
+
+def _register() -> None:
+    from armbridge.bench.command import bench_app
+    from armbridge.demo import demo_cmd
+    from armbridge.emulator.command import emulate_cmd
+    from armbridge.executor.command import run_cmd
+    from armbridge.telemetry.command import view_cmd
+
+    app.command("demo")(demo_cmd)
+    app.command("emulate")(emulate_cmd)
+    app.command("run")(run_cmd)
+    app.command("view")(view_cmd)
+    app.add_typer(bench_app, name="bench")
+
+
+def main() -> None:
+    _register()
+    try:
+        app(standalone_mode=False)
+    except ArmbridgeError as exc:
+        if _debug:
+            raise
+        typer.secho(f"error: {exc}", fg="red", err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        typer.secho("interrupted", fg="yellow", err=True)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        sys.exit(1)
+    except Exception as exc:  # click usage errors arrive here in non-standalone mode
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise
