@@ -1,0 +1,26 @@
+# Developer entry points. `make setup` is idempotent and fast when nothing
+# changed (scripts/setup.sh keeps a stamp per step), so every target runs it.
+SHELL := bash
+VENV := .venv
+PYTEST_ARGS ?=
+
+.PHONY: setup test demo bench lint distclean
+
+setup:
+	@scripts/setup.sh
+
+test: setup
+	$(VENV)/bin/python -m pytest -q $(PYTEST_ARGS)
+
+demo: setup
+	$(VENV)/bin/armbridge demo
+
+bench: setup
+	$(VENV)/bin/armbridge bench link
+
+lint: setup
+	$(VENV)/bin/python -m mypy host/armbridge
+
+# Removes everything `make setup` builds (not the apt packages).
+distclean:
+	rm -rf $(VENV) node_modules typings .stamp-*

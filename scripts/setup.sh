@@ -1,0 +1,94 @@
+#!/usr/bin/env bash
+# Build the development environment: .venv (package + [test,train] extras),
+# node_modules (MicroPython WebAssembly interpreter), typings (ESP32 stubs)
+# and, as root, the Debian AVR toolchain.
+#
+# Idempotent: each step records a hash of its inputs in a /.stamp-* file and
+# is skipped while the hash matches and its output still exists, so a re-run
+# takes well under a second.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+VENV=.venv
+# Exact pins for these live in constraints.txt (one place for every pin).
+PIP_EXTRAS="[test,train]"
+STUBS=micropython-esp32-stubs
+APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev)
+
+log() { printf 'setup: %s\n' "$*"; }
+
+# Hash of the given files' contents: the key a step's stamp must match.
+inputs_hash() { sha256sum "$@" | sha256sum | cut -d' ' -f1; }
+
+# up_to_date STAMP HASH PATH: true when STAMP holds HASH and PATH exists.
+up_to_date() { [[ -e $3 && -f $1 && $(<"$1") == "$2" ]]; }
+
+step_venv() {
+    if [[ -x $VENV/bin/python ]]; then return; fi
+    "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' || {
+        echo "setup: $PYTHON is $("$PYTHON" --version 2>&1); Python >= 3.11 is required" >&2
+        exit 1
+    }
+    log "creating $VENV"
+    "$PYTHON" -m venv "$VENV"
+}
+
+step_pip() {
+    local key
+    key=$(inputs_hash pyproject.toml constraints.txt)
+    if up_to_date .stamp-pip "$key" "$VENV/bin/armbridge"; then return; fi
+    log "installing armbridge$PIP_EXTRAS (pins from constraints.txt)"
+    # -qq: errors only (this machine's pip config adds index warnings per package).
+    "$VENV/bin/python" -m pip install -qq --upgrade pip
+    # -c keeps torch at its exact pin: any other torch spec pulls a CUDA build.
+    "$VENV/bin/python" -m pip install -qq -c constraints.txt -e ".$PIP_EXTRAS"
+    # The rerun CLI prints an analytics banner on first use otherwise.
+    local out
+    out=$("$VENV/bin/rerun" analytics disable 2>&1) || { echo "$out" >&2; exit 1; }
+    echo "$key" >.stamp-pip
+}
+
+step_npm() {
+    local key
+    key=$(inputs_hash package.json package-lock.json)
+    if up_to_date .stamp-npm "$key" node_modules/@micropython/micropython-webassembly-pyscript; then return; fi
+    if ! command -v npm >/dev/null; then
+        echo "setup: npm not found; install Node.js (apt-get install nodejs npm) and re-run" >&2
+        exit 1
+    fi
+    log "installing npm packages (npm ci)"
+    npm ci --no-audit --no-fund --loglevel=error >/dev/null
+    echo "$key" >.stamp-npm
+}
+
+step_typings() {
+    local key
+    key=$(inputs_hash constraints.txt)
+    if up_to_date .stamp-typings "$key" typings; then return; fi
+    log "installing $STUBS into typings/"
+    rm -rf typings
+    "$VENV/bin/python" -m pip install -qq --target typings -c constraints.txt "$STUBS"
+    echo "$key" >.stamp-typings
+}
+
+step_apt() {
+    if dpkg -s "${APT_PKGS[@]}" >/dev/null 2>&1; then return; fi
+    local cmd="apt-get install -y --no-install-recommends ${APT_PKGS[*]}"
+    if [[ $(id -u) -ne 0 ]]; then
+        echo "setup: AVR toolchain missing (needed for the Arduino firmware and its simavr tests); run:" >&2
+        echo "  sudo apt-get update && sudo $cmd" >&2
+        return
+    fi
+    log "installing AVR toolchain from apt"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    $cmd -qq >/dev/null
+}
+
+step_venv
+step_pip
+step_npm
+step_typings
+step_apt
+log "environment ready"
