@@ -1,0 +1,124 @@
+"""Waypoint queue and set-point generator.
+
+Positions are in milli-units (mrad), durations in ms, speeds in milli-units/s.
+Each waypoint (id, dur_ms, targets) is a straight segment from where the
+previous one ended (or from the current set point when idle, which the board
+sets to the measured position) to its targets: the set point never jumps.
+A segment that would exceed a joint's vmax is stretched in time (event SLOW).
+step(dt_ms) advances segment time by dt; a segment that ends mid-step hands the
+leftover time to the next one in the same step. A segment taken up from rest
+starts at the step that takes it up (its set point is its start there). While
+`hold` is set, time is frozen.
+"""
+
+
+class Traj:
+    def __init__(self, n: int, qsize: int = 32, vmax=None) -> None:
+        self.n = n
+        self.qsize = qsize
+        self.vmax = list(vmax) if vmax is not None else [1000000] * n
+        self.sp = [0.0] * n      # set point
+        self.vel = [0.0] * n     # set-point velocity (milli-units/s)
+        self.hold = False
+        self._queue: list = []   # waypoints not yet started: (id, dur, targets)
+        self.active_id = -1      # id of the active segment, -1 when none
+        self._dur = 0
+        self._t = 0
+        self._start = [0.0] * n
+        self._end = [0.0] * n
+
+    # ------------------------------------------------------------ queue
+
+    def free(self) -> int:
+        return self.qsize - len(self._queue)
+
+    def queued(self) -> int:
+        return len(self._queue)
+
+    def busy(self) -> bool:
+        return self.active_id >= 0 or len(self._queue) > 0
+
+    def push(self, wid: int, dur: int, targets) -> bool:
+        """Queues a waypoint; False when the queue is full."""
+        if len(self._queue) >= self.qsize:
+            return False
+        self._queue.append((wid, dur, list(targets)))
+        return True
+
+    def flush(self) -> None:
+        """Drops the queue and the active segment; the set point stays."""
+        self._queue = []
+        self.active_id = -1
+        for j in range(self.n):
+            self.vel[j] = 0.0
+
+    def set_point(self, q) -> None:
+        """Stops and puts the set point at q (e.g. the measured position)."""
+        self.flush()
+        for j in range(self.n):
+            self.sp[j] = float(q[j])
+
+    # ------------------------------------------------------------ motion
+
+    def step(self, dt_ms: int) -> list:
+        """Advances by dt_ms -> events [("START", id), ("SLOW", id, j), ("DONE", id)]."""
+        events: list = []
+        if self.hold:
+            for j in range(self.n):
+                self.vel[j] = 0.0
+            return events
+        # from rest, a segment starts at this step (set point = its start);
+        # otherwise the step's time, and any leftover, goes to the segments
+        left = 0 if self.active_id < 0 else dt_ms
+        while True:
+            if self.active_id < 0:
+                if not self._queue:
+                    for j in range(self.n):
+                        self.vel[j] = 0.0
+                    break
+                self._begin(events)
+            self._t += left
+            if self._t < self._dur:
+                self._interpolate()
+                break
+            left = self._t - self._dur
+            self._finish(events)
+            if left <= 0 and not self._queue:
+                break
+        return events
+
+    def _begin(self, events: list) -> None:
+        wid, dur, targets = self._queue.pop(0)
+        worst = -1
+        for j in range(self.n):
+            self._start[j] = self.sp[j]
+            self._end[j] = float(targets[j])
+            need = abs(self._end[j] - self._start[j]) * 1000.0 / self.vmax[j]
+            need_ms = int(need)
+            if need_ms < need:
+                need_ms += 1
+            if need_ms > dur:
+                dur = need_ms
+                worst = j
+        self._dur = dur
+        self._t = 0
+        self.active_id = wid
+        events.append(("START", wid))
+        if worst >= 0:
+            events.append(("SLOW", wid, worst + 1))
+        scale = 1000.0 / dur
+        for j in range(self.n):
+            self.vel[j] = (self._end[j] - self._start[j]) * scale
+
+    def _interpolate(self) -> None:
+        f = self._t / self._dur
+        for j in range(self.n):
+            a = self._start[j]
+            self.sp[j] = a + (self._end[j] - a) * f
+
+    def _finish(self, events: list) -> None:
+        for j in range(self.n):
+            self.sp[j] = self._end[j]
+            self.vel[j] = 0.0
+        events.append(("DONE", self.active_id))
+        self.active_id = -1

@@ -1,0 +1,56 @@
+"""Configuration of the 3R planar servo arm (ESP32). Board(hal, cfg) takes this
+module, or any object with the same attribute names.
+
+Units follow the protocol: positions in mrad, speeds in mrad/s, times in ms.
+The HAL speaks SI units (rad) and efforts in [-1, 1].
+"""
+
+FW_NAME = "arm3r"
+FW_VERSION = "0.1.0"
+PROTO_VERSION = 1
+
+N_JOINTS = 3
+JOINT_NAMES = ("shoulder", "elbow", "wrist")
+LINK_LENGTHS_M = (0.19, 0.12, 0.07)
+
+# Hard joint limits (min, max) in mrad; SETLIM may only narrow them.
+LIMITS_MRAD = ((0, 3142), (-3142, 0), (-1571, 1571))
+VMAX_MRAD_S = (3000, 3000, 3000)   # speed limit per joint
+
+CONTROL_HZ = 100
+PERIOD_MS = 10                      # control period: 1000 // CONTROL_HZ
+QSIZE = 32                          # waypoint queue slots
+TELEMETRY_HZ = 25                   # default telemetry rate (RATE changes it)
+WDOG_MS = 1000                      # default watchdog timeout (WDOG changes it)
+
+# PID per joint, effort in [-1, 1] per rad of error. Tuned against the servo
+# plant: joint velocity = effort * 5.0 rad/s behind a 30 ms first-order lag.
+# kff = 1 / 5.0 makes the feed-forward alone produce the planned velocity.
+PID_KP = (8.0, 8.0, 8.0)            # 1/rad
+PID_KI = (2.0, 2.0, 2.0)            # 1/(rad s)
+PID_KD = (0.15, 0.15, 0.15)         # s/rad (on the measurement)
+PID_KFF = (0.2, 0.2, 0.2)           # s/rad (on the set-point velocity)
+
+# Following error |set point - measured| above this for this long -> FAULT.
+FOLLOW_ERR_MRAD = 350
+FOLLOW_ERR_MS = 300
+
+# ---------------------------------------------------------------- pins (ESP32)
+PWM_PINS = (25, 26, 27)
+PWM_FREQ_HZ = 50
+PULSE_MIN_US = 1000                 # effort -1
+PULSE_NEUTRAL_US = 1500             # effort 0
+PULSE_MAX_US = 2000                 # effort +1
+
+# Feedback potentiometers, linear calibration per joint:
+# rad = ADC_RAD_AT_CENTER + ADC_RAD_PER_V * (volts - ADC_CENTER_V)
+ADC_PINS = (32, 33, 34)
+ADC_CENTER_UV = (1650000, 1650000, 1650000)
+ADC_RAD_AT_CENTER = (1.5708, -1.5708, 0.0)
+ADC_RAD_PER_V = (1.5, 1.5, 1.5)     # 270 deg pot over ~3.14 V
+
+UART_ID = 1                         # 0: the USB bridge (REPL pins), 1: GPIO TX/RX below
+UART_TX = 17
+UART_RX = 16
+UART_BAUD = 115200
+UART_RXBUF = 1024

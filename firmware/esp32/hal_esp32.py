@@ -1,0 +1,80 @@
+"""The HAL of docs/architecture.md over MicroPython's `machine` on an ESP32.
+
+Servos: PWM at PWM_FREQ_HZ, pulse PULSE_MIN_US..PULSE_MAX_US for an effort of
+-1..1 (PULSE_NEUTRAL_US at 0); outputs_off() stops the pulses (duty 0), which
+lets hobby servos go limp; the next write_outputs() drives them again.
+Feedback: potentiometers on ADC pins, linear calibration from the config.
+Link: UART at UART_BAUD, non-blocking reads. Persistence: RTC memory, which
+survives a reset but not a power cycle.
+"""
+
+import time
+
+import machine
+
+
+class Esp32Hal:
+    def __init__(self, cfg) -> None:
+        self.cfg = cfg
+        neutral_ns = cfg.PULSE_NEUTRAL_US * 1000
+        self._pwms = [machine.PWM(machine.Pin(p), freq=cfg.PWM_FREQ_HZ, duty_ns=neutral_ns)
+                      for p in cfg.PWM_PINS]
+        self._adcs = [machine.ADC(machine.Pin(p), atten=machine.ADC.ATTN_11DB)
+                      for p in cfg.ADC_PINS]
+        self._uart = machine.UART(cfg.UART_ID, baudrate=cfg.UART_BAUD, tx=cfg.UART_TX,
+                                  rx=cfg.UART_RX, rxbuf=cfg.UART_RXBUF, timeout=0)
+        self._rtc = machine.RTC()
+        self.outputs_off()
+
+    # ------------------------------------------------------------ time
+    # (no annotations: the stubs type ticks as _TicksMs/_TicksUs, the HAL as int)
+    def ticks_ms(self):
+        return time.ticks_ms()
+
+    def ticks_us(self):
+        return time.ticks_us()
+
+    def ticks_diff(self, a, b):
+        return time.ticks_diff(a, b)
+
+    # ------------------------------------------------------------ joints
+    def read_positions(self, out: list) -> None:
+        c = self.cfg
+        for j in range(len(self._adcs)):
+            volts = (self._adcs[j].read_uv() - c.ADC_CENTER_UV[j]) / 1000000.0
+            out[j] = c.ADC_RAD_AT_CENTER[j] + c.ADC_RAD_PER_V[j] * volts
+
+    def write_outputs(self, efforts: list) -> None:
+        c = self.cfg
+        for j in range(len(self._pwms)):
+            e = efforts[j]
+            if e > 1.0:
+                e = 1.0
+            elif e < -1.0:
+                e = -1.0
+            if e >= 0:
+                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_MAX_US - c.PULSE_NEUTRAL_US)
+            else:
+                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_NEUTRAL_US - c.PULSE_MIN_US)
+            self._pwms[j].duty_ns(int(us * 1000))
+
+    def outputs_off(self) -> None:
+        for p in self._pwms:
+            p.duty_ns(0)
+
+    # ------------------------------------------------------------ link
+    def uart_read(self):
+        n = self._uart.any()
+        if n:
+            return self._uart.read(n)
+        return None
+
+    def uart_write(self, data: bytes) -> None:
+        self._uart.write(data)
+
+    # ------------------------------------------------------------ persistence
+    def load_persist(self) -> bytes:
+        return self._rtc.memory()
+
+    def save_persist(self, data: bytes) -> None:
+        self._rtc.memory(data)

@@ -1,0 +1,30 @@
+"""CPython only: puts the firmware modules on sys.path, as the emulator does.
+(The MicroPython runner in tests/mpy sets its own path and never imports this.)
+
+The firmware uses flat module names (proto, session, pid, traj, arm, config).
+Once collection has imported the test modules (which keep their own
+references), those names and paths are taken out of sys.modules / sys.path
+again, so they do not leak into other tests in the same session (the emulator
+loads private copies of the same modules).
+"""
+import pathlib
+import sys
+
+_ROOT = pathlib.Path(__file__).resolve().parents[2]
+_PATHS = [str(_ROOT / sub) for sub in ("firmware/esp32", "firmware/common", "tests/firmware")]
+_FLAT = ("proto", "session", "pid", "traj", "arm", "config", "fwutil")
+
+for _p in _PATHS:
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
+
+
+def pytest_collection_finish(session):
+    for name in _FLAT:
+        mod = sys.modules.get(name)
+        f = getattr(mod, "__file__", None) or ""
+        if f.startswith(str(_ROOT / "firmware")) or f.startswith(str(_ROOT / "tests" / "firmware")):
+            del sys.modules[name]
+    for p in _PATHS:
+        while p in sys.path:
+            sys.path.remove(p)

@@ -1,0 +1,126 @@
+"""Trajectory: no jumps, speed stretching, carry-over, hold, queue capacity."""
+
+from traj import Traj
+
+
+def _run(t, steps, dt=10):
+    evs = []
+    for _ in range(steps):
+        evs += t.step(dt)
+    return evs
+
+
+def test_queue_capacity_and_free():
+    t = Traj(3, qsize=4)
+    for i in range(4):
+        assert t.push(i, 100, [0, 0, 0])
+    assert t.free() == 0
+    assert not t.push(9, 100, [0, 0, 0])
+    t.flush()
+    assert t.free() == 4 and not t.busy()
+
+
+def test_starts_from_current_set_point_without_jump():
+    t = Traj(3, vmax=[3000] * 3)
+    t.set_point([1000, -1000, 0])
+    t.push(1, 500, [1500, -1500, 100])
+    evs = t.step(10)
+    assert evs == [("START", 1)]
+    assert t.sp == [1000.0, -1000.0, 0.0]            # starts where it stood
+    prev = list(t.sp)
+    done = []
+    for _ in range(60):
+        done += t.step(10)
+        for j in range(3):
+            assert abs(t.sp[j] - prev[j]) <= 10.0 + 1e-6   # 1000 mrad/s * 10 ms
+        prev = list(t.sp)
+    assert done == [("DONE", 1)]
+    assert t.sp == [1500.0, -1500.0, 100.0]
+
+
+def test_linear_interpolation_and_velocity():
+    t = Traj(1, vmax=[100000])
+    t.set_point([0])
+    t.push(7, 100, [1000])
+    t.step(10)                                        # start, t = 0
+    t.step(10)
+    assert abs(t.sp[0] - 100.0) < 1e-9
+    assert abs(t.vel[0] - 10000.0) < 1e-9
+    t.step(40)
+    assert abs(t.sp[0] - 500.0) < 1e-9
+
+
+def test_segments_chain_from_previous_end_with_carry_over():
+    t = Traj(1, vmax=[100000])
+    t.set_point([0])
+    t.push(1, 25, [250])
+    t.push(2, 100, [1250])
+    evs = _run(t, 3)                                   # t = 0, 10, 20
+    assert evs == [("START", 1)]
+    evs = t.step(10)                                   # 30: seg 1 ends at 25, 5 ms into seg 2
+    assert evs == [("DONE", 1), ("START", 2)]
+    assert abs(t.sp[0] - 300.0) < 1e-9                 # 250 + 1000 * 5/100
+    evs = _run(t, 10)
+    assert evs == [("DONE", 2)]
+    assert t.sp[0] == 1250.0 and not t.busy()
+
+
+def test_several_short_segments_in_one_step():
+    t = Traj(1, vmax=[1000000])
+    t.set_point([0])
+    t.step(10)
+    for i in range(5):
+        t.push(i, 2, [i + 1])
+    t.step(10)                                         # from rest: only START 0
+    evs = t.step(10)
+    done = [e[1] for e in evs if e[0] == "DONE"]
+    assert done == [0, 1, 2, 3, 4]
+    assert t.sp[0] == 5.0 and not t.busy()
+
+
+def test_speed_stretching_reports_slow_and_limits_speed():
+    t = Traj(3, vmax=[3000, 3000, 1000])
+    t.set_point([0, 0, 0])
+    t.push(5, 100, [100, 0, 600])                      # joint 3 needs 600 ms
+    evs = t.step(10)
+    assert evs == [("START", 5), ("SLOW", 5, 3)]
+    assert abs(t.vel[2] - 1000.0) < 1e-6
+    steps = 0
+    done = []
+    while not done:
+        done = [e for e in t.step(10) if e[0] == "DONE"]
+        steps += 1
+    assert steps == 60
+
+
+def test_no_slow_when_within_limit():
+    t = Traj(1, vmax=[3000])
+    t.set_point([0])
+    t.push(1, 500, [1500])                             # exactly 3000 mrad/s
+    assert t.step(10) == [("START", 1)]
+
+
+def test_hold_freezes_segment_time():
+    t = Traj(1, vmax=[100000])
+    t.set_point([0])
+    t.push(1, 100, [1000])
+    _run(t, 4)
+    sp = t.sp[0]
+    t.hold = True
+    assert _run(t, 20) == []
+    assert t.sp[0] == sp and t.vel[0] == 0.0
+    t.hold = False
+    t.step(10)
+    assert abs(t.sp[0] - (sp + 100.0)) < 1e-9
+    assert _run(t, 6) == [("DONE", 1)]
+
+
+def test_flush_keeps_set_point():
+    t = Traj(1, vmax=[100000])
+    t.set_point([0])
+    t.push(1, 100, [1000])
+    _run(t, 5)
+    sp = t.sp[0]
+    t.flush()
+    assert not t.busy() and t.sp[0] == sp
+    assert _run(t, 5) == [] and t.sp[0] == sp

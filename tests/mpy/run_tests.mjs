@@ -1,0 +1,127 @@
+// Runs the firmware unit tests (tests/firmware/test_*.py) under a real
+// MicroPython interpreter: the WebAssembly port from npm
+// (@micropython/micropython-webassembly-pyscript).
+//
+//   node tests/mpy/run_tests.mjs [REPO_ROOT]
+//
+// The repo layout is mirrored in the interpreter's filesystem under /repo
+// (firmware/common/*.py, firmware/esp32/{config,arm}.py, tests/firmware/*.py,
+// tests/vectors/lines.json), so the tests find the vectors relative to their
+// own files, as under CPython. `@micropython.native` / `@micropython.viper`
+// decorators are commented out (this port has no native emitter).
+// Prints one line per test, `PASS module::name` or `FAIL module::name: error`
+// (a traceback follows, indented), then `SUMMARY passed=N failed=M`.
+// Exit status: 0 when every test passed, 1 otherwise, 2 when it could not run.
+
+import fs from "node:fs";
+import path from "node:path";
+import { fileURLToPath, pathToFileURL } from "node:url";
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const root = path.resolve(process.argv[2] || path.join(here, "..", ".."));
+const pkg = path.join(root, "node_modules", "@micropython",
+  "micropython-webassembly-pyscript", "micropython.mjs");
+
+function mkdirs(FS, dir) {
+  let cur = "";
+  for (const part of dir.split("/").filter(Boolean)) {
+    cur += "/" + part;
+    try { FS.mkdir(cur); } catch (e) { /* exists */ }
+  }
+}
+
+function stripNative(src) {
+  return src.replace(/^(\s*)@micropython\.(native|viper)\b.*$/gm, "$1# (stripped) @micropython.$2");
+}
+
+function copyPy(FS, relDir, filter) {
+  const dir = path.join(root, relDir);
+  const names = fs.readdirSync(dir).filter((n) => n.endsWith(".py") && filter(n)).sort();
+  mkdirs(FS, "/repo/" + relDir);
+  for (const n of names) {
+    const src = stripNative(fs.readFileSync(path.join(dir, n), "utf8"));
+    FS.writeFile("/repo/" + relDir + "/" + n, src);
+  }
+  return names;
+}
+
+async function main() {
+  if (!fs.existsSync(pkg)) {
+    console.error("micropython package missing: " + pkg);
+    process.exit(2);
+  }
+  const { loadMicroPython } = await import(pathToFileURL(pkg).href);
+  const mp = await loadMicroPython({
+    heapsize: 4 * 1024 * 1024,
+    stdout: (line) => process.stdout.write(line + "\n"),
+    stderr: (line) => process.stderr.write(line + "\n"),
+  });
+  const FS = mp.FS;
+  copyPy(FS, "firmware/common", () => true);
+  copyPy(FS, "firmware/esp32", (n) => n === "config.py" || n === "arm.py");
+  const tests = copyPy(FS, "tests/firmware", (n) => n !== "conftest.py");
+  mkdirs(FS, "/repo/tests/vectors");
+  FS.writeFile("/repo/tests/vectors/lines.json",
+    fs.readFileSync(path.join(root, "tests", "vectors", "lines.json")));
+  const modules = tests.filter((n) => n.startsWith("test_")).map((n) => n.slice(0, -3));
+
+  const driver = `
+import sys, gc
+sys.path.insert(0, "/repo/firmware/common")
+sys.path.insert(0, "/repo/firmware/esp32")
+sys.path.insert(0, "/repo/tests/firmware")
+
+def _trace(e):
+    try:
+        import io
+        buf = io.StringIO()
+        sys.print_exception(e, buf)
+        for ln in buf.getvalue().split("\\n"):
+            if ln:
+                print("    " + ln)
+    except Exception:
+        pass
+
+_passed = 0
+_failed = 0
+for _m in ${JSON.stringify(modules)}:
+    try:
+        _mod = __import__(_m)
+    except Exception as _e:
+        _failed += 1
+        print("FAIL %s::<import>: %s %s" % (_m, type(_e).__name__, _e))
+        _trace(_e)
+        continue
+    for _n in sorted([n for n in dir(_mod) if n.startswith("test_")]):
+        _f = getattr(_mod, _n)
+        if not callable(_f):
+            continue
+        try:
+            _f()
+            _passed += 1
+            print("PASS %s::%s" % (_m, _n))
+        except Exception as _e:
+            _failed += 1
+            _msg = str(_e).replace("\\n", " ")
+            if len(_msg) > 300:
+                _msg = _msg[:300] + "..."
+            print("FAIL %s::%s: %s %s" % (_m, _n, type(_e).__name__, _msg))
+            _trace(_e)
+    gc.collect()
+print("SUMMARY passed=%d failed=%d" % (_passed, _failed))
+`;
+  try {
+    mp.runPython(driver);
+  } catch (e) {
+    console.error("driver crashed: " + (e && e.message ? e.message : e));
+    process.exit(2);
+  }
+  const failed = mp.globals.get("_failed");
+  const passed = mp.globals.get("_passed");
+  process.exit(failed === 0 && passed > 0 ? 0 : 1);
+}
+
+main().catch((e) => {
+  console.error("runner error: " + (e && e.stack ? e.stack : e));
+  process.exit(2);
+});
