@@ -75,6 +75,8 @@ class Board:
         self.last_rx = now
         self.next_tick = now
         self._stop_here()
+        # The lone LF ends any line a reset cut short, so BOOT always decodes.
+        self.hal.uart_write(b"\n")
         self._send(self.link.boot(cfg.FW_NAME, cfg.FW_VERSION, cfg.PROTO_VERSION))
 
     # ------------------------------------------------------------ main loop

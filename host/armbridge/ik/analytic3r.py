@@ -17,6 +17,10 @@ from armbridge.robots.planar import PlanarChain
 # must still count, though floating point may land a hair outside.
 _REACH_TOL = 1e-12
 _LIMIT_TOL = 1e-9
+# arccos near +-1 turns a 1e-16 rounding error into ~1e-8 rad: an elbow that
+# lands that close to its limit is snapped onto it before q1 and q3 are
+# derived, so the three joints stay consistent.
+_ELBOW_SNAP = 1e-7
 
 
 def _check_3r(chain: PlanarChain) -> None:
@@ -51,6 +55,9 @@ def _branches(chain: PlanarChain, pose: np.ndarray, ref: np.ndarray) -> tuple[np
     reach = np.abs(c2) <= 1 + _REACH_TOL
     q2_abs = np.arccos(np.clip(c2, -1.0, 1.0))
     q2 = np.stack([q2_abs, -q2_abs], axis=-1)  # (..., 2): the two elbow branches
+    lo2, hi2 = chain.q_min[1], chain.q_max[1]
+    q2 = np.where((q2 > hi2) & (q2 <= hi2 + _ELBOW_SNAP), hi2, q2)
+    q2 = np.where((q2 < lo2) & (q2 >= lo2 - _ELBOW_SNAP), lo2, q2)
     q1 = np.arctan2(wy, wx)[..., None] - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
     q3 = phi[..., None] - q1 - q2
     q = np.stack([q1, q2, q3], axis=-1)

@@ -1,0 +1,611 @@
+"""An emulated board: the real firmware modules on a simulated HAL, served on a pty.
+
+`EmulatedBoard("esp32")` loads firmware/common + firmware/esp32 (flat module
+names: proto, session, pid, traj, arm, config) into a private namespace, builds
+a `SimHal` (sim clock, `ServoPlant`, `PacedUart`, persistent memory) and
+`arm.Board(hal, cfg)`, which prints BOOT. Each iteration of the emulator
+advances the sim clock by one tick (1 ms), moves host bytes into the UART,
+calls `board.poll()`, moves the bytes that have left the board to the host,
+and integrates the plant.
+
+Clock modes (`speed`):
+  1.0   paced to the wall clock (default). Between ticks the loop waits in
+        `select` on the pty master, so a byte from the host is taken in with
+        sub-millisecond latency.
+  K>0   sim time runs K times faster (or slower) than wall time. When the
+        machine cannot keep up, sim time runs slower and `counters["overruns"]`
+        counts the catch-ups given up.
+  0     lockstep: no wall clock. Without `start()`, the caller drives it:
+        `step(n)` advances n control periods (10 ms each), `run_for(s)`,
+        `run_until(pred)`, with `inject(bytes)` / `read_output()` standing for
+        the host. With `start()`, a thread runs it as fast as it can, 10 ms an
+        iteration, on a pty.
+
+Resets (`reset()`, `Faults.reset_at`, `schedule_reset(t)`) throw away the Board
+and its module state, keep the persisted memory and the plant, switch the
+outputs off for `boot_ms` of sim time (bytes from the host are lost meanwhile),
+then load fresh modules and build a new Board, which prints BOOT.
+"""
+from __future__ import annotations
+
+import bisect
+import importlib
+import math
+import os
+import select
+import sys
+import threading
+import time
+import traceback
+import types
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from armbridge.emulator.plant import PlantParams, ServoPlant
+from armbridge.emulator.pty import Pty, open_pty
+from armbridge.emulator.simhal import PersistentMemory, SimClock, SimHal
+from armbridge.emulator.uart import LANES, LinkFaults, PacedUart
+from armbridge.errors import ArmbridgeError
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+FIRMWARE_ROOT = REPO_ROOT / "firmware"
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """Where a device's firmware lives: folders under firmware/, searched in order."""
+
+    name: str
+    dirs: tuple[str, ...]
+    board_module: str = "arm"
+    config_module: str = "config"
+
+
+DEVICES: dict[str, DeviceSpec] = {
+    "esp32": DeviceSpec("esp32", ("esp32", "common")),
+}
+
+
+def device_spec(device: str) -> DeviceSpec:
+    try:
+        return DEVICES[device]
+    except KeyError:
+        raise ArmbridgeError(
+            f"unknown device {device!r}; known devices: {', '.join(sorted(DEVICES))}"
+        ) from None
+
+
+@dataclass(frozen=True)
+class Faults:
+    """Faults to inject.
+
+    Link (per byte, rates in [0, 1]; on the lanes named in `lanes`: "rx" host ->
+    board, "tx" board -> host, both by default): drop, corrupt (one bit flipped),
+    dup, delay (rate) with delay_ms extra.
+    Board: reset_at (sim seconds at which the board resets).
+    Plant: stall ((joint, sim seconds), ...), joints numbered 1..n as in the protocol.
+    """
+
+    drop: float = 0.0
+    corrupt: float = 0.0
+    dup: float = 0.0
+    delay: float = 0.0
+    delay_ms: float = 0.0
+    lanes: tuple[str, ...] = LANES
+    reset_at: tuple[float, ...] = ()
+    stall: tuple[tuple[int, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("drop", "corrupt", "dup", "delay"):
+            r = getattr(self, name)
+            if not 0.0 <= r <= 1.0:
+                raise ArmbridgeError(f"fault rate {name}={r} is outside the range [0, 1]")
+        if self.delay_ms < 0:
+            raise ArmbridgeError(f"fault delay_ms={self.delay_ms} must be >= 0")
+        for lane in self.lanes:
+            if lane not in LANES:
+                raise ArmbridgeError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
+        for t in self.reset_at:
+            if t < 0:
+                raise ArmbridgeError(f"reset time {t} s must be >= 0")
+        for j, t in self.stall:
+            if j < 1 or t < 0:
+                raise ArmbridgeError(f"stall {j}@{t}: joint is numbered from 1, time must be >= 0")
+
+    @property
+    def link(self) -> LinkFaults:
+        return LinkFaults(self.drop, self.corrupt, self.dup, self.delay, self.delay_ms)
+
+
+def parse_rate(name: str, value: str | float) -> float:
+    """A fault rate in [0, 1]; `name` (flag or parameter) is named in the error."""
+    try:
+        r = float(value)
+    except (TypeError, ValueError):
+        raise ArmbridgeError(f"{name} {value!r} is not a number; expected a rate in the range [0, 1]") from None
+    if not 0.0 <= r <= 1.0:  # also refuses nan
+        raise ArmbridgeError(f"{name} {value} is outside the range [0, 1]")
+    return r
+
+
+def parse_delay(value: str, name: str = "delay") -> tuple[float, float]:
+    """'R:MS' -> (rate in [0, 1], extra delay in ms >= 0)."""
+    rate, sep, ms = str(value).partition(":")
+    if not sep:
+        raise ArmbridgeError(f"{name} {value!r}: expected RATE:MS, e.g. 0.01:50")
+    r = parse_rate(name, rate)
+    try:
+        d = float(ms)
+    except ValueError:
+        raise ArmbridgeError(f"{name} {value!r}: MS {ms!r} is not a number") from None
+    if not d >= 0:
+        raise ArmbridgeError(f"{name} {value!r}: MS must be >= 0")
+    return r, d
+
+
+def parse_stall(value: str, name: str = "stall") -> tuple[int, float]:
+    """'J@SECONDS' -> (joint 1..n, sim seconds)."""
+    j, sep, t = str(value).partition("@")
+    try:
+        if not sep:
+            raise ValueError
+        jj, tt = int(j), float(t)
+    except ValueError:
+        raise ArmbridgeError(f"{name} {value!r}: expected JOINT@SECONDS, e.g. 2@1.5") from None
+    if jj < 1 or not tt >= 0:
+        raise ArmbridgeError(f"{name} {value!r}: joints are numbered from 1 and the time must be >= 0")
+    return jj, tt
+
+
+# ---------------------------------------------------------------- firmware loading
+
+_IMPORT_LOCK = threading.Lock()
+
+
+def _micropython_shim() -> types.ModuleType:
+    m = types.ModuleType("micropython")
+    m.const = lambda x: x  # type: ignore[attr-defined]
+    m.native = lambda f: f  # type: ignore[attr-defined]
+    m.viper = lambda f: f  # type: ignore[attr-defined]
+    m.alloc_emergency_exception_buf = lambda n: None  # type: ignore[attr-defined]
+    m.schedule = lambda f, a: f(a)  # type: ignore[attr-defined]
+    return m
+
+
+def load_firmware(dirs: list[Path], names: tuple[str, ...]) -> dict[str, types.ModuleType]:
+    """Import the modules `names` (and whatever they import) from the folders `dirs`
+    into a private namespace: fresh module objects every call, and sys.modules /
+    sys.path are restored afterwards, so boards never share module state.
+
+    Returns {module name: module} for every module of those folders that was loaded.
+    """
+    for d in dirs:
+        if not d.is_dir():
+            raise ArmbridgeError(f"firmware folder {d} is missing")
+    local = {p.stem for d in dirs for p in d.glob("*.py")}
+    touched = local | {"micropython"}
+    with _IMPORT_LOCK:
+        saved = {n: sys.modules.pop(n) for n in list(touched) if n in sys.modules}
+        saved_path = list(sys.path)
+        saved_dwb = sys.dont_write_bytecode
+        try:
+            sys.path[:0] = [str(d) for d in dirs]
+            sys.dont_write_bytecode = True  # keep the firmware folders clean
+            importlib.invalidate_caches()
+            try:
+                importlib.import_module("micropython")
+            except ImportError:
+                sys.modules["micropython"] = _micropython_shim()
+            for n in names:
+                if n not in local:
+                    raise ArmbridgeError(f"firmware module {n}.py not found in {', '.join(map(str, dirs))}")
+                importlib.import_module(n)
+            loaded = {n: sys.modules[n] for n in local if n in sys.modules}
+        finally:
+            for n in touched:
+                sys.modules.pop(n, None)
+            sys.modules.update(saved)
+            sys.path[:] = saved_path
+            sys.dont_write_bytecode = saved_dwb
+    return loaded
+
+
+def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:
+    """Joint limits (rad) from the firmware config (LIMITS_MRAD: ((min, max), ...) in mrad)."""
+    lims = np.asarray(cfg.LIMITS_MRAD, dtype=float) / 1000.0
+    n = int(getattr(cfg, "N_JOINTS", len(lims)))
+    if lims.shape != (n, 2):
+        raise ArmbridgeError(f"firmware config LIMITS_MRAD has shape {lims.shape}, expected ({n}, 2)")
+    return lims[:, 0], lims[:, 1]
+
+
+def _done_event(line: bytes) -> tuple[int, int] | None:
+    """(board_ms, id) of a `BSEQ EV MS DONE id free*CRC` line, else None."""
+    star = line.rfind(b"*")
+    body = line[:star] if star >= 0 else line
+    parts = body.split(b" ")
+    if len(parts) >= 5 and parts[1] == b"EV" and parts[3] == b"DONE":
+        try:
+            return int(parts[2]), int(parts[4])
+        except ValueError:
+            return None
+    return None
+
+
+# ---------------------------------------------------------------- the board
+
+class EmulatedBoard:
+    """A board running the real firmware on a SimHal; see the module docstring.
+
+    device: a key of DEVICES. speed: clock mode (1.0 wall clock, K faster, 0
+    lockstep). faults: `Faults`. seed: seeds the plant noise and the link faults.
+    link: optional symlink to the pty. q0: initial joint positions (rad; default
+    mid-range). on_line(t, line): called with every line the firmware writes (sim
+    seconds, bytes without LF), before link faults.
+    """
+
+    TICK_US = 1000          # one iteration of the emulator: 1 ms of sim time
+    MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
+
+    def __init__(
+        self,
+        device: str = "esp32",
+        speed: float = 1.0,
+        faults: Faults | None = None,
+        seed: int = 0,
+        link: str | None = None,
+        *,
+        q0=None,
+        plant_params: PlantParams | None = None,
+        firmware_root: str | os.PathLike | None = None,
+        tick_offset_ms: int = 0,
+        boot_ms: float = 250.0,
+        on_line: Callable[[float, bytes], None] | None = None,
+    ) -> None:
+        self.spec = device_spec(device)
+        self.device = device
+        if speed < 0:
+            raise ArmbridgeError(f"speed {speed} must be >= 0 (0 = lockstep)")
+        self.speed = float(speed)
+        self.faults = faults or Faults()
+        self.seed = seed
+        self.link = link
+        self.boot_ms = boot_ms
+        self.on_line = on_line
+        root = Path(firmware_root) if firmware_root is not None else FIRMWARE_ROOT
+        self._dirs = [root / d for d in self.spec.dirs]
+
+        self.modules = self._load()
+        self.cfg = self.modules[self.spec.config_module]
+        lo, hi = joint_limits_rad(self.cfg)
+        self.n = lo.size
+        self.period_ms = int(getattr(self.cfg, "PERIOD_MS", 10))
+        self.clock = SimClock()
+        self.plant = ServoPlant(lo, hi, plant_params, q0=q0, seed=seed)
+        for j, t in self.faults.stall:
+            if j > self.n:
+                raise ArmbridgeError(f"stall joint {j} does not exist; the {device} board has joints 1..{self.n}")
+            self.plant.stall(j - 1, t)
+        self.uart = PacedUart(115200, self.faults.link, self.faults.lanes, seed)
+        self.persist = PersistentMemory()
+        self.hal = SimHal(self.clock, self.plant, self.uart, self.persist,
+                          tick_offset_ms=tick_offset_ms, on_line=self._tap)
+
+        self.executed: list[tuple[int, int]] = []   # (board_ms, id) of DONE events, across resets
+        self.boots: list[float] = []                # sim times of BOOT (board constructions)
+        self.resets: list[float] = []               # sim times resets began
+        self.crash: str | None = None               # traceback if the firmware raised
+        self._reset_times = sorted(float(t) for t in self.faults.reset_at)
+        self._boot_at: float | None = None
+        self._counters = {"resets": 0, "lost_in_reset": 0, "pty_dropped": 0, "overruns": 0}
+        self._out = bytearray()          # bytes to the host when there is no pty
+        self._pty_pending = bytearray()  # bytes the pty could not take yet
+        self._pty: Pty | None = None
+        self._lock = threading.RLock()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+        self.board = None
+        self._boot(self.modules)
+
+    # ------------------------------------------------------------ firmware
+    def _load(self) -> dict[str, types.ModuleType]:
+        return load_firmware(self._dirs, (self.spec.config_module, self.spec.board_module))
+
+    def _boot(self, modules: dict[str, types.ModuleType] | None = None) -> None:
+        self.modules = modules if modules is not None else self._load()
+        cfg = self.modules[self.spec.config_module]
+        self.cfg = cfg
+        self.uart.rx.clear()
+        self.hal.reset_line_tap()
+        self._boot_at = None
+        self.boots.append(self.clock.t)
+        self.board = self.modules[self.spec.board_module].Board(self.hal, cfg)
+
+    def _begin_reset(self) -> None:
+        self.hal.outputs_off()
+        self.board = None
+        self.modules = {}
+        self._counters["resets"] += 1
+        self._counters["lost_in_reset"] += self.uart.rx.clear() + self.uart.tx.clear()
+        self.hal.reset_line_tap()
+        self.resets.append(self.clock.t)
+        self._boot_at = self.clock.t + self.boot_ms / 1000.0
+
+    def _tap(self, t: float, line: bytes) -> None:
+        ev = _done_event(line)
+        if ev is not None:
+            self.executed.append(ev)
+        if self.on_line is not None:
+            self.on_line(t, line)
+
+    # ------------------------------------------------------------ one tick
+    def _tick(self, dus: int, read_host: bool = True) -> None:
+        """Advance the sim clock by dus microseconds and run one pass of the board.
+
+        read_host=False leaves the pty unread (while a paced loop catches up with
+        the wall clock, so host bytes are not stamped with a past sim time)."""
+        self.clock.advance_us(dus)
+        now = self.clock.t
+        if self._reset_times and self._reset_times[0] <= now:
+            self._reset_times.pop(0)
+            self._begin_reset()
+        if self._pty is not None and read_host:
+            self._pty_in(now)
+        if self.board is None and self._boot_at is not None and now >= self._boot_at:
+            self._boot()
+        if self.board is not None:
+            try:
+                self.board.poll()
+            except Exception:
+                # the board stops (until a reset), as an unhandled exception stops main.py
+                self.crash = traceback.format_exc()
+                self.hal.outputs_off()
+                self.board = None
+                if self._thread is None or threading.current_thread() is not self._thread:
+                    raise
+        elif self._boot_at is not None:
+            self._counters["lost_in_reset"] += self.uart.rx.clear()
+        out = self.uart.host_read(now + 1e-9)
+        if out:
+            if self._pty is not None:
+                self._pty_pending += out
+            else:
+                self._out += out
+        if self._pty is not None and self._pty_pending:
+            self._pty_out()
+        self.plant.advance_to(now)
+
+    def _next_due(self, limit_us: int) -> int:
+        """When the next pass should run: at `limit_us`, or earlier when a line end
+        or an e-stop byte becomes readable by the firmware, or a line end leaves
+        the board for the host (the real firmware polls far more often than once a
+        millisecond; this keeps reply latency exact without polling every byte)."""
+        due = limit_us
+        now = self.clock.us
+        for lane in (self.uart.rx, self.uart.tx):
+            t = lane.next_mark()
+            if t is not None:
+                us = int(math.ceil(t * 1e6 - 1e-3))
+                if now < us < due:
+                    due = us
+        return due
+
+    def _advance_to(self, target_us: int) -> None:
+        while self.clock.us < target_us:
+            self._tick(self._next_due(min(target_us, self.clock.us + self.TICK_US)) - self.clock.us)
+
+    def _pty_in(self, now: float) -> None:
+        assert self._pty is not None
+        while True:
+            try:
+                data = os.read(self._pty.master, 4096)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            if not data:
+                return
+            self.uart.host_write(data, now)
+            if len(data) < 4096:
+                return
+
+    def _pty_out(self) -> None:
+        assert self._pty is not None
+        try:
+            n = os.write(self._pty.master, bytes(self._pty_pending))
+        except (BlockingIOError, InterruptedError):
+            n = 0
+        except OSError:
+            n = len(self._pty_pending)
+        del self._pty_pending[:n]
+        over = len(self._pty_pending) - 65536
+        if over > 0:  # nobody reads the port: bytes fall on the floor like on a real UART
+            del self._pty_pending[:over]
+            self._counters["pty_dropped"] += over
+
+    # ------------------------------------------------------------ lockstep helpers
+    def _check_not_running(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("the emulator thread is running; stop() it before stepping by hand")
+
+    def advance(self, seconds: float) -> None:
+        """Advance sim time by `seconds` in 1 ms ticks (lockstep use)."""
+        self._check_not_running()
+        with self._lock:
+            self._advance_to(self.clock.us + int(round(seconds * 1e6)))
+
+    def step(self, n: int = 1) -> None:
+        """Advance n control periods."""
+        self.advance(n * self.period_ms / 1000.0)
+
+    run_for = advance
+
+    def run_until(self, pred: Callable[[], bool], max_s: float = 10.0) -> bool:
+        """Tick until pred() is true or max_s of sim time has passed; returns pred()."""
+        self._check_not_running()
+        end = self.clock.us + int(max_s * 1e6)
+        with self._lock:
+            while not pred():
+                if self.clock.us >= end:
+                    return False
+                self._tick(self._next_due(min(end, self.clock.us + self.TICK_US)) - self.clock.us)
+        return True
+
+    def inject(self, data: bytes) -> None:
+        """Bytes from the host, arriving now (they go through the paced, faulty rx lane)."""
+        with self._lock:
+            self.uart.host_write(bytes(data), self.clock.t)
+
+    def read_output(self) -> bytes:
+        """Bytes that have left the board for the host since the last call (no-pty use)."""
+        with self._lock:
+            out = bytes(self._out)
+            self._out.clear()
+            return out
+
+    # ------------------------------------------------------------ control
+    def reset(self) -> None:
+        """Reset the board now (asynchronous when the thread runs: takes effect at the next tick)."""
+        self.schedule_reset(self.now())
+
+    def schedule_reset(self, t: float) -> None:
+        """Reset the board at sim time t (s)."""
+        with self._lock:
+            bisect.insort(self._reset_times, float(t))
+
+    def now(self) -> float:
+        """Sim time in seconds."""
+        return self.clock.t
+
+    @property
+    def state(self) -> str:
+        b = self.board
+        if b is None:
+            return "CRASHED" if self.crash else "RESET"
+        return b.state
+
+    @property
+    def port(self) -> str | None:
+        return self._pty.name if self._pty is not None else None
+
+    @property
+    def outputs_off_at(self) -> list[float]:
+        return self.hal.outputs_off_at
+
+    @property
+    def estop_byte_at(self) -> list[float]:
+        return self.hal.estop_byte_at
+
+    @property
+    def counters(self) -> dict:
+        """Link faults per lane ("rx": host->board, "tx": board->host: bytes, drop,
+        corrupt, dup, delay) and resets, lost_in_reset, pty_dropped, overruns."""
+        c: dict = dict(self.uart.counters)
+        c.update(self._counters)
+        return c
+
+    def positions(self) -> np.ndarray:
+        """True joint positions (rad), without sensor noise."""
+        with self._lock:
+            self.plant.advance_to(self.clock.t)
+            return self.plant.q.copy()
+
+    # ------------------------------------------------------------ thread
+    def start(self) -> "EmulatedBoard":
+        """Open the pty (and the symlink) and run the emulator in a background thread."""
+        if self._thread is not None:
+            return self
+        if self._pty is None:
+            try:
+                self._pty = open_pty(self.link)
+            except OSError as exc:
+                raise ArmbridgeError(f"cannot open a pseudo-terminal for the emulator: {exc}") from exc
+            self._pty_pending += self._out  # BOOT written before the pty existed
+            self._out.clear()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"emulator-{self.device}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the thread and close the pty (removing the symlink)."""
+        t = self._thread
+        if t is not None:
+            self._stop.set()
+            t.join(timeout=5.0)
+            self._thread = None
+        if self._pty is not None:
+            self._pty.close()
+            self._pty = None
+
+    close = stop
+
+    def __enter__(self) -> "EmulatedBoard":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def __del__(self) -> None:
+        try:
+            self.stop()
+        except Exception:
+            pass
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _run(self) -> None:
+        try:
+            if self.speed == 0:
+                self._run_lockstep()
+            else:
+                self._run_paced()
+        except Exception:
+            if self.crash is None:
+                self.crash = traceback.format_exc()
+
+    def _run_lockstep(self) -> None:
+        per = self.period_ms * 1000
+        while not self._stop.is_set():
+            with self._lock:
+                self._advance_to(self.clock.us + per)
+            time.sleep(0)  # let other threads run
+
+    def _run_paced(self) -> None:
+        assert self._pty is not None
+        master = self._pty.master
+        tick = self.TICK_US
+        rate = self.speed * 1e6  # sim us per wall second
+        wall0 = time.monotonic()
+        sim0 = self.clock.us
+        while not self._stop.is_set():
+            target = sim0 + int((time.monotonic() - wall0) * rate)  # sim time of the wall clock now
+            if target - self.clock.us > self.MAX_CATCHUP_S * 1e6:  # cannot keep up: give the backlog up
+                self._counters["overruns"] += 1
+                wall0 = time.monotonic()
+                sim0 = self.clock.us
+                continue
+            with self._lock:
+                due = self._next_due(self.clock.us + tick)
+                n = 0
+                while due <= target and n < 50:  # catch up with the wall clock
+                    self._tick(due - self.clock.us, read_host=target - due < tick)
+                    due = self._next_due(self.clock.us + tick)
+                    n += 1
+            if n:
+                continue
+            wait = (due - target) / rate
+            try:
+                r, _, _ = select.select([master], [], [], max(wait, 0.0))
+            except (OSError, ValueError):
+                return
+            if r:  # bytes from the host: take them in at the sim time of their arrival
+                target = sim0 + int((time.monotonic() - wall0) * rate)
+                with self._lock:
+                    self._tick(max(1, target - self.clock.us))

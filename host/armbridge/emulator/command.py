@@ -1,0 +1,145 @@
+"""`armbridge emulate DEVICE`: an emulated board on a pseudo-terminal until Ctrl-C."""
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from typing import List, Optional
+
+import typer
+
+from armbridge.emulator.board import (
+    DEVICES,
+    EmulatedBoard,
+    Faults,
+    device_spec,
+    parse_delay,
+    parse_rate,
+    parse_stall,
+)
+from armbridge.errors import ArmbridgeError
+
+
+def _say(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def format_counters(counters: dict) -> str:
+    def lane(c: dict) -> str:
+        return (f"{c['bytes']} bytes, dropped {c['drop']}, corrupted {c['corrupt']}, "
+                f"duplicated {c['dup']}, delayed {c['delay']}")
+
+    return (f"host->board: {lane(counters['rx'])}\n"
+            f"board->host: {lane(counters['tx'])}\n"
+            f"resets: {counters['resets']}, bytes lost in resets: {counters['lost_in_reset']}, "
+            f"bytes nobody read: {counters['pty_dropped']}, clock overruns: {counters['overruns']}")
+
+
+def emulate_cmd(
+    device: str = typer.Argument(..., help=f"Board to emulate: {', '.join(sorted(DEVICES))}."),
+    link: Optional[str] = typer.Option(None, "--link", metavar="PATH", help="Also make PATH a symlink to the pty."),
+    speed: float = typer.Option(1.0, "--speed", help="Sim time per wall time: 1 real time, K faster, 0 as fast as it goes."),
+    drop: str = typer.Option("0", "--drop", metavar="R", help="Fraction of bytes dropped, [0, 1]."),
+    corrupt: str = typer.Option("0", "--corrupt", metavar="R", help="Fraction of bytes with one bit flipped, [0, 1]."),
+    dup: str = typer.Option("0", "--dup", metavar="R", help="Fraction of bytes sent twice, [0, 1]."),
+    delay: Optional[str] = typer.Option(None, "--delay", metavar="R:MS", help="Fraction R of bytes held MS ms longer."),
+    lanes: str = typer.Option("rx,tx", "--lanes", help="Directions with link faults: rx (host->board), tx, or rx,tx."),
+    reset_at: List[float] = typer.Option([], "--reset-at", metavar="SECONDS", help="Reset the board at this sim time (repeatable)."),
+    stall: List[str] = typer.Option([], "--stall", metavar="J@SECONDS", help="Stall joint J (1..n) at this sim time (repeatable)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of sensor noise and link faults."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
+    run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
+) -> None:
+    """Put an emulated board on a pseudo-terminal and print its path; Ctrl-C stops it."""
+    device_spec(device)
+    if not speed >= 0:
+        raise ArmbridgeError(f"--speed {speed} must be >= 0 (0 = as fast as it goes)")
+    delay_rate, delay_ms = parse_delay(delay, "--delay") if delay else (0.0, 0.0)
+    for t in reset_at:
+        if not t >= 0:
+            raise ArmbridgeError(f"--reset-at {t} must be >= 0 seconds")
+    faults = Faults(
+        drop=parse_rate("--drop", drop),
+        corrupt=parse_rate("--corrupt", corrupt),
+        dup=parse_rate("--dup", dup),
+        delay=delay_rate,
+        delay_ms=delay_ms,
+        lanes=_lanes(lanes),
+        reset_at=tuple(reset_at),
+        stall=tuple(parse_stall(s, "--stall") for s in stall),
+    )
+
+    held: list[str] | None = []  # lines from before the first line of output
+
+    def echo(t: float, line: bytes) -> None:
+        parts = line.split(b" ", 2)
+        if len(parts) >= 2 and parts[1] in (b"BOOT", b"EV"):
+            text = f"{t:10.3f}  {line.decode('latin-1')}"
+            if held is not None:
+                held.append(text)
+            else:
+                _say(text)
+
+    emu = EmulatedBoard(device, speed=speed, faults=faults, seed=seed, link=link,
+                        on_line=None if quiet else echo)
+    try:
+        emu.start()
+    except FileExistsError as exc:
+        raise ArmbridgeError(f"--link {link}: {exc}") from None
+    first = f"{device} emulator on {emu.port}"
+    if link:
+        first += f" (link {link})"
+    _say(first)
+    if not quiet:
+        _say(f"speed {speed:g}, seed {seed}, faults: {_describe(faults)}; Ctrl-C stops")
+        for text in held or []:
+            _say(text)
+    held = None
+
+    stop = threading.Event()
+    old = None
+    if threading.current_thread() is threading.main_thread():
+        old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    t_end = None if run_for is None else time.monotonic() + run_for
+    try:
+        while not stop.is_set() and emu.running and emu.crash is None:
+            if t_end is not None and time.monotonic() >= t_end:
+                break
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.stop()
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+    _say(f"stopped at sim time {emu.now():.3f} s, board state {emu.state}")
+    _say(format_counters(emu.counters))
+    if emu.crash:
+        sys.stderr.write(emu.crash)
+        raise ArmbridgeError(f"the {device} firmware raised an exception (traceback above)")
+
+
+def _lanes(text: str) -> tuple[str, ...]:
+    names = tuple(x.strip() for x in text.split(",") if x.strip())
+    for n in names:
+        if n not in ("rx", "tx"):
+            raise ArmbridgeError(f"--lanes {text!r}: lanes are rx (host->board) and tx (board->host)")
+    return names
+
+
+def _describe(f: Faults) -> str:
+    parts = []
+    for name in ("drop", "corrupt", "dup"):
+        if getattr(f, name):
+            parts.append(f"{name} {getattr(f, name):g}")
+    if f.delay and f.delay_ms:
+        parts.append(f"delay {f.delay:g} x {f.delay_ms:g} ms")
+    if parts:
+        parts.append("on " + "+".join(f.lanes))
+    for t in f.reset_at:
+        parts.append(f"reset at {t:g} s")
+    for j, t in f.stall:
+        parts.append(f"joint {j} stalls at {t:g} s")
+    return ", ".join(parts) if parts else "none"

@@ -1,0 +1,174 @@
+"""The HAL the firmware sees in the emulator (docs/architecture.md, "The HAL").
+
+Time is the emulator's simulated clock, an integer count of microseconds.
+`ticks_ms`/`ticks_us` wrap like MicroPython's (modulo 2**30) and `ticks_diff`
+handles the wrap; `tick_offset_ms` starts the tick counters anywhere, e.g. just
+before the wrap to exercise it. The plant is integrated lazily up to the
+current time whenever the firmware touches it. The UART is a `PacedUart`.
+Persistent memory (RTC memory on the ESP32: survives a reset, not a power cycle)
+is a `PersistentMemory` the emulator keeps across board resets.
+
+For the tests and the e-stop latency check, the HAL records: the times outputs
+go from on to off (`outputs_off_at`), the times they come back on
+(`outputs_on_at`), the efforts written (`efforts`, with times), the delivery
+time of every e-stop byte (`estop_byte_at`), and every complete line the
+firmware writes (handed to `on_line` before link faults are applied).
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Callable
+
+from armbridge.emulator.plant import ServoPlant
+from armbridge.emulator.uart import PacedUart
+
+TICKS_PERIOD = 1 << 30
+TICKS_MAX = TICKS_PERIOD - 1
+TICKS_HALF = TICKS_PERIOD >> 1
+ESTOP_BYTE = 0x98
+RTC_MEMORY_SIZE = 2048  # bytes of ESP32 RTC user memory
+
+
+def ticks_diff(a: int, b: int) -> int:
+    """Signed a - b for tick values that wrap at 2**30 (MicroPython semantics)."""
+    return ((a - b + TICKS_HALF) & TICKS_MAX) - TICKS_HALF
+
+
+def ticks_add(t: int, delta: int) -> int:
+    return (t + delta) & TICKS_MAX
+
+
+class SimClock:
+    """Simulated time in integer microseconds."""
+
+    def __init__(self, us: int = 0) -> None:
+        self.us = us
+
+    @property
+    def t(self) -> float:
+        return self.us / 1e6
+
+    def advance_us(self, dus: int) -> None:
+        if dus < 0:
+            raise ValueError("the clock cannot go back")
+        self.us += dus
+
+
+class PersistentMemory:
+    """Bytes that survive a board reset (not a power cycle)."""
+
+    def __init__(self, data: bytes = b"", size: int = RTC_MEMORY_SIZE) -> None:
+        self.size = size
+        self.data = bytes(data)
+
+    def save(self, data) -> None:
+        data = bytes(data)
+        if len(data) > self.size:
+            raise ValueError(f"persistent memory holds {self.size} bytes, got {len(data)}")
+        self.data = data
+
+
+class SimHal:
+    """HAL over the sim clock, a ServoPlant, a PacedUart and persistent memory."""
+
+    def __init__(
+        self,
+        clock: SimClock,
+        plant: ServoPlant,
+        uart: PacedUart,
+        persist: PersistentMemory | None = None,
+        tick_offset_ms: int = 0,
+        on_line: Callable[[float, bytes], None] | None = None,
+        max_log: int = 200_000,
+    ) -> None:
+        self.clock = clock
+        self.plant = plant
+        self.uart = uart
+        self.persist = persist if persist is not None else PersistentMemory()
+        self.tick_offset_ms = tick_offset_ms
+        self.on_line = on_line
+        self.outputs_enabled = False
+        self.outputs_off_at: list[float] = []
+        self.outputs_on_at: list[float] = []
+        self.estop_byte_at: list[float] = []
+        self.efforts: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
+        self.saturation_violations = 0  # efforts written outside [-1, 1]
+        self.reads = 0
+        self._line = bytearray()
+
+    # clock ---------------------------------------------------------------
+    def ticks_ms(self) -> int:
+        return (self.clock.us // 1000 + self.tick_offset_ms) & TICKS_MAX
+
+    def ticks_us(self) -> int:
+        return (self.clock.us + self.tick_offset_ms * 1000) & TICKS_MAX
+
+    ticks_diff = staticmethod(ticks_diff)
+    ticks_add = staticmethod(ticks_add)
+
+    # plant ---------------------------------------------------------------
+    def _sync(self) -> None:
+        self.plant.advance_to(self.clock.t)
+
+    def read_positions(self, out) -> None:
+        self._sync()
+        m = self.plant.measure()
+        for i in range(self.plant.n):
+            out[i] = float(m[i])
+        self.reads += 1
+
+    def write_outputs(self, efforts) -> None:
+        self._sync()
+        e = tuple(float(x) for x in efforts)
+        if any(x < -1.0 or x > 1.0 for x in e):
+            self.saturation_violations += 1
+        self.plant.drive(e)
+        t = self.clock.t
+        if not self.outputs_enabled:
+            self.outputs_on_at.append(t)
+        self.outputs_enabled = True
+        self.efforts.append((t, e))
+
+    def outputs_off(self) -> None:
+        self._sync()
+        self.plant.off()
+        if self.outputs_enabled:
+            self.outputs_off_at.append(self.clock.t)
+        self.outputs_enabled = False
+
+    # uart ----------------------------------------------------------------
+    def uart_read(self) -> bytes | None:
+        lane = self.uart.rx
+        now = self.clock.t + 1e-9  # byte times are floats; the clock counts whole us
+        nt = lane.next_time()
+        if nt is None or nt > now:
+            return None
+        timed = lane.pop_timed(now)
+        for t, b in timed:
+            if b == ESTOP_BYTE:
+                self.estop_byte_at.append(t)
+        return bytes(b for _, b in timed)
+
+    def uart_write(self, data) -> None:
+        data = bytes(data)
+        t = self.clock.t
+        self.uart.firmware_write(data, t)
+        if self.on_line is None:
+            return
+        buf = self._line
+        for b in data:
+            if b == 0x0A:
+                self.on_line(t, bytes(buf))
+                buf.clear()
+            elif len(buf) < 512:
+                buf.append(b)
+
+    def reset_line_tap(self) -> None:
+        self._line.clear()
+
+    # persistent memory -----------------------------------------------------
+    def load_persist(self) -> bytes:
+        return self.persist.data
+
+    def save_persist(self, data) -> None:
+        self.persist.save(data)

@@ -1,0 +1,283 @@
+"""The emulated ESP32 board over a real pseudo-terminal, driven with pyserial.
+
+The host side here is a minimal test client using the firmware's own codec
+(proto.encode / proto.decode); the real host client lives in armbridge.executor.
+"""
+import os
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from armbridge.emulator.board import EmulatedBoard, Faults
+from armbridge.emulator.pty import open_pty
+
+pytestmark = pytest.mark.hil
+
+SPEED = 4.0  # sim seconds per wall second
+
+
+class Host:
+    def __init__(self, emu, port=None):
+        self.emu = emu
+        self.proto = emu.modules["proto"]
+        self.ser = serial.Serial(port or emu.port, 115200, timeout=0.01)
+        self.seq = 0
+        self.lines = []
+        self.raw = b""
+        self._buf = b""
+        self._sent = time.monotonic()
+        self.keepalive = True
+
+    def close(self):
+        self.ser.close()
+
+    def write(self, data):
+        self.ser.write(data)
+        self._sent = time.monotonic()
+
+    def send(self, verb, *args):
+        self.seq += 1
+        self.write(self.proto.encode(self.seq, verb, args))
+        return self.seq
+
+    def pump(self):
+        if self.keepalive and time.monotonic() - self._sent > 0.25 / SPEED * 2:
+            self.send("PING")
+        data = self.ser.read(4096)
+        self.raw += data
+        self._buf += data
+        *done, self._buf = self._buf.split(b"\n")
+        for raw in done:
+            if not raw:  # the lone LF a board sends before BOOT
+                continue
+            try:
+                self.lines.append(self.proto.decode(raw, self.proto.MAX_BOARD_LINE))
+            except self.proto.ProtoError:
+                self.lines.append((None, "BAD", [raw]))
+
+    def wait(self, verb, pred=lambda a: True, timeout=3.0, start=0):
+        end = time.monotonic() + timeout
+        while True:
+            self.pump()
+            for line in self.lines[start:]:
+                if line[1] == verb and pred(line[2]):
+                    return line
+            assert time.monotonic() < end, f"no {verb} within {timeout} s; last lines {self.lines[-4:]}"
+
+    def request(self, verb, *args, timeout=2.0):
+        return self.wait_reply(self.send(verb, *args), timeout)
+
+    def wait_reply(self, seq, timeout=2.0):
+        end = time.monotonic() + timeout
+        while True:
+            self.pump()
+            for line in self.lines:
+                if line[1] in ("OK", "ER") and line[2] and line[2][0] == str(seq):
+                    return line
+            assert time.monotonic() < end, f"no reply to {seq}; last lines {self.lines[-4:]}"
+
+
+def done_ev(i):
+    return lambda a: a[1] == "DONE" and a[2] == str(i)
+
+
+@pytest.fixture
+def board():
+    emu = EmulatedBoard("esp32", speed=SPEED).start()
+    host = Host(emu)
+    yield emu, host
+    host.close()
+    emu.stop()
+    assert emu.crash is None, emu.crash
+
+
+def test_open_pty_is_raw_and_named():
+    p = open_pty()
+    try:
+        assert os.path.exists(p.name) and p.name.startswith("/dev/pts/")
+        s = serial.Serial(p.name, 115200, timeout=0.2)
+        s.write(b"abc\n")
+        time.sleep(0.05)
+        assert os.read(p.master, 100) == b"abc\n"
+        os.write(p.master, b"x\r\n")
+        assert s.read(3) == b"x\r\n"  # raw: no CR/LF translation
+        s.close()
+        time.sleep(0.02)
+        try:
+            echoed = os.read(p.master, 100)
+        except BlockingIOError:
+            echoed = b""
+        assert echoed == b""  # no echo
+    finally:
+        p.close()
+
+
+def test_hello_waypoints_telemetry_done(board):
+    emu, h = board
+    ok = h.request("HELLO", 4242)
+    assert ok[1] == "OK" and ok[2][2:] == ["arm3r", "0.1.0", "1", "3", "32", "25", "1000", "-", "-"]
+    assert h.request("LIM", 2)[2][2:] == ["2", "-3142", "0", "3000"]
+    targets = [(2000, -1000, 500), (1000, -2000, -500), (1800, -1300, 200)]
+    for i, q in enumerate(targets):
+        assert h.request("W", i + 1, 300, *q)[1] == "OK"
+    h.wait("EV", done_ev(1))
+    assert emu.positions() == pytest.approx(np.array(targets[0]) / 1000, abs=0.03)
+    last = h.wait("EV", done_ev(3))
+    h.wait("T", lambda a: int(a[0]) >= int(last[2][0]) + 300)
+    assert emu.positions() == pytest.approx(np.array(targets[2]) / 1000, abs=0.01)
+    tel = [line for line in h.lines if line[1] == "T"]
+    assert len(tel) >= 10
+    q_meas = np.array([int(x) for x in tel[-1][2][4:7]]) / 1000
+    assert q_meas == pytest.approx(np.array(targets[2]) / 1000, abs=0.01)
+    assert [i for _, i in emu.executed] == [1, 2, 3]
+    assert not any(line[1] == "BAD" for line in h.lines)
+
+
+def test_reset_mid_motion_prints_boot_and_keeps_done(board):
+    emu, h = board
+    h.request("HELLO", 99)
+    h.request("W", 1, 200, 2000, -1000, 500)
+    h.request("W", 2, 3000, 500, -2500, -1000)
+    h.wait("EV", lambda a: a[1] == "START" and a[2] == "2")
+    mark = len(h.raw)
+    emu.reset()
+    h.keepalive = False
+    end = time.monotonic() + 3
+    # A reset cuts the line on the wire, so BOOT may arrive glued to a partial
+    # line (as on a real board); look for it in the byte stream.
+    while b" BOOT arm3r 0.1.0 1*" not in h.raw[mark:]:
+        assert time.monotonic() < end, h.raw[mark:][-300:]
+        h.pump()
+    assert len(emu.resets) == 1 and len(emu.boots) == 2
+    assert emu.outputs_off_at[-1] == pytest.approx(emu.resets[-1])
+    h.keepalive = True
+    hello = h.request("HELLO", 99)
+    assert hello[2][-2:] == ["1", "-"]  # done 1 survived the reset; nothing queued in the new boot
+    assert [i for _, i in emu.executed] == [1]
+
+
+def test_estop_with_full_queue_latches_until_clr(board):
+    emu, h = board
+    h.request("HELLO", 5)
+    for i in range(33):
+        h.request("W", i, 2000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0)
+    st = h.request("STAT")
+    assert st[2][1] == "0" and st[2][2] == "RUN"  # queue full
+    assert emu.hal.outputs_enabled
+    mark = len(h.lines)
+    h.write(b"\x98")
+    h.wait("EV", lambda a: a[1] == "ESTOP", start=mark)
+    assert len(emu.estop_byte_at) == 1
+    latency = emu.outputs_off_at[-1] - emu.estop_byte_at[-1]
+    assert 0 <= latency <= 0.010, latency
+    time.sleep(0.3)
+    assert emu.state == "ESTOP" and not emu.hal.outputs_enabled
+    assert emu.hal.efforts[-1][0] < emu.estop_byte_at[-1]  # nothing written since
+    assert h.request("W", 100, 100, 1571, -1571, 0)[2][1:3] == ["9", "LATCHED"]
+    assert not emu.hal.outputs_enabled
+    h.request("CLR")
+    h.wait("EV", lambda a: a[1] == "CLEAR")
+    time.sleep(0.05)
+    assert emu.state == "IDLE" and emu.hal.outputs_enabled
+
+
+def test_watchdog_when_host_goes_silent(board):
+    emu, h = board
+    h.request("HELLO", 6)
+    for i in range(4):
+        h.request("W", i, 1000, 1571 + 400 * (-1) ** i, -1571, 0)
+    h.keepalive = False
+    t0 = emu.now()
+    h.wait("EV", lambda a: a[1] == "WDOG", timeout=2.0)
+    assert emu.state == "WDOG"
+    assert 0.95 <= emu.now() - t0 <= 1.3
+    assert emu.hal.efforts[-1][1] == (0.0, 0.0, 0.0)
+    assert len(emu.executed) < 4
+
+
+def test_port_survives_host_close_and_symlink(tmp_path):
+    link = str(tmp_path / "arm0")
+    with EmulatedBoard("esp32", speed=SPEED, link=link) as emu:
+        assert os.path.realpath(link) == emu.port
+        h = Host(emu, port=link)
+        assert h.request("HELLO", 1)[1] == "OK"
+        h.close()
+        time.sleep(0.1)
+        h = Host(emu, port=link)
+        h.ser.reset_input_buffer()
+        assert h.request("HELLO", 1)[1] == "OK"
+        h.close()
+    assert not os.path.lexists(link)
+
+
+def test_link_faults_over_pty_are_counted():
+    with EmulatedBoard("esp32", speed=SPEED, faults=Faults(drop=0.02, dup=0.02, corrupt=0.02), seed=3) as emu:
+        h = Host(emu)
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            h.send("PING")
+            h.pump()
+        c = emu.counters
+    for lane in ("rx", "tx"):
+        assert c[lane]["bytes"] > 500
+        for kind in ("drop", "dup", "corrupt"):
+            assert 0 < c[lane][kind] < c[lane]["bytes"] * 0.06
+    assert emu.state != "ESTOP"
+
+
+def _run_cli(*args, timeout=10):
+    import subprocess
+    import sys
+
+    code = "import typer; from armbridge.emulator.command import emulate_cmd; typer.run(emulate_cmd)"
+    return subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def test_cli_serves_a_board_until_ctrl_c(tmp_path):
+    import signal
+
+    from armbridge.emulator.board import load_firmware, DEVICES, FIRMWARE_ROOT
+
+    proto = load_firmware([FIRMWARE_ROOT / d for d in DEVICES["esp32"].dirs], ("proto",))["proto"]
+    link = str(tmp_path / "arm")
+    proc = _run_cli("esp32", "--link", link, "--speed", "2", "--drop", "0", "--seed", "4", "--quiet")
+    try:
+        first = proc.stdout.readline()
+        assert first.startswith("esp32 emulator on /dev/pts/") and f"(link {link})" in first
+        port = first.split()[3]
+        assert os.path.realpath(link) == port
+        s = serial.Serial(link, 115200, timeout=0.05)
+        s.write(proto.encode(1, "HELLO", [3]))
+        buf = b""
+        end = time.monotonic() + 5
+        while b" OK 1 32 arm3r" not in buf and time.monotonic() < end:
+            buf += s.read(512)
+        s.close()
+        assert b" OK 1 32 arm3r" in buf
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "host->board:" in out and "board->host:" in out and "resets: 0" in out
+    assert not os.path.lexists(link)
+
+
+def test_ptmx_fallback_gives_a_working_pty():
+    from armbridge.emulator.pty import _open_via_ptmx
+
+    master, slave, name = _open_via_ptmx()
+    try:
+        assert os.path.exists(name)
+        s = serial.Serial(name, 115200, timeout=0.2)
+        os.write(master, b"hi\n")
+        assert s.read(3) == b"hi\n"
+        s.close()
+    finally:
+        os.close(master)
+        os.close(slave)
