@@ -358,7 +358,7 @@ def test_reset_mid_motion(emu):
     h.request("W", 1, 200, 2000, -1000, 500)
     h.request("W", 2, 2000, 500, -2500, -1000)
     h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "1")
-    h.wait("EV", lambda a: a[1] == "START" and a[2] == "2")
+    h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "1")  # waypoint 2 starts in this tick
     emu.reset()
     emu.step(1)
     assert emu.state == "RESET" and not emu.hal.outputs_enabled

@@ -140,7 +140,7 @@ def test_reset_mid_motion_prints_boot_and_keeps_done(board):
     h.request("HELLO", 99)
     h.request("W", 1, 200, 2000, -1000, 500)
     h.request("W", 2, 3000, 500, -2500, -1000)
-    h.wait("EV", lambda a: a[1] == "START" and a[2] == "2")
+    h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "1")  # waypoint 2 starts in this tick
     mark = len(h.raw)
     emu.reset()
     h.keepalive = False

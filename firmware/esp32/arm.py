@@ -269,14 +269,22 @@ class Board:
             self._fe_ms[j] = 0
 
     def _advance(self) -> None:
+        """One tick of the trajectory. Its events are coalesced so that short
+        waypoints cannot flood the 115200-baud return lane: one DONE for the
+        last waypoint completed in the tick (those before it are done too), and
+        START only for a waypoint that starts from rest (otherwise it starts in
+        the tick its predecessor is DONE)."""
         self.traj.hold = self.state == HOLD
+        last_done = -1
         for e in self.traj.step(self.period_ms):
             if e[0] == "DONE":
-                self.done = e[1]
-                self._save_persist()
-                self._send(self.link.ev(self._ms(), "DONE", [e[1], self.traj.free()]))
-            else:
+                last_done = e[1]
+            elif e[0] != "START" or last_done < 0:
                 self._send(self.link.ev(self._ms(), e[0], list(e[1:])))
+        if last_done >= 0:
+            self.done = last_done
+            self._save_persist()
+            self._send(self.link.ev(self._ms(), "DONE", [last_done, self.traj.free()]))
         if self.state == RUN and not self.traj.busy():
             self.state = IDLE
         self._clamp_set_point()

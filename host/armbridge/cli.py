@@ -27,6 +27,18 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
     _debug = debug
 
 
+_registered = False
+
+
+def build_app() -> typer.Typer:
+    """The app with every subcommand (imported on first use: keeps start-up fast)."""
+    global _registered
+    if not _registered:
+        _register()
+        _registered = True
+    return app
+
+
 def _register() -> None:
     from armbridge.bench.command import bench_app
     from armbridge.demo import demo_cmd
@@ -42,7 +54,7 @@ def _register() -> None:
 
 
 def main() -> None:
-    _register()
+    build_app()
     try:
         app()  # standalone: typer reports usage errors itself and exits
     except ArmbridgeError as exc:

@@ -64,13 +64,28 @@ def test_waypoints_run_to_done_and_report():
     lines = hal.take()
     evs = events(lines)
     kinds = [e[0] for e in evs]
-    assert kinds == ["START", "DONE", "START", "DONE"], evs
-    # the next segment starts in the tick the previous one ends: 32 free both times
-    assert evs[1] == ["DONE", "10", "32"] and evs[3] == ["DONE", "11", "32"]
+    # START only from rest: waypoint 11 starts in the tick waypoint 10 is DONE,
+    # which frees its slot, so 32 are free both times
+    assert evs == [["START", "10"], ["DONE", "10", "32"], ["DONE", "11", "32"]], evs
     assert board.state == "IDLE"
     assert abs(hal.q[0] - 1.4) < 0.02 and abs(hal.q[1] + 1.1) < 0.02
     st = _answer(hal, board, 4, "STAT")[2]
     assert st[2:5] == ["IDLE", "11", "11"]
+
+
+def test_events_of_one_tick_are_coalesced():
+    """Five 2 ms waypoints end within one or two 10 ms ticks: one DONE per tick,
+    naming the last waypoint completed in it; START only for the first."""
+    hal, board = _session()
+    _answer(hal, board, 2, "W", 20, 500, 1571, -1571, 0)
+    for i in range(5):
+        _answer(hal, board, 3 + i, "W", 21 + i, 2, 1571 + i, -1571, 0)
+    run(board, hal, 700)
+    evs = events(hal.take())
+    dones = [e for e in evs if e[0] == "DONE"]
+    assert dones[-1] == ["DONE", "25", "32"] and len(dones) <= 3, evs
+    assert [e for e in evs if e[0] == "START"] == [["START", "20"]], evs
+    assert _answer(hal, board, 8, "STAT")[2][2:5] == ["IDLE", "25", "25"]
 
 
 def test_slow_event_when_too_fast():

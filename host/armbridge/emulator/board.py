@@ -307,6 +307,7 @@ class EmulatedBoard:
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._pace: tuple[float, int, float] | None = None  # (wall0, sim0 us, sim us per wall s)
 
         self.board = None
         self._boot(self.modules)
@@ -481,6 +482,14 @@ class EmulatedBoard:
         """Sim time in seconds."""
         return self.clock.t
 
+    def wall_time(self, t: float) -> float:
+        """The time.monotonic() at which sim time t (s) happened (paced modes only):
+        lets a host compare its own clock with the board's records."""
+        if self._pace is None:
+            raise ArmbridgeError("wall_time needs a paced emulator (speed > 0) that has started")
+        wall0, sim0_us, rate = self._pace
+        return wall0 + (t * 1e6 - sim0_us) / rate
+
     @property
     def state(self) -> str:
         b = self.board
@@ -584,12 +593,14 @@ class EmulatedBoard:
         rate = self.speed * 1e6  # sim us per wall second
         wall0 = time.monotonic()
         sim0 = self.clock.us
+        self._pace = (wall0, sim0, rate)
         while not self._stop.is_set():
             target = sim0 + int((time.monotonic() - wall0) * rate)  # sim time of the wall clock now
             if target - self.clock.us > self.MAX_CATCHUP_S * 1e6:  # cannot keep up: give the backlog up
                 self._counters["overruns"] += 1
                 wall0 = time.monotonic()
                 sim0 = self.clock.us
+                self._pace = (wall0, sim0, rate)
                 continue
             with self._lock:
                 due = self._next_due(self.clock.us + tick)

@@ -1,0 +1,1 @@
+"""Benchmarks: `armbridge bench ...` measures and writes JSON (docs/benchmarks.md)."""
