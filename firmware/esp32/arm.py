@@ -64,6 +64,9 @@ class Board:
         self._telem_acc = 0
         self._events: list = []   # events raised by a command, sent after its reply
         self.session_id, self.done = self._load_persist()
+        # Trace hook, called with every completed waypoint id (events coalesce
+        # them per tick); the emulator keeps the board's own log with it.
+        self.on_done = None
         self.queued = -1          # id of the last accepted waypoint, -1: none
         self._verbs = {
             "HELLO": self._cmd_hello, "LIM": self._cmd_lim, "W": self._cmd_w,
@@ -279,6 +282,8 @@ class Board:
         for e in self.traj.step(self.period_ms):
             if e[0] == "DONE":
                 last_done = e[1]
+                if self.on_done is not None:
+                    self.on_done(last_done)
             elif e[0] != "START" or last_done < 0:
                 self._send(self.link.ev(self._ms(), e[0], list(e[1:])))
         if last_done >= 0:

@@ -31,7 +31,7 @@ def square_plan(robot: PlanarChain, center=SQUARE_CENTER, side=SQUARE_SIDE, phi=
     poses = np.column_stack([points, np.full(len(points), phi)])
     q = solve_path(robot, poses, q0=(robot.q_min + robot.q_max) / 2)
     durations = np.concatenate([[APPROACH_S], segment_durations(points, speed)])
-    provenance = {"tool": "armbridge demo", "shape": "square", "center_m": list(center),
+    provenance = {"tool": "armbridge demo", "name": "demo-square", "shape": "square", "center_m": list(center),
                   "side_m": side, "pen_angle_rad": phi, "tip_speed_m_s": speed, "ik": "analytic3r"}
     return make_plan(robot, q, durations, provenance)
 

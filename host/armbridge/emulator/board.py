@@ -222,19 +222,6 @@ def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:
     return lims[:, 0], lims[:, 1]
 
 
-def _done_event(line: bytes) -> tuple[int, int] | None:
-    """(board_ms, id) of a `BSEQ EV MS DONE id free*CRC` line, else None."""
-    star = line.rfind(b"*")
-    body = line[:star] if star >= 0 else line
-    parts = body.split(b" ")
-    if len(parts) >= 5 and parts[1] == b"EV" and parts[3] == b"DONE":
-        try:
-            return int(parts[2]), int(parts[4])
-        except ValueError:
-            return None
-    return None
-
-
 # ---------------------------------------------------------------- the board
 
 class EmulatedBoard:
@@ -294,7 +281,7 @@ class EmulatedBoard:
         self.hal = SimHal(self.clock, self.plant, self.uart, self.persist,
                           tick_offset_ms=tick_offset_ms, on_line=self._tap)
 
-        self.executed: list[tuple[int, int]] = []   # (board_ms, id) of DONE events, across resets
+        self.executed: list[tuple[int, int]] = []   # (board_ms, id) of completed waypoints (the firmware's trace hook), across resets
         self.boots: list[float] = []                # sim times of BOOT (board constructions)
         self.resets: list[float] = []               # sim times resets began
         self.crash: str | None = None               # traceback if the firmware raised
@@ -325,6 +312,7 @@ class EmulatedBoard:
         self._boot_at = None
         self.boots.append(self.clock.t)
         self.board = self.modules[self.spec.board_module].Board(self.hal, cfg)
+        self.board.on_done = self._on_done
 
     def _begin_reset(self) -> None:
         self.hal.outputs_off()
@@ -336,10 +324,10 @@ class EmulatedBoard:
         self.resets.append(self.clock.t)
         self._boot_at = self.clock.t + self.boot_ms / 1000.0
 
+    def _on_done(self, wid: int) -> None:
+        self.executed.append((self.hal.ticks_ms(), wid))
+
     def _tap(self, t: float, line: bytes) -> None:
-        ev = _done_event(line)
-        if ev is not None:
-            self.executed.append(ev)
         if self.on_line is not None:
             self.on_line(t, line)
 
@@ -619,4 +607,8 @@ class EmulatedBoard:
             if r:  # bytes from the host: take them in at the sim time of their arrival
                 target = sim0 + int((time.monotonic() - wall0) * rate)
                 with self._lock:
+                    # A wake-up late by more than a tick (a starved CPU) catches
+                    # up in ticks, so the firmware never sees its clock jump.
+                    while target - self.clock.us > tick:
+                        self._tick(self._next_due(self.clock.us + tick) - self.clock.us, read_host=False)
                     self._tick(max(1, target - self.clock.us))

@@ -1,0 +1,424 @@
+"""The plan file: versioned JSON, loaded, validated and saved here.
+
+A plan is a list of joint-space waypoints for one robot; each waypoint is
+reached at the end of its `duration`, starting where the previous one ends
+(the first one starts wherever the arm is). See docs/formats.md.
+
+Every problem is an `ArmbridgeError` whose message names the file, the
+waypoint index, the field and the allowed range, e.g.
+
+    plan.json: waypoint 17, q[1] (elbow) = 0.4 rad is outside [-3.1416, 0]
+
+A plan that fails here never reaches a port: the executor validates first.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+from armbridge.robots.catalog import ROBOTS
+from armbridge.robots.planar import PlanarChain
+
+FORMAT = "armbridge-plan"
+VERSION = 1
+DURATION_MIN = 0.001  # s: one board tick of the ms wire unit
+DURATION_MAX = 60.0  # s: the protocol's W limit (60000 ms)
+# Relative slack on the speed check, so a segment planned at exactly v_max
+# is not refused for a rounding error in the last digit.
+SPEED_SLACK = 1e-9
+
+_TOP_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance")
+_ROBOT_FIELDS = ("name", "link_lengths", "q_min", "q_max", "v_max", "joint_names")
+
+
+@dataclass
+class Plan:
+    """A validated plan: `q` is (k, n) in rad, `durations` is (k,) in s."""
+
+    robot: PlanarChain
+    q: np.ndarray
+    durations: np.ndarray
+    provenance: dict = field(default_factory=dict)
+    source: Path | None = None
+    inline_robot: bool = False  # the file described the robot inline (not a catalog name)
+
+    @property
+    def k(self) -> int:
+        """Number of waypoints."""
+        return int(self.q.shape[0])
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return int(self.q.shape[1])
+
+    @property
+    def end_times(self) -> np.ndarray:
+        """(k,) time at which each waypoint is reached, from the start of waypoint 0."""
+        return np.cumsum(self.durations)
+
+    @property
+    def total_duration(self) -> float:
+        """Planned duration in s (sum of all segment durations)."""
+        return float(np.sum(self.durations))
+
+    @property
+    def name(self) -> str:
+        """The file's stem; for a plan made in memory, provenance["name"], else "plan"."""
+        if self.source is not None:
+            return self.source.stem
+        name = self.provenance.get("name")
+        return name if isinstance(name, str) and name else "plan"
+
+    def ee_path(self) -> np.ndarray:
+        """(k, 2) planned end-effector (tip) positions in m at the waypoints."""
+        return np.asarray(self.robot.joint_positions(self.q))[..., -1, :]
+
+
+# ---------------------------------------------------------------------------
+# small helpers
+
+
+def fmt_num(x: float) -> str:
+    """A number as a person reads it in a message: 4 decimals at most, no trailing zeros."""
+    if not math.isfinite(x):
+        return str(x)
+    s = f"{x:.4f}".rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _describe(v: Any) -> str:
+    if isinstance(v, str):
+        return f"the string {json.dumps(v)}"
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return json.dumps(v)
+    if isinstance(v, list):
+        return f"a list of {len(v)}"
+    if isinstance(v, dict):
+        return "an object"
+    return repr(v)
+
+
+class _Ctx:
+    """Builds error messages that start with the file name."""
+
+    def __init__(self, source: Path | str | None):
+        self.name = str(source) if source is not None else "<plan>"
+
+    def err(self, msg: str) -> ArmbridgeError:
+        return ArmbridgeError(f"{self.name}: {msg}")
+
+
+# ---------------------------------------------------------------------------
+# robots
+
+
+def known_robots() -> list[str]:
+    """Names of the catalog robots."""
+    return sorted(ROBOTS)
+
+
+def _catalog_robot(name: str, ctx: _Ctx):
+    robot = ROBOTS.get(name.lower())
+    if robot is None:
+        raise ctx.err(f'robot: unknown robot "{name}" (known: {", ".join(known_robots())})')
+    return robot
+
+
+def _float_list(v: Any, where: str, ctx: _Ctx, n: int | None = None) -> list[float]:
+    if not isinstance(v, list):
+        raise ctx.err(f"{where} must be a list of numbers, got {_describe(v)}")
+    if n is not None and len(v) != n:
+        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
+    out = []
+    for i, x in enumerate(v):
+        if not _is_number(x):
+            raise ctx.err(f"{where}[{i}] must be a number, got {_describe(x)}")
+        if not math.isfinite(x):
+            raise ctx.err(f"{where}[{i}] is {x}: plans hold finite numbers only")
+        out.append(float(x))
+    return out
+
+
+def robot_from_dict(d: Any, ctx: _Ctx | None = None):
+    """An inline robot description -> PlanarChain (see docs/formats.md)."""
+    ctx = ctx or _Ctx(None)
+    if not isinstance(d, dict):
+        raise ctx.err(f"robot must be a catalog name or an object, got {_describe(d)}")
+    for key in d:
+        if key not in _ROBOT_FIELDS:
+            raise ctx.err(f'robot: unknown field "{key}" (allowed: {", ".join(_ROBOT_FIELDS)})')
+    for key in ("link_lengths", "q_min", "q_max", "v_max"):
+        if key not in d:
+            raise ctx.err(f'robot: missing field "{key}"')
+    links = _float_list(d["link_lengths"], "robot.link_lengths", ctx)
+    n = len(links)
+    if n == 0:
+        raise ctx.err("robot.link_lengths must not be empty")
+    for i, L in enumerate(links):
+        if L <= 0:
+            raise ctx.err(f"robot.link_lengths[{i}] = {fmt_num(L)} m must be > 0")
+    q_min = _float_list(d["q_min"], "robot.q_min", ctx, n)
+    q_max = _float_list(d["q_max"], "robot.q_max", ctx, n)
+    v_max = _float_list(d["v_max"], "robot.v_max", ctx, n)
+    for i in range(n):
+        if q_min[i] >= q_max[i]:
+            raise ctx.err(f"robot: joint {i} needs q_min < q_max, got [{fmt_num(q_min[i])}, {fmt_num(q_max[i])}]")
+        if v_max[i] <= 0:
+            raise ctx.err(f"robot.v_max[{i}] = {fmt_num(v_max[i])} rad/s must be > 0")
+    name = d.get("name", "inline")
+    if not isinstance(name, str) or not name:
+        raise ctx.err(f"robot.name must be a non-empty string, got {_describe(name)}")
+    names = d.get("joint_names", [f"j{i + 1}" for i in range(n)])
+    if not isinstance(names, list) or len(names) != n or not all(isinstance(s, str) and s for s in names):
+        raise ctx.err(f"robot.joint_names must be a list of {n} non-empty strings")
+    try:
+        return PlanarChain(
+            name=name,
+            link_lengths=np.array(links),
+            q_min=np.array(q_min),
+            q_max=np.array(q_max),
+            v_max=np.array(v_max),
+            joint_names=tuple(names),
+        )
+    except ArmbridgeError as exc:
+        raise ctx.err(f"robot: {exc}") from None
+
+
+def robot_to_dict(robot) -> dict:
+    return {
+        "name": robot.name,
+        "link_lengths": [float(x) for x in np.asarray(robot.link_lengths)],
+        "q_min": [float(x) for x in np.asarray(robot.q_min)],
+        "q_max": [float(x) for x in np.asarray(robot.q_max)],
+        "v_max": [float(x) for x in np.asarray(robot.v_max)],
+        "joint_names": list(robot.joint_names),
+    }
+
+
+# ---------------------------------------------------------------------------
+# parse + validate
+
+
+def _parse_json(text: str, ctx: _Ctx) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ctx.err(f"line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
+
+
+def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
+    """Validate a parsed plan document and build the Plan. Raises ArmbridgeError."""
+    ctx = _Ctx(source)
+    if not isinstance(doc, dict):
+        raise ctx.err(f"a plan is a JSON object, got {_describe(doc)}")
+    fmt = doc.get("format")
+    if fmt != FORMAT:
+        if "format" not in doc:
+            raise ctx.err(f'missing field "format" (expected "{FORMAT}")')
+        raise ctx.err(f'format is {json.dumps(fmt)}, expected "{FORMAT}"')
+    if "version" not in doc:
+        raise ctx.err(f'missing field "version" (this armbridge reads version {VERSION})')
+    version = doc["version"]
+    if not (_is_number(version) and version == VERSION):
+        raise ctx.err(f"unsupported version {json.dumps(version)} (this armbridge reads version {VERSION})")
+    for key in doc:
+        if key not in _TOP_FIELDS:
+            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP_FIELDS)})')
+    for key in ("robot", "joints", "waypoints"):
+        if key not in doc:
+            raise ctx.err(f'missing field "{key}"')
+
+    # robot
+    spec = doc["robot"]
+    if isinstance(spec, str):
+        robot = _catalog_robot(spec, ctx)
+        inline = False
+    else:
+        robot = robot_from_dict(spec, ctx)
+        inline = True
+    n = int(robot.n)
+    jnames = list(robot.joint_names)
+    q_min = np.asarray(robot.q_min, dtype=float)
+    q_max = np.asarray(robot.q_max, dtype=float)
+    v_max = np.asarray(robot.v_max, dtype=float)
+
+    # joints
+    joints = doc["joints"]
+    if not isinstance(joints, list):
+        raise ctx.err(f"joints must be a list, got {_describe(joints)}")
+    if len(joints) != n:
+        raise ctx.err(f"joints lists {len(joints)} joints, robot {robot.name} has {n} ({', '.join(jnames)})")
+    for j, jd in enumerate(joints):
+        if not isinstance(jd, dict):
+            raise ctx.err(f"joints[{j}] must be an object with name and unit, got {_describe(jd)}")
+        for key in ("name", "unit"):
+            if key not in jd:
+                raise ctx.err(f'joints[{j}]: missing field "{key}"')
+        for key in jd:
+            if key not in ("name", "unit"):
+                raise ctx.err(f'joints[{j}]: unknown field "{key}" (allowed: name, unit)')
+        if jd["name"] != jnames[j]:
+            raise ctx.err(
+                f"joints[{j}].name is {json.dumps(jd['name'])}, robot {robot.name} calls joint {j} "
+                f'"{jnames[j]}" (joints: {", ".join(jnames)})'
+            )
+        if jd["unit"] != "rad":
+            raise ctx.err(f'joints[{j}] ({jnames[j]}).unit is {json.dumps(jd["unit"])}, allowed: "rad"')
+
+    # provenance
+    prov = doc.get("provenance", {})
+    if not isinstance(prov, dict):
+        raise ctx.err(f"provenance must be an object, got {_describe(prov)}")
+
+    # waypoints
+    wps = doc["waypoints"]
+    if not isinstance(wps, list):
+        raise ctx.err(f"waypoints must be a list, got {_describe(wps)}")
+    if len(wps) == 0:
+        raise ctx.err("waypoints is empty: a plan needs at least one waypoint")
+    k = len(wps)
+    q = np.empty((k, n))
+    dur = np.empty(k)
+    for i, wp in enumerate(wps):
+        where = f"waypoint {i}"
+        if not isinstance(wp, dict):
+            raise ctx.err(f"{where} must be an object with q and duration, got {_describe(wp)}")
+        for key in ("q", "duration"):
+            if key not in wp:
+                raise ctx.err(f'{where}: missing field "{key}"')
+        for key in wp:
+            if key not in ("q", "duration"):
+                raise ctx.err(f'{where}: unknown field "{key}" (allowed: q, duration)')
+        qi = wp["q"]
+        if not isinstance(qi, list):
+            raise ctx.err(f"{where}, q must be a list of {n} numbers, got {_describe(qi)}")
+        if len(qi) != n:
+            raise ctx.err(f"{where}, q has {len(qi)} values, robot {robot.name} has {n} joints ({', '.join(jnames)})")
+        for j, x in enumerate(qi):
+            label = f"{where}, q[{j}] ({jnames[j]})"
+            if not _is_number(x):
+                raise ctx.err(f"{label} must be a number, got {_describe(x)}")
+            if not math.isfinite(x):
+                raise ctx.err(f"{label} is {x}: plans hold finite numbers only")
+            if not (q_min[j] <= x <= q_max[j]):
+                raise ctx.err(f"{label} = {fmt_num(x)} rad is outside [{fmt_num(q_min[j])}, {fmt_num(q_max[j])}]")
+            q[i, j] = x
+        d = wp["duration"]
+        if not _is_number(d):
+            raise ctx.err(f"{where}, duration must be a number of seconds, got {_describe(d)}")
+        if not math.isfinite(d):
+            raise ctx.err(f"{where}, duration is {d}: plans hold finite numbers only")
+        if not (DURATION_MIN <= d <= DURATION_MAX):
+            raise ctx.err(
+                f"{where}, duration = {fmt_num(d)} s is outside [{fmt_num(DURATION_MIN)}, {fmt_num(DURATION_MAX)}]"
+            )
+        dur[i] = d
+        if i > 0:
+            speed = np.abs(q[i] - q[i - 1]) / d
+            over = np.nonzero(speed > v_max * (1 + SPEED_SLACK))[0]
+            if over.size:
+                j = int(over[0])
+                raise ctx.err(
+                    f"{where}, joint {j} ({jnames[j]}) moves {fmt_num(abs(q[i, j] - q[i - 1, j]))} rad in "
+                    f"{fmt_num(d)} s = {fmt_num(speed[j])} rad/s, above the robot's v_max "
+                    f"{fmt_num(v_max[j])} rad/s (needs duration >= {fmt_num(abs(q[i, j] - q[i - 1, j]) / v_max[j])} s)"
+                )
+    return Plan(
+        robot=robot,
+        q=q,
+        durations=dur,
+        provenance=dict(prov),
+        source=Path(source) if source is not None else None,
+        inline_robot=inline,
+    )
+
+
+def loads_plan(text: str, source: Path | str | None = None) -> Plan:
+    """Parse and validate plan text."""
+    return plan_from_dict(_parse_json(text, _Ctx(source)), source)
+
+
+def load_plan(path: Path | str) -> Plan:
+    """Read, parse and validate a plan file. Raises ArmbridgeError naming what is wrong."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ArmbridgeError(f"{path}: no such plan file") from None
+    except IsADirectoryError:
+        raise ArmbridgeError(f"{path}: is a directory, not a plan file") from None
+    except UnicodeDecodeError as exc:
+        raise ArmbridgeError(f"{path}: not UTF-8 text (byte {exc.start}): a plan is a JSON file") from None
+    except OSError as exc:
+        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
+    return loads_plan(text, path)
+
+
+def validate(plan: Plan | dict, source: Path | str | None = None) -> Plan:
+    """Validate a Plan (re-checked through its document form) or a parsed document."""
+    if isinstance(plan, Plan):
+        return plan_from_dict(plan_to_dict(plan), source if source is not None else plan.source)
+    return plan_from_dict(plan, source)
+
+
+def plan_to_dict(plan: Plan) -> dict:
+    """The JSON document of a plan (robot by catalog name unless it was inline)."""
+    robot = plan.robot
+    robot_spec: Any = robot_to_dict(robot) if plan.inline_robot else robot.name
+    prov = dict(plan.provenance)
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "robot": robot_spec,
+        "joints": [{"name": nm, "unit": "rad"} for nm in robot.joint_names],
+        "waypoints": [
+            {"q": [float(x) for x in plan.q[i]], "duration": float(plan.durations[i])} for i in range(plan.k)
+        ],
+        "provenance": prov,
+    }
+
+
+def make_plan(robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge") -> Plan:
+    """Build (and validate) a Plan in memory; fills provenance.tool and .created when missing."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    durations = np.broadcast_to(np.asarray(durations, dtype=float), (q.shape[0],)).copy()
+    prov = dict(provenance or {})
+    prov.setdefault("tool", tool)
+    prov.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    known = ROBOTS.get(robot.name)
+    inline = known is None or robot_to_dict(known) != robot_to_dict(robot)
+    plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline)
+    return validate(plan)
+
+
+def save_plan(plan: Plan, path: Path | str) -> Path:
+    """Write a plan file (pretty JSON, one waypoint a line). Refuses NaN and invalid plans."""
+    path = Path(path)
+    doc = plan_to_dict(plan)
+    plan_from_dict(doc, path)  # never write a file we would refuse to load
+    head = {k: v for k, v in doc.items() if k != "waypoints"}
+    lines = ["{"]
+    for key, value in head.items():
+        lines.append(f"  {json.dumps(key)}: {json.dumps(value, allow_nan=False)},")
+    lines.append('  "waypoints": [')
+    wps = [json.dumps(w, allow_nan=False) for w in doc["waypoints"]]
+    lines.append(",\n".join("    " + w for w in wps))
+    lines.append("  ]")
+    lines.append("}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,152 @@
+"""The Rerun recording (telemetry/recording.py) read back with rerun's own reader, and `armbridge view`."""
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from rerun.chunk import RrdReader
+
+from armbridge.errors import ArmbridgeError
+from armbridge.plans.format import make_plan
+from armbridge.robots import ARM3R
+from armbridge.telemetry import command as view
+from armbridge.telemetry.recording import Recording, default_rrd_path
+
+MID = np.array([math.pi / 2, -math.pi / 2, 0.0])
+
+
+def read(path: Path) -> dict[str, dict]:
+    """entity path -> {"rows", "static_rows", "timelines", "columns": {name: [values...]}}"""
+    out: dict[str, dict] = {}
+    for chunk in RrdReader(path).stream():
+        e = out.setdefault(chunk.entity_path, {"rows": 0, "static_rows": 0, "timelines": set(), "columns": {}})
+        e["static_rows" if chunk.is_static else "rows"] += chunk.num_rows
+        e["timelines"].update(chunk.timeline_names)
+        rb = chunk.to_record_batch()
+        for name in rb.schema.names:
+            col = rb.column(name)
+            if pa.types.is_duration(col.type) or pa.types.is_timestamp(col.type):  # time columns: ns as int
+                col = col.cast(pa.int64())
+            e["columns"].setdefault(name, []).extend(col.to_pylist())
+    return out
+
+
+def _plan():
+    q = MID + np.outer(np.linspace(0, 1, 10), [0.3, -0.2, 0.4])
+    return make_plan(ARM3R, q, 0.1, {"tool": "test_recording"})
+
+
+def test_every_series_and_log_is_recorded(tmp_path):
+    plan = _plan()
+    path = tmp_path / "runs" / "a.rrd"
+    n = 123  # not a multiple of flush_every: the tail is flushed at close
+    with Recording(path, ARM3R, plan, flush_every=50) as rec:
+        for i in range(n):
+            t = 10.0 + 0.02 * i
+            q = MID + 0.001 * i
+            rec.telemetry(t, q, q + 0.01, [0.1, -0.2, 0.3], done=i // 10 if i >= 10 else None)
+        rec.event(10.5, "DONE 3 31")
+        rec.event(None, "state IDLE")  # no time of its own: at the latest board time
+        rec.error(11.0, "board line dropped: CRC")
+    assert rec.samples == n and rec.events == 2 and rec.errors == 1
+    data = read(path)
+
+    for name in ARM3R.joint_names:
+        for series in ("q", "target", "error", "effort"):
+            e = data[f"/joints/{name}/{series}"]
+            assert e["rows"] == n and "board_time" in e["timelines"]
+    q = np.array([v[0] for v in data["/joints/shoulder/q"]["columns"]["Scalars:scalars"]])
+    np.testing.assert_allclose(q, MID[0] + 0.001 * np.arange(n))
+    err = np.array([v[0] for v in data["/joints/elbow/error"]["columns"]["Scalars:scalars"]])
+    np.testing.assert_allclose(err, 0.01, atol=1e-12)  # target - q
+    # board_time is a duration timeline in ns
+    bt = np.array(data["/joints/wrist/effort"]["columns"]["board_time"], dtype=float)
+    np.testing.assert_allclose(bt / 1e9, 10.0 + 0.02 * np.arange(n), atol=1e-9)
+    assert data["/board/done"]["rows"] == n - 10  # samples without a done id are left out
+
+    # The arm as a line strip base -> tip, its set point, and the tip.
+    for entity in ("/arm/links", "/arm/target", "/arm/tip"):
+        assert data[entity]["rows"] == n
+    strip = np.array(data["/arm/links"]["columns"]["LineStrips2D:strips"][0][0])
+    np.testing.assert_allclose(strip, ARM3R.joint_positions(MID), atol=1e-6)
+    # Static: the planned tip path and waypoints, the workspace, the measured trace (at close).
+    path_strip = np.array(data["/plan/path"]["columns"]["LineStrips2D:strips"][0][0])
+    np.testing.assert_allclose(path_strip, plan.ee_path(), atol=1e-6)
+    assert data["/plan/waypoints"]["static_rows"] == 1 and data["/workspace"]["static_rows"] == 1
+    trace = np.array(data["/trace/tip"]["columns"]["LineStrips2D:strips"][0][0])
+    assert trace.shape == (n, 2)
+    assert "test_recording" in data["/plan/info"]["columns"]["TextDocument:text"][0][0]
+
+    ev = [x for row in data["/events"]["columns"]["TextLog:text"] for x in row]
+    assert ev == ["DONE 3 31", "state IDLE"]
+    ev_t = np.array(data["/events"]["columns"]["board_time"], dtype=float) / 1e9
+    assert ev_t[1] == pytest.approx(10.0 + 0.02 * (n - 1))
+    er = [x for row in data["/errors"]["columns"]["TextLog:text"] for x in row]
+    assert er == ["board line dropped: CRC"]
+
+
+def test_several_recordings_at_once(tmp_path):
+    a = Recording(tmp_path / "a.rrd", ARM3R, None)
+    b = Recording(tmp_path / "b.rrd", ARM3R, _plan())
+    for i in range(5):
+        a.telemetry(i * 0.1, MID, MID, [0, 0, 0])
+    b.telemetry(0.0, MID, MID, [0, 0, 0])
+    a.close()
+    b.close()
+    b.close()  # idempotent
+    ra, rb = read(tmp_path / "a.rrd"), read(tmp_path / "b.rrd")
+    assert ra["/joints/shoulder/q"]["rows"] == 5 and rb["/joints/shoulder/q"]["rows"] == 1
+    assert "/plan/path" not in ra and "/plan/path" in rb
+    b.telemetry(1.0, MID, MID, [0, 0, 0])  # after close: ignored, no error
+
+
+def test_default_path_and_unwritable_folder(tmp_path):
+    p = default_rrd_path("square", tmp_path / "runs", now=datetime(2025, 3, 4, 5, 6, 7))
+    assert p == tmp_path / "runs" / "20250304-050607-square.rrd"
+    assert default_rrd_path("x").parent == Path("runs")
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ArmbridgeError, match="cannot create the recording folder"):
+        Recording(blocker / "sub" / "x.rrd", ARM3R, None)
+
+
+def test_view_missing_file(tmp_path):
+    with pytest.raises(ArmbridgeError, match=r"nope.rrd: no such recording"):
+        view.view_cmd(tmp_path / "nope.rrd")
+    with pytest.raises(ArmbridgeError, match="is not a file"):
+        view.view_cmd(tmp_path)
+
+
+def test_view_starts_the_rerun_viewer(tmp_path, monkeypatch):
+    rrd = tmp_path / "r.rrd"
+    with Recording(rrd, ARM3R, None) as rec:
+        rec.telemetry(0.0, MID, MID, [0, 0, 0])
+    calls = []
+
+    class Done:
+        returncode = 0
+
+    monkeypatch.setattr(view.subprocess, "run", lambda argv, check: calls.append(argv) or Done())
+    view.view_cmd(rrd)
+    exe = view.rerun_executable()
+    assert calls == [[exe, str(rrd)]]
+    assert Path(exe).name == "rerun" and Path(exe).is_file()
+
+
+@pytest.mark.hil
+def test_rerun_verifies_the_file(tmp_path):
+    """The file is a valid .rrd for the rerun CLI itself (`rerun rrd verify`)."""
+    import subprocess
+
+    rrd = tmp_path / "v.rrd"
+    with Recording(rrd, ARM3R, _plan()) as rec:
+        for i in range(60):
+            rec.telemetry(i * 0.02, MID, MID, [0, 0, 0], done=None)
+        rec.event(0.5, "DONE 0 32")
+    r = subprocess.run([view.rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
