@@ -135,6 +135,32 @@ def test_hello_waypoints_telemetry_done(board):
     assert not any(line[1] == "BAD" for line in h.lines)
 
 
+def test_bad_lines_get_error_replies_and_the_board_keeps_running(board):
+    """Garbage, an overlong line, a bad CRC, an unknown verb, a waypoint out of
+    range: each gets its error reply over the pty, nothing moves, and the board
+    answers normally afterwards."""
+    emu, h = board
+    assert h.request("HELLO", 77)[1] == "OK"
+    q0 = emu.positions()
+
+    def error_after(data):
+        start = len(h.lines)
+        h.write(data)
+        return h.wait("ER", start=start)[2]
+
+    assert error_after(b"\x01\xffgarbage\n")[:3] == ["-", "1", "PARSE"]
+    assert error_after(b"9" * 300 + b"\n")[:3] == ["-", "3", "LONG"]
+    good = h.proto.encode(h.seq + 1, "PING", [])
+    assert error_after(good[:-5] + b"0000\n")[:3] == ["-", "2", "CRC"]
+    assert h.request("JUMP")[2][1:3] == ["4", "VERB"]
+    assert h.request("W", 1, 100, 5000, 0, 0)[2][1:3] == ["6", "RANGE"]
+    assert h.request("W", 2, 100, 1000)[2][1:3] == ["5", "ARGS"]
+    assert h.request("PING")[1] == "OK"
+    time.sleep(0.2)
+    assert emu.positions() == pytest.approx(q0, abs=0.01)
+    assert emu.executed == [] and emu.state == "IDLE" and emu.crash is None
+
+
 def test_reset_mid_motion_prints_boot_and_keeps_done(board):
     emu, h = board
     h.request("HELLO", 99)

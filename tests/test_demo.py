@@ -1,0 +1,45 @@
+"""`armbridge demo` end to end: the real program, the emulator on a pty, a .rrd."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from armbridge.demo import square_plan
+from armbridge.plans.format import load_plan
+from armbridge.robots.catalog import get_robot
+
+ARMBRIDGE = Path(sys.executable).with_name("armbridge")
+
+
+def test_square_plan_traces_the_square():
+    robot = get_robot("arm3r")
+    plan = square_plan(robot)
+    tip = robot.fk(plan.q)
+    assert robot.within_limits(plan.q).all()
+    np.testing.assert_allclose(tip[:, 2], np.pi / 12, atol=1e-9)  # pen angle held
+    xs, ys = tip[:, 0], tip[:, 1]
+    assert xs.min() == pytest.approx(0.10) and xs.max() == pytest.approx(0.20)
+    assert ys.min() == pytest.approx(0.15) and ys.max() == pytest.approx(0.25)
+    np.testing.assert_allclose(tip[0, :2], tip[-1, :2], atol=1e-12)  # closed
+
+
+def test_write_plan_only(tmp_path):
+    out = tmp_path / "square.json"
+    subprocess.run([ARMBRIDGE, "demo", "--write-plan", out], check=True, capture_output=True, timeout=60)
+    plan = load_plan(out)
+    assert plan.k == square_plan(get_robot("arm3r")).k and plan.provenance["shape"] == "square"
+
+
+@pytest.mark.hil
+def test_demo_runs_to_the_end_and_records(tmp_path):
+    rrd = tmp_path / "demo.rrd"
+    env = dict(os.environ, COLUMNS="120")
+    run = subprocess.run([ARMBRIDGE, "demo", "--rrd", rrd], capture_output=True, text=True, timeout=120, env=env)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "completed" in run.stdout and "83 / 83" in run.stdout
+    assert rrd.stat().st_size > 10_000
+    verify = subprocess.run([ARMBRIDGE.with_name("rerun"), "rrd", "verify", rrd], capture_output=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
