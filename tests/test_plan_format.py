@@ -263,7 +263,7 @@ def test_bad_inline_robot(tmp_path):
     doc = _doc(3)
     doc["robot"] = {"name": "x", "link_lengths": [0.1, 0.1, 0.1], "q_min": [0, 0, 0], "q_max": [1, 1],
                     "v_max": [1, 1, 1]}
-    assert _err(tmp_path, doc) == "robot.q_max must have 3 values, got 2"
+    assert _err(tmp_path, doc) == "robot: robot 'x': q_max has 2 values, link_lengths has 3"
 
 
 def test_missing_file_and_not_utf8(tmp_path):

@@ -35,7 +35,6 @@ DURATION_MAX = 60.0  # s: the protocol's W limit (60000 ms)
 SPEED_SLACK = 1e-9
 
 _TOP_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance")
-_ROBOT_FIELDS = ("name", "link_lengths", "q_min", "q_max", "v_max", "joint_names")
 
 
 @dataclass
@@ -153,60 +152,18 @@ def _float_list(v: Any, where: str, ctx: _Ctx, n: int | None = None) -> list[flo
     return out
 
 
-def robot_from_dict(d: Any, ctx: _Ctx | None = None):
-    """An inline robot description -> PlanarChain (see docs/formats.md)."""
+def robot_from_dict(d: Any, ctx: _Ctx | None = None) -> PlanarChain:
+    """An inline robot description -> PlanarChain (see docs/formats.md); `name`
+    and `joint_names` may be left out. PlanarChain checks every value."""
     ctx = ctx or _Ctx(None)
     if not isinstance(d, dict):
         raise ctx.err(f"robot must be a catalog name or an object, got {_describe(d)}")
-    for key in d:
-        if key not in _ROBOT_FIELDS:
-            raise ctx.err(f'robot: unknown field "{key}" (allowed: {", ".join(_ROBOT_FIELDS)})')
-    for key in ("link_lengths", "q_min", "q_max", "v_max"):
-        if key not in d:
-            raise ctx.err(f'robot: missing field "{key}"')
-    links = _float_list(d["link_lengths"], "robot.link_lengths", ctx)
-    n = len(links)
-    if n == 0:
-        raise ctx.err("robot.link_lengths must not be empty")
-    for i, L in enumerate(links):
-        if L <= 0:
-            raise ctx.err(f"robot.link_lengths[{i}] = {fmt_num(L)} m must be > 0")
-    q_min = _float_list(d["q_min"], "robot.q_min", ctx, n)
-    q_max = _float_list(d["q_max"], "robot.q_max", ctx, n)
-    v_max = _float_list(d["v_max"], "robot.v_max", ctx, n)
-    for i in range(n):
-        if q_min[i] >= q_max[i]:
-            raise ctx.err(f"robot: joint {i} needs q_min < q_max, got [{fmt_num(q_min[i])}, {fmt_num(q_max[i])}]")
-        if v_max[i] <= 0:
-            raise ctx.err(f"robot.v_max[{i}] = {fmt_num(v_max[i])} rad/s must be > 0")
-    name = d.get("name", "inline")
-    if not isinstance(name, str) or not name:
-        raise ctx.err(f"robot.name must be a non-empty string, got {_describe(name)}")
-    names = d.get("joint_names", [f"j{i + 1}" for i in range(n)])
-    if not isinstance(names, list) or len(names) != n or not all(isinstance(s, str) and s for s in names):
-        raise ctx.err(f"robot.joint_names must be a list of {n} non-empty strings")
+    n = len(d["link_lengths"]) if isinstance(d.get("link_lengths"), list) else 0
+    full = {"name": "inline", "joint_names": [f"j{i + 1}" for i in range(n)], **d}
     try:
-        return PlanarChain(
-            name=name,
-            link_lengths=np.array(links),
-            q_min=np.array(q_min),
-            q_max=np.array(q_max),
-            v_max=np.array(v_max),
-            joint_names=tuple(names),
-        )
+        return PlanarChain.from_dict(full)
     except ArmbridgeError as exc:
         raise ctx.err(f"robot: {exc}") from None
-
-
-def robot_to_dict(robot) -> dict:
-    return {
-        "name": robot.name,
-        "link_lengths": [float(x) for x in np.asarray(robot.link_lengths)],
-        "q_min": [float(x) for x in np.asarray(robot.q_min)],
-        "q_max": [float(x) for x in np.asarray(robot.q_max)],
-        "v_max": [float(x) for x in np.asarray(robot.v_max)],
-        "joint_names": list(robot.joint_names),
-    }
 
 
 # ---------------------------------------------------------------------------
@@ -378,7 +335,7 @@ def validate(plan: Plan | dict, source: Path | str | None = None) -> Plan:
 def plan_to_dict(plan: Plan) -> dict:
     """The JSON document of a plan (robot by catalog name unless it was inline)."""
     robot = plan.robot
-    robot_spec: Any = robot_to_dict(robot) if plan.inline_robot else robot.name
+    robot_spec: Any = robot.to_dict() if plan.inline_robot else robot.name
     prov = dict(plan.provenance)
     return {
         "format": FORMAT,
@@ -400,7 +357,7 @@ def make_plan(robot, q, durations, provenance: dict | None = None, *, tool: str 
     prov.setdefault("tool", tool)
     prov.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
     known = ROBOTS.get(robot.name)
-    inline = known is None or robot_to_dict(known) != robot_to_dict(robot)
+    inline = known is None or known != robot
     plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline)
     return validate(plan)
 
