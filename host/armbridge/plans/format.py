@@ -137,21 +137,6 @@ def _catalog_robot(name: str, ctx: _Ctx):
     return robot
 
 
-def _float_list(v: Any, where: str, ctx: _Ctx, n: int | None = None) -> list[float]:
-    if not isinstance(v, list):
-        raise ctx.err(f"{where} must be a list of numbers, got {_describe(v)}")
-    if n is not None and len(v) != n:
-        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
-    out = []
-    for i, x in enumerate(v):
-        if not _is_number(x):
-            raise ctx.err(f"{where}[{i}] must be a number, got {_describe(x)}")
-        if not math.isfinite(x):
-            raise ctx.err(f"{where}[{i}] is {x}: plans hold finite numbers only")
-        out.append(float(x))
-    return out
-
-
 def robot_from_dict(d: Any, ctx: _Ctx | None = None) -> PlanarChain:
     """An inline robot description -> PlanarChain (see docs/formats.md); `name`
     and `joint_names` may be left out. PlanarChain checks every value."""
