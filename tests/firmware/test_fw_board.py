@@ -63,7 +63,6 @@ def test_waypoints_run_to_done_and_report():
     run(board, hal, 700)
     lines = hal.take()
     evs = events(lines)
-    kinds = [e[0] for e in evs]
     # START only from rest: waypoint 11 starts in the tick waypoint 10 is DONE,
     # which frees its slot, so 32 are free both times
     assert evs == [["START", "10"], ["DONE", "10", "32"], ["DONE", "11", "32"]], evs
