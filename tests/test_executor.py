@@ -208,6 +208,29 @@ def test_link_faults_and_a_reset_every_waypoint_once_in_order(tmp_path, ports):
 
 
 @pytest.mark.hil
+def test_a_reset_early_in_a_second_plan_of_the_session():
+    """Waypoint ids run on across the plans of one session: after a reset that
+    falls before the second plan completes anything, the board's persisted
+    `done` names the first plan's last waypoint, and the client resumes the
+    second plan from its start, running nothing twice."""
+    plan = wave_plan(30, dt=0.05)
+    port = transport.open_port(f"emu:esp32?speed={SPEED}")
+    try:
+        emu = port.emulator
+        client = BoardClient(port, ARM3R)
+        client.connect()
+        q = [to_milli(row) for row in plan.q]
+        durations = [int(d * 1000) for d in plan.durations]
+        client.execute(durations, q)
+        emu.schedule_reset(emu.now() + 0.01)
+        client.execute(durations, q)
+        assert emu.counters["resets"] == 1 and client.stats.resyncs >= 1
+        assert executed_ids(port) == list(range(60))
+    finally:
+        port.close()
+
+
+@pytest.mark.hil
 def test_ctrl_c_sends_estop_and_keeps_the_recording(tmp_path, ports, monkeypatch):
     from rerun.chunk import RrdReader
 

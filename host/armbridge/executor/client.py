@@ -249,6 +249,9 @@ class BoardClient:
         self._rate: int | None = None  # telemetry rate to restore after a resync
         # execute() state
         self._k = 0
+        # Waypoint ids run on across the plans of one session, so a board's
+        # `done` after a reset can never name a waypoint of an earlier plan.
+        self._id_base = 0
         self._next_wp = 0  # next plan index to send
         self._done = -1  # highest plan index known completed
         self._acked: set[int] = set()
@@ -450,7 +453,7 @@ class BoardClient:
         """The plan index in [lo, hi] whose id is wid, if any."""
         if hi < lo:
             return None
-        i = lo + (wid - lo) % ID_MOD
+        i = lo + (wid - self._id_base - lo) % ID_MOD
         return i if i <= hi else None
 
     def _mark_done(self, wid: int, t: float, exact: bool) -> int | None:
@@ -750,8 +753,8 @@ class BoardClient:
                 found = self._index_of(info.done, lo, self._next_wp - 1)
                 if found is not None:
                     done_idx = found
-                elif self._done >= 0 and info.done == self._done % ID_MOD:
-                    done_idx = self._done
+                elif info.done == (self._id_base + self._done) % ID_MOD:
+                    done_idx = self._done  # nothing new (at -1: the last waypoint of an earlier plan)
                 else:
                     raise ArmbridgeError(
                         f"after a resync the board says waypoint id {info.done} is done, which this run "
@@ -790,7 +793,8 @@ class BoardClient:
         timeout: float | None = None,
     ) -> None:
         """Stream waypoints (W id dur q...) under credits and return when the
-        last one is DONE. ids are the index mod 65536."""
+        last one is DONE. Ids continue across the plans of a session: the
+        first plan's waypoint i is id i, the next plan's ids follow on (mod 65536)."""
         if not self.connected:
             raise ArmbridgeError("not connected: call connect() first")
         k = len(durations_ms)
@@ -801,29 +805,32 @@ class BoardClient:
         self._on_progress = on_progress
         planned = sum(durations_ms) / 1000.0
         deadline = self.now() + (timeout if timeout is not None else 30.0 + 5.0 * planned / self.speed)
-        while self._done < k - 1:
-            if self._need_resync is not None:
-                self._resync()
-                continue
-            self._check_state()
-            # Fill the window under credits.
-            while (
-                self._next_wp < k
-                and self._credit_left() > 0
-                and len(self._out) < max(1, int(self.cwnd))
-                and self._need_resync is None
-            ):
-                i = self._next_wp
-                self._issue("W", i % ID_MOD, int(durations_ms[i]), *q_milli[i], wp=i)
-                self._next_wp += 1
-            self._check_refusals()
-            if self.now() > deadline:
-                raise ArmbridgeError(
-                    f"the plan did not finish in time: {self._done + 1} of {k} waypoints done, "
-                    f"board state {self.state}"
-                )
-            self._loop_once()
-        self._on_progress = None
+        try:
+            while self._done < k - 1:
+                if self._need_resync is not None:
+                    self._resync()
+                    continue
+                self._check_state()
+                # Fill the window under credits.
+                while (
+                    self._next_wp < k
+                    and self._credit_left() > 0
+                    and len(self._out) < max(1, int(self.cwnd))
+                    and self._need_resync is None
+                ):
+                    i = self._next_wp
+                    self._issue("W", (self._id_base + i) % ID_MOD, int(durations_ms[i]), *q_milli[i], wp=i)
+                    self._next_wp += 1
+                self._check_refusals()
+                if self.now() > deadline:
+                    raise ArmbridgeError(
+                        f"the plan did not finish in time: {self._done + 1} of {k} waypoints done, "
+                        f"board state {self.state}"
+                    )
+                self._loop_once()
+        finally:
+            self._on_progress = None
+            self._id_base = (self._id_base + k) % ID_MOD
 
     def _check_state(self) -> None:
         if self.state in LATCHED_STATES:
