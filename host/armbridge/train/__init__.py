@@ -1,0 +1,1 @@
+"""`armbridge train`: training pipelines that end in shipped models (ONNX + card)."""

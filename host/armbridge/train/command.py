@@ -1,0 +1,94 @@
+"""`armbridge train ...`: the typer app `train_app` (registered by cli.py as `train`)."""
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from armbridge.errors import ArmbridgeError
+
+train_app = typer.Typer(help="Train models and export them to models/onnx with a card.", no_args_is_help=True)
+
+
+def _command_line() -> str:
+    """How this run was started, as `armbridge train masr-iknn ...` (without --resume)."""
+    argv = sys.argv
+    at = argv.index("masr-iknn") if "masr-iknn" in argv else len(argv)
+    return " ".join(["armbridge", "train", *(shlex.quote(a) for a in argv[at:] if a != "--resume")])
+
+
+@train_app.command("masr-iknn")
+def masr_iknn_cmd(
+    robot: str = typer.Option("masr5", "--robot", help="Catalog MASR to train for."),
+    reg: str = typer.Option("action", "--reg", help="Regulariser: action (eq. 12) or joint (eq. 11)."),
+    lam: float = typer.Option(0.1, "--lam", help="Regulariser weight lambda (in the loss units below)."),
+    hidden: str = typer.Option("120,100,50,30", "--hidden", help="Hidden layer sizes."),
+    activation: str = typer.Option("leaky_relu", "--activation", help="leaky_relu, relu, tanh or silu."),
+    epochs: int = typer.Option(250, "--epochs", help="Epochs over the data set (fresh q_c each epoch)."),
+    batch: int = typer.Option(2048, "--batch", help="Batch size."),
+    lr: float = typer.Option(3e-3, "--lr", help="Peak learning rate (Adam; warm-up then cosine decay)."),
+    lr_final: float = typer.Option(1e-5, "--lr-final", help="Learning rate at the end of the cosine decay."),
+    pos_unit: float = typer.Option(0.008, "--pos-unit", help="Twist position unit in m (0.008 = e_p; 1 = plain SI twist)."),
+    ang_unit: float = typer.Option(0.0698132, "--ang-unit", help="Twist angle unit in rad (0.0698 = e_phi = 4 deg)."),
+    link_softness: float = typer.Option(0.0, "--link-softness", help="Soft phi blend over links in m (0 = hard FK)."),
+    grid: str = typer.Option("1800x1600", "--grid", help="Occupancy grid NXxNY over W+."),
+    rho: int = typer.Option(10, "--rho", help="Largest enclosed vacancy (cells) allowed before sampling stops."),
+    max_samples: int = typer.Option(10_000_000, "--max-samples", help="Cap on random configurations for the data set."),
+    seed: int = typer.Option(0, "--seed", help="Seed of training and data set."),
+    out: Path = typer.Option(Path("models/onnx"), "--out", help="Folder for the ONNX files and the card."),
+    name: str = typer.Option("", "--name", help="Model name [default: ROBOT-iknn]."),
+    work_dir: Path = typer.Option(Path("runs/masr-iknn"), "--work-dir", help="Checkpoints and the data-set cache."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint in --work-dir."),
+    eval_trials: int = typer.Option(5000, "--eval-trials", help="Random trials for the card's accuracy."),
+    nr_trials: int = typer.Option(0, "--nr-trials", help="Also measure the numeric baseline on this many trials."),
+    max_steps: int = typer.Option(0, "--max-steps", help="Stop after this many steps (0: all epochs)."),
+    int8_epochs: int = typer.Option(2, "--int8-epochs", help="Quantisation-aware fine-tune epochs for int8 (0: none)."),
+    int8_lr: float = typer.Option(3e-4, "--int8-lr", help="Learning rate of the int8 fine-tune."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the accuracy as JSON here."),
+) -> None:
+    """Build/cache the data set, train the IK-NN, export float/int8 ONNX + flat int8, write the card."""
+    from armbridge.ik.masr_data import GridSpec
+    from armbridge.ik.masr_nn import TrainConfig
+    from armbridge.train.masr_iknn import PipelineConfig, parse_hidden, run
+
+    if reg not in ("action", "joint"):
+        raise ArmbridgeError(f"--reg must be action or joint, got {reg!r}")
+    for opt, v in (("--epochs", epochs), ("--batch", batch), ("--rho", rho)):
+        if v <= 0:
+            raise ArmbridgeError(f"{opt} must be > 0, got {v}")
+    if lr <= 0 or lam < 0 or pos_unit <= 0 or ang_unit <= 0:
+        raise ArmbridgeError("--lr, --pos-unit and --ang-unit must be > 0 and --lam >= 0")
+    nx, ny = GridSpec.parse(grid)
+    tcfg = TrainConfig(hidden=parse_hidden(hidden), activation=activation, reg=reg, lam=lam, pos_unit=pos_unit,
+                       ang_unit=ang_unit, link_softness=link_softness, lr=lr, lr_final=lr_final, epochs=epochs,
+                       batch=batch, seed=seed, max_steps=max_steps)
+    cfg = PipelineConfig(robot=robot, name=name, nx=nx, ny=ny, rho=rho, max_samples=max_samples, data_seed=seed,
+                         out=out, work_dir=work_dir, eval_trials=eval_trials, nr_trials=nr_trials, train=tcfg,
+                         int8_epochs=int8_epochs, int8_lr=int8_lr,
+                         command=_command_line())
+    console = Console(stderr=True)
+    card = run(cfg, resume=resume, progress=progress, log=lambda s: console.print(s, highlight=False))
+    acc = card["accuracy"]
+    table = Table(title=f"{card['name']}: {acc['trials']} random trials (Table I protocol)")
+    for col in ("model", "mean dp (mm)", "mean dphi (deg)", "success (%)", "action time (s)", "ms/query (batch)"):
+        table.add_column(col, justify="right" if col != "model" else "left")
+    rows = [("IK-NN float", acc["nn"]), ("IK-NN + distal joints held", acc["nn_hold_distal"]),
+            ("IK-NN + DLS refine", acc["nn_refined"]),
+            (f"IK-NN int8 ONNX ({acc['int8_onnx']['scheme']})", acc["int8_onnx"][acc["int8_onnx"]["scheme"]]),
+            ("IK-NN int8 flat", acc["int8_flat"])]
+    if "nr" in acc:
+        rows.append((f"numeric IK ({acc['nr']['method']})", acc["nr"]))
+    for label, m in rows:
+        table.add_row(label, f"{m['mean_dp_mm']:.2f}", f"{m['mean_dphi_deg']:.2f}", f"{m['success_rate']:.1f}",
+                      f"{m['mean_action_time_s']:.2f}", f"{m['batched_ms_per_query']:.4f}")
+    Console().print(table)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(acc, indent=2) + "\n")
