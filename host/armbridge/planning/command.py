@@ -1,0 +1,130 @@
+"""`armbridge plan masr --env ENV --out PLAN.json`: plan a MASR motion with MASR-RRT* or RRT*."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from armbridge.errors import ArmbridgeError
+
+plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
+                       add_completion=False, pretty_exceptions_enable=False)
+
+#: Where shipped models live (repository root / models / onnx).
+MODELS_DIR = Path(__file__).resolve().parents[3] / "models" / "onnx"
+
+
+def shipped_ik_card(arm_name: str = "masr5", models_dir: Path | None = None) -> Optional[Path]:
+    """The shipped IK-NN model card for arm_name in models/onnx, or None.
+
+    Prefers <arm>-iknn.json, then <arm>-iknn-card.json, then any
+    <arm>-iknn*.json card trained with the action-time regulariser (12)
+    (card training.reg == "action"), then any card.
+    """
+    d = models_dir or MODELS_DIR
+    for name in (f"{arm_name}-iknn.json", f"{arm_name}-iknn-card.json"):
+        if (d / name).is_file():
+            return d / name
+    cards = sorted(p for p in d.glob(f"{arm_name}-iknn*.json") if p.is_file())
+    for p in cards:
+        try:
+            if json.loads(p.read_text()).get("training", {}).get("reg") == "action":
+                return p
+        except (OSError, ValueError, AttributeError):
+            continue
+    return cards[0] if cards else None
+
+
+def resolve_goal_ik(env: Any, ik: str = "auto", refine: bool = False) -> tuple[Callable, str]:
+    """The goal IK for env: ("auto" | "dls" | a model card path) -> (goal_ik(x_goal, q_c), description)."""
+    from armbridge.planning import dls_ik
+
+    if ik == "dls":
+        return dls_ik.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi), "dls (numeric damped least squares)"
+    card = shipped_ik_card(env.arm.name) if ik == "auto" else Path(ik)
+    if card is None:
+        return (dls_ik.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi),
+                f"dls (no shipped IK-NN model card {MODELS_DIR}/{env.arm.name}-iknn*.json)")
+    if not card.is_file():
+        raise ArmbridgeError(f"{card}: no such IK-NN model card")
+    from armbridge.ik.masr_ik import MasrIK
+
+    model = MasrIK.load(card)
+    model.session  # noqa: B018 - start onnxruntime now, not inside the timed planning loop
+    if model.arm != env.arm:
+        raise ArmbridgeError(f"{card}: the IK-NN is for robot {model.arm.name!r}, the environment uses {env.arm.name!r}"
+                             " with different parameters")
+
+    def goal_ik(x_goal: Any, q_c: Any) -> Any:
+        return model.solve(x_goal, q_c, refine=refine)
+
+    return goal_ik, f"IK-NN {card}" + (" + DLS refine" if refine else "")
+
+
+@plan_app.callback()
+def _plan() -> None:
+    """Plan robot motions and write plan files."""
+
+
+@plan_app.command("masr")
+def masr_cmd(
+    env: str = typer.Option(..., "--env", help="Environment JSON file, or a fixed environment E1, E2, E3."),
+    out: Path = typer.Option(..., "--out", help="Plan file to write (armbridge-masr-plan JSON)."),
+    planner: str = typer.Option("masr-rrt*", "--planner", help="masr-rrt* (with the goal IK) or rrt* (baseline)."),
+    iterations: int = typer.Option(1000, "--iterations", "-n", help="Planning iterations N_c."),
+    pc: float = typer.Option(0.6, "--pc", help="Probability p_c of steering with the goal IK (masr-rrt*)."),
+    goal_bias: Optional[float] = typer.Option(
+        None, "--goal-bias",
+        help="Probability of sampling the goal configuration (default 0.1 for rrt*, 0 for masr-rrt*)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    n_near: int = typer.Option(7, "--neighbours", help="N_n, neighbours for Connect and RewireTree."),
+    step: float = typer.Option(16.0, "--step", help="Steer's maximum step delta, in s of eq. (8)."),
+    ik: str = typer.Option("auto", "--ik", help="Goal IK: auto (shipped IK-NN, else dls), dls, or a model card."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also draw the environment and path to this PNG."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the run summary as JSON."),
+) -> None:
+    """Plan a MASR path (masr paper, Alg. 1-2), write it as a plan file with the MA's actions."""
+    from armbridge.planning import rrt_star
+    from armbridge.planning.environment import load_environment
+    from armbridge.planning.masr_plan import save_masr_plan
+
+    console = Console()
+    if planner not in rrt_star.PLANNERS:
+        raise ArmbridgeError(f"unknown planner {planner!r} (known: {', '.join(rrt_star.PLANNERS)})")
+    environment = load_environment(env)
+    p_c = pc if planner == "masr-rrt*" else 0.0
+    goal_ik, ik_desc = (None, "none") if p_c == 0 else resolve_goal_ik(environment, ik)
+    result = rrt_star.plan(environment, planner=planner, iterations=iterations, goal_ik=goal_ik, p_c=p_c,
+                           goal_bias=goal_bias, n_near=n_near, step=step, seed=seed)
+    summary = result.summary()
+    summary.update({"environment": environment.name, "ik": ik_desc, "iterations_per_s": iterations / result.time_s})
+    table = Table(title=f"{planner} on {environment.name}", show_header=False)
+    for key in ("success", "cost_s", "waypoints", "first_solution_iteration", "iterations", "time_s",
+                "iterations_per_s", "tree_size", "goal_nodes", "ik_calls", "ik"):
+        v = summary[key]
+        table.add_row(key, f"{v:.3f}" if isinstance(v, float) else str(v))
+    console.print(table)
+    if png is not None:
+        from armbridge.planning.figure import draw
+
+        draw(environment, result.path, png, title=f"{environment.name} ({planner})")
+        console.print(f"figure: {png}")
+    if json_out is not None:
+        try:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(summary, indent=2, default=float) + "\n")
+        except OSError as exc:
+            raise ArmbridgeError(f"{json_out}: cannot write the summary: {exc.strerror}") from None
+    if result.path is None:
+        raise ArmbridgeError(f"{planner} found no path to the goal of {environment.name} in {iterations} iterations "
+                             "(try more --iterations or another --seed); no plan written")
+    prov = {"tool": "armbridge plan masr", "planner": planner, "environment": environment.name,
+            "environment_file": str(environment.source) if environment.source else None,
+            "iterations": iterations, "seed": seed, "p_c": p_c, "goal_bias": result.settings["goal_bias"],
+            "n_near": n_near, "step_s": step, "ik": ik_desc, "planning_time_s": round(result.time_s, 4)}
+    save_masr_plan(environment, result.path, out, provenance=prov)
+    console.print(f"plan: {out} ({result.path.shape[0]} waypoints, tau = {result.cost:.2f} s)")

@@ -1,0 +1,471 @@
+"""MASR planning environments: polygons, a start configuration and a goal pose (JSON).
+
+    env = load_environment("host/armbridge/planning/envs/E1.json")   # or fixed_environment("E1")
+    env.obstacles, env.start, env.goal_pose, env.goal_q, env.e_p, env.e_phi
+    env = random_environment(MASR5, seed=3)                           # section V-C
+    save_environment(env, "mine.json")
+
+File format (docs/planning.md): `"format": "armbridge-masr-env"`, version 1;
+angles in rad, lengths in m. Loading validates and stops at the first
+problem with one ArmbridgeError line naming it: a self-intersecting polygon,
+a goal out of reach, a start in collision or outside the joint limits.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+from armbridge.planning import dls_ik
+from armbridge.planning.collision import SWEEP_RES, CollisionChecker
+from armbridge.robots.catalog import MASRS, get_masr
+from armbridge.robots.masr import MasrArm
+from armbridge.robots.planar import wrap_angle
+
+FORMAT = "armbridge-masr-env"
+VERSION = 1
+E_P = 0.008  # m, section V-A
+E_PHI = math.radians(4.0)  # rad, section V-A
+ENV_DIR = Path(__file__).with_name("envs")
+FIXED = ("E1", "E2", "E3")
+
+_TOP = ("format", "version", "name", "description", "robot", "obstacles", "start", "goal", "known_path", "provenance")
+_GOAL = ("pose", "q", "e_p", "e_phi")
+
+
+def _fmt(x: float) -> str:
+    s = f"{x:.4f}".rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
+@dataclass(eq=False)
+class Environment:
+    """A validated planning problem for one MASR.
+
+    obstacles: list of (k, 2) vertex arrays (m). start: (n+1,) configuration.
+    goal_pose: (x, y, phi). goal_q: a collision-free configuration in the goal
+    region (given in the file, or found by numeric IK when loading).
+    e_p (m), e_phi (rad): the goal region of eq. (9). known_path: optional
+    (K, n+1) configurations of a known solution (random environments store
+    the path that verified them).
+    """
+
+    name: str
+    arm: MasrArm
+    obstacles: list
+    start: np.ndarray
+    goal_pose: np.ndarray
+    goal_q: Optional[np.ndarray] = None
+    e_p: float = E_P
+    e_phi: float = E_PHI
+    description: str = ""
+    known_path: Optional[np.ndarray] = None
+    provenance: dict = field(default_factory=dict)
+    source: Optional[Path] = None
+    _checkers: dict = field(default_factory=dict, repr=False)
+
+    def checker(self, sweep_res: Optional[float] = None, margin: Optional[float] = None) -> CollisionChecker:
+        """The collision checker of this environment (obstacles inflated by half the link width)."""
+        key = (SWEEP_RES if sweep_res is None else float(sweep_res), margin)
+        if key not in self._checkers:
+            self._checkers[key] = CollisionChecker.create(self.arm, self.obstacles, margin=margin, sweep_res=key[0])
+        return self._checkers[key]
+
+    def pose_errors(self, q: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(dp in m, |dphi| in rad) of the MA pose f(q) against the goal pose."""
+        x = self.arm.fk(q)
+        return (np.linalg.norm(x[..., :2] - self.goal_pose[:2], axis=-1),
+                np.abs(wrap_angle(x[..., 2] - self.goal_pose[2])))
+
+    def in_goal(self, q: Any) -> np.ndarray:
+        """eq. (9): the MA pose of q within e_p and e_phi of the goal pose."""
+        dp, dphi = self.pose_errors(q)
+        return (dp <= self.e_p) & (dphi <= self.e_phi)
+
+    def to_dict(self) -> dict[str, Any]:
+        robot: Any = self.arm.name if MASRS.get(self.arm.name) == self.arm else self.arm.to_dict()
+        goal: dict[str, Any] = {"pose": [float(v) for v in self.goal_pose]}
+        if self.goal_q is not None:
+            goal["q"] = [float(v) for v in self.goal_q]
+        goal["e_p"] = float(self.e_p)
+        goal["e_phi"] = float(self.e_phi)
+        d: dict[str, Any] = {"format": FORMAT, "version": VERSION, "name": self.name}
+        if self.description:
+            d["description"] = self.description
+        d["robot"] = robot
+        d["obstacles"] = [[[float(x), float(y)] for x, y in p] for p in self.obstacles]
+        d["start"] = [float(v) for v in self.start]
+        d["goal"] = goal
+        if self.known_path is not None:
+            d["known_path"] = [[float(v) for v in q] for q in self.known_path]
+        if self.provenance:
+            d["provenance"] = dict(self.provenance)
+        return d
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Environment) and self.to_dict() == other.to_dict()
+
+
+# ------------------------------------------------------------------ validation
+class _Ctx:
+    def __init__(self, source: Any):
+        self.name = str(source) if source is not None else "<environment>"
+
+    def err(self, msg: str) -> ArmbridgeError:
+        return ArmbridgeError(f"{self.name}: {msg}")
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _vector(v: Any, n: int, where: str, ctx: _Ctx) -> np.ndarray:
+    if not isinstance(v, (list, tuple, np.ndarray)):
+        raise ctx.err(f"{where} must be a list of {n} numbers, got {type(v).__name__}")
+    if len(v) != n:
+        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
+    for i, x in enumerate(v):
+        if not (_is_num(x) or isinstance(x, (np.floating, np.integer))):
+            raise ctx.err(f"{where}[{i}] must be a number, got {x!r}")
+        if not math.isfinite(float(x)):
+            raise ctx.err(f"{where}[{i}] is {x}: environments hold finite numbers only")
+    return np.array(v, dtype=float)
+
+
+def _polygon(v: Any, i: int, ctx: _Ctx) -> np.ndarray:
+    import shapely  # type: ignore[import-untyped]
+    from shapely.geometry import Polygon  # type: ignore[import-untyped]
+
+    where = f"obstacles[{i}]"
+    if not isinstance(v, (list, tuple, np.ndarray)) or len(v) < 3:
+        raise ctx.err(f"{where} must be a list of at least 3 [x, y] vertices")
+    pts = np.array([_vector(p, 2, f"{where}[{k}]", ctx) for k, p in enumerate(v)])
+    if np.allclose(pts[0], pts[-1]) and len(pts) > 3:
+        pts = pts[:-1]  # a closed ring: drop the repeated vertex
+    poly = Polygon(pts)
+    if not shapely.is_valid(poly):
+        reason = shapely.is_valid_reason(poly)
+        if reason.startswith("Self-intersection"):
+            xy = reason[reason.find("[") + 1: reason.find("]")].split()
+            at = f" at ({_fmt(float(xy[0]))}, {_fmt(float(xy[1]))})" if len(xy) == 2 else ""
+            raise ctx.err(f"{where} is self-intersecting{at}: its edges cross; list the vertices in order "
+                          "around the polygon")
+        raise ctx.err(f"{where} is not a valid polygon: {reason}")
+    if poly.area <= 1e-12:
+        raise ctx.err(f"{where} has zero area")
+    return pts
+
+
+def _robot(spec: Any, ctx: _Ctx) -> MasrArm:
+    try:
+        if isinstance(spec, str):
+            return get_masr(spec)
+        return MasrArm.from_dict(spec)
+    except ArmbridgeError as exc:
+        raise ctx.err(f"robot: {exc}") from None
+
+
+def _describe_q(arm: MasrArm, q: np.ndarray) -> Optional[str]:
+    """Why q is outside C_f (eq. 5), or None."""
+    for j in range(arm.n):
+        if abs(q[j]) > arm.theta_b[j]:
+            return (f"theta_{j + 1} = {_fmt(q[j])} rad is outside the joint limits "
+                    f"[-{_fmt(arm.theta_b[j])}, {_fmt(arm.theta_b[j])}]")
+    if not 0.0 <= q[-1] <= arm.total_length:
+        return f"d = {_fmt(q[-1])} m is off the arm [0, {_fmt(arm.total_length)}]"
+    return None
+
+
+def find_goal_configs(arm: MasrArm, goal_pose: np.ndarray, checker: CollisionChecker, *, e_p: float = E_P,
+                      e_phi: float = E_PHI, starts: int = 512, seed: int = 0,
+                      extra_starts: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Multi-start DLS IK for the goal pose.
+
+    Returns (in_goal configurations (m, n+1), which of them are collision-free
+    (m,), best dp (m), best dphi (rad)) over all starts.
+    """
+    rng = np.random.default_rng(seed)
+    tb = arm.theta_b
+    q0 = np.concatenate([rng.uniform(-tb, tb, (starts, arm.n)), rng.uniform(0, arm.total_length, (starts, 1))], 1)
+    if extra_starts is not None:
+        q0 = np.concatenate([np.asarray(extra_starts, float).reshape(-1, arm.n + 1), q0])
+    q, _ = dls_ik.solve(arm, goal_pose, q0, e_p=e_p, e_phi=e_phi, iters=60)
+    x = arm.fk(q)
+    dp = np.linalg.norm(x[:, :2] - goal_pose[:2], axis=-1)
+    dphi = np.abs(wrap_angle(x[:, 2] - goal_pose[2]))
+    ok = (dp <= e_p) & (dphi <= e_phi) & arm.feasible(q)
+    best = int(np.argmin(dp / e_p + dphi / e_phi))
+    good = q[ok]
+    return good, checker.free(good) if good.size else np.zeros(0, bool), float(dp[best]), float(dphi[best])
+
+
+def environment_from_dict(doc: Any, source: Any = None) -> Environment:
+    """Validate a parsed environment document; ArmbridgeError names the first problem."""
+    ctx = _Ctx(source)
+    if not isinstance(doc, dict):
+        raise ctx.err("an environment is a JSON object")
+    if doc.get("format") != FORMAT:
+        raise ctx.err(f'format is {json.dumps(doc.get("format"))}, expected "{FORMAT}"')
+    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
+        raise ctx.err(f"unsupported version {json.dumps(doc.get('version'))} (this armbridge reads version {VERSION})")
+    for key in doc:
+        if key not in _TOP:
+            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP)})')
+    for key in ("robot", "obstacles", "start", "goal"):
+        if key not in doc:
+            raise ctx.err(f'missing field "{key}"')
+    name = doc.get("name", Path(str(source)).stem if source is not None else "env")
+    if not isinstance(name, str) or not name:
+        raise ctx.err("name must be a non-empty string")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise ctx.err("description must be a string")
+    arm = _robot(doc["robot"], ctx)
+    n = arm.n
+
+    obs = doc["obstacles"]
+    if not isinstance(obs, list):
+        raise ctx.err("obstacles must be a list of polygons")
+    obstacles = [_polygon(p, i, ctx) for i, p in enumerate(obs)]
+    checker = CollisionChecker.create(arm, obstacles)
+
+    start = _vector(doc["start"], n + 1, "start", ctx)
+    why = _describe_q(arm, start)
+    if why:
+        raise ctx.err(f"start configuration is infeasible: {why}")
+    hit = checker.first_hit(start)
+    if hit is not None:
+        raise ctx.err(f"start configuration is in collision: link {hit[1] + 1} is within "
+                      f"{_fmt(checker.margin)} m (half the link width) of obstacles[{hit[0]}]")
+
+    goal = doc["goal"]
+    if not isinstance(goal, dict):
+        raise ctx.err("goal must be an object with pose (x, y, phi) and optionally q, e_p, e_phi")
+    for key in goal:
+        if key not in _GOAL:
+            raise ctx.err(f'goal: unknown field "{key}" (allowed: {", ".join(_GOAL)})')
+    if "pose" not in goal:
+        raise ctx.err('goal: missing field "pose" ([x, y, phi] in m, m, rad)')
+    pose = _vector(goal["pose"], 3, "goal.pose", ctx)
+    e_p = float(_vector([goal.get("e_p", E_P)], 1, "goal.e_p", ctx)[0])
+    e_phi = float(_vector([goal.get("e_phi", E_PHI)], 1, "goal.e_phi", ctx)[0])
+    if e_p <= 0 or e_phi <= 0:
+        raise ctx.err(f"goal tolerances must be > 0, got e_p = {_fmt(e_p)} m, e_phi = {_fmt(e_phi)} rad")
+    reach = float(np.hypot(pose[0], pose[1]))
+    if reach > arm.total_length + e_p:
+        raise ctx.err(f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is out of reach: "
+                      f"{_fmt(reach)} m from the base, the arm reaches {_fmt(arm.total_length)} m")
+    goal_q = None
+    if "q" in goal:
+        goal_q = _vector(goal["q"], n + 1, "goal.q", ctx)
+        why = _describe_q(arm, goal_q)
+        if why:
+            raise ctx.err(f"goal.q is infeasible: {why}")
+        env_tmp = Environment(name, arm, obstacles, start, pose, None, e_p, e_phi)
+        dp_q, dphi_q = (float(v) for v in env_tmp.pose_errors(goal_q))
+        if not (dp_q <= e_p and dphi_q <= e_phi):
+            raise ctx.err(f"goal.q puts the MA {_fmt(dp_q * 1e3)} mm and {_fmt(math.degrees(dphi_q))} deg "
+                          f"from the goal pose, outside e_p = {_fmt(e_p * 1e3)} mm, "
+                          f"e_phi = {_fmt(math.degrees(e_phi))} deg (eq. 9)")
+        hit = checker.first_hit(goal_q)
+        if hit is not None:
+            raise ctx.err(f"goal.q is in collision: link {hit[1] + 1} touches obstacles[{hit[0]}]")
+    else:
+        good, free, dp, dphi = find_goal_configs(arm, pose, checker, e_p=e_p, e_phi=e_phi, extra_starts=start)
+        if good.shape[0] == 0:
+            raise ctx.err(
+                f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is out of reach: no configuration "
+                f"within the joint limits puts the MA within e_p = {_fmt(e_p * 1e3)} mm and "
+                f"e_phi = {_fmt(math.degrees(e_phi))} deg of it (closest found: {_fmt(dp * 1e3)} mm, "
+                f"{_fmt(math.degrees(dphi))} deg)")
+        if not np.any(free):
+            raise ctx.err(f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is blocked: every "
+                          f"configuration found that reaches it ({good.shape[0]}) collides with an obstacle")
+        cand = good[free]
+        goal_q = cand[int(np.argmin(arm.action_cost(start, cand)))]
+
+    known = None
+    if "known_path" in doc:
+        kp = doc["known_path"]
+        if not isinstance(kp, list) or len(kp) < 2:
+            raise ctx.err("known_path must be a list of at least 2 configurations")
+        known = np.array([_vector(q, n + 1, f"known_path[{k}]", ctx) for k, q in enumerate(kp)])
+    prov = doc.get("provenance", {})
+    if not isinstance(prov, dict):
+        raise ctx.err("provenance must be an object")
+    env = Environment(name=name, arm=arm, obstacles=obstacles, start=start, goal_pose=pose, goal_q=goal_q,
+                      e_p=e_p, e_phi=e_phi, description=description, known_path=known, provenance=dict(prov),
+                      source=Path(source) if source is not None else None)
+    env._checkers[(SWEEP_RES, None)] = checker
+    return env
+
+
+def load_environment(path: Any) -> Environment:
+    """Read and validate an environment file (or a fixed name E1/E2/E3)."""
+    if isinstance(path, str) and path.upper() in FIXED and not Path(path).exists():
+        return fixed_environment(path)
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ArmbridgeError(f"{path}: no such environment file (fixed environments: {', '.join(FIXED)})") from None
+    except OSError as exc:
+        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ArmbridgeError(f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
+    return environment_from_dict(doc, path)
+
+
+def save_environment(env: Environment, path: Any) -> Path:
+    path = Path(path)
+    doc = env.to_dict()
+    environment_from_dict(json.loads(json.dumps(doc)), path)  # never write what we would refuse
+    lines = ["{"]
+    items = list(doc.items())
+    for i, (k, v) in enumerate(items):
+        end = "," if i < len(items) - 1 else ""
+        if k in ("obstacles", "known_path"):
+            inner = ",\n".join("    " + json.dumps(p) for p in v)
+            lines.append(f'  "{k}": [\n{inner}\n  ]{end}')
+        else:
+            lines.append(f"  {json.dumps(k)}: {json.dumps(v)}{end}")
+    lines.append("}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def fixed_environment(name: str) -> Environment:
+    """One of the shipped environments E1, E2, E3 (host/armbridge/planning/envs/)."""
+    key = name.upper()
+    if key not in FIXED:
+        raise ArmbridgeError(f"unknown fixed environment {name!r} (known: {', '.join(FIXED)})")
+    return _fixed(key)
+
+
+@lru_cache(maxsize=None)
+def _fixed(key: str) -> Environment:
+    return load_environment(ENV_DIR / f"{key}.json")
+
+
+# -------------------------------------------------------------- random (V-C)
+@lru_cache(maxsize=8)
+def workspace_grid(arm: MasrArm, cell: float = 0.01, samples: int = 200_000, seed: int = 0) -> np.ndarray:
+    """Centres (m, 2) of the grid cells the arm can reach (any point on any link, i.e. any MA position)."""
+    rng = np.random.default_rng(seed)
+    tb = arm.theta_b
+    q = np.concatenate([rng.uniform(-tb, tb, (samples, arm.n)), np.zeros((samples, 1))], 1)
+    pts = arm.joint_points(q)  # (S, n+1, 2)
+    t = rng.random((samples, arm.n, 1))
+    on_links = pts[:, :-1] + t * (pts[:, 1:] - pts[:, :-1])
+    allp = np.concatenate([pts.reshape(-1, 2), on_links.reshape(-1, 2)])
+    L = arm.total_length
+    m = int(math.ceil(2 * L / cell)) + 1
+    idx = np.clip(np.floor((allp + L) / cell).astype(int), 0, m - 1)
+    grid = np.zeros((m, m), bool)
+    grid[idx[:, 0], idx[:, 1]] = True
+    ii, jj = np.nonzero(grid)
+    return np.stack([ii * cell - L + cell / 2, jj * cell - L + cell / 2], 1)
+
+
+def _star_polygon(rng: np.random.Generator, center: np.ndarray, radius: float) -> np.ndarray:
+    k = int(rng.integers(3, 8))
+    ang = np.sort(rng.uniform(0, 2 * np.pi, k))
+    # spread the angles a little so the polygon is not a sliver
+    ang = np.sort((ang + np.linspace(0, 2 * np.pi, k, endpoint=False)) / 2 + rng.uniform(0, np.pi))
+    rad = radius * rng.uniform(0.6, 1.0, k)
+    return center + np.stack([rad * np.cos(ang), rad * np.sin(ang)], 1)
+
+
+def random_environment(arm: MasrArm | None = None, seed: int = 0, *, max_obstacles: int = 4,
+                       max_coverage: float = 0.30, name: Optional[str] = None, e_p: float = E_P,
+                       e_phi: float = E_PHI, verify_iterations: int = 3000, max_tries: int = 200) -> Environment:
+    """A random environment as in section V-C, with a known solution.
+
+    The start and goal configurations are uniform in C_f (their MA positions
+    at least 0.15 m apart); the goal pose is f(q_goal). One to max_obstacles
+    random star-shaped polygons, disjoint, at least 5 cm from the base and
+    clear of the start and goal configurations, cover a random fraction of up
+    to max_coverage of the workspace (the area the arm can reach, a 1 cm grid).
+    A candidate is kept only if MASR-RRT* (numeric DLS goal IK,
+    verify_iterations iterations) finds a path; that path is stored as
+    known_path, so every environment has a known solution.
+    """
+    import shapely  # type: ignore[import-untyped]
+    from shapely.geometry import Polygon  # type: ignore[import-untyped]
+
+    from armbridge.planning import rrt_star
+
+    arm = arm if arm is not None else get_masr("masr5")
+    rng = np.random.default_rng(seed)
+    tb = arm.theta_b
+    ws = workspace_grid(arm)
+    ws_area = ws.shape[0] * 0.01 ** 2
+    ik = dls_ik.goal_ik(arm, e_p=e_p, e_phi=e_phi)
+
+    def rand_q() -> np.ndarray:
+        return np.concatenate([rng.uniform(-tb, tb), [rng.uniform(0, arm.total_length)]])
+
+    for _ in range(max_tries):
+        q0, qg = rand_q(), rand_q()
+        if np.linalg.norm(arm.ma_point(q0) - arm.ma_point(qg)) < 0.15:
+            continue
+        k = int(rng.integers(1, max_obstacles + 1))
+        coverage = rng.uniform(0.0, 1.0) * max_coverage
+        polys: list[np.ndarray] = []
+        union = None
+        for _p in range(k):
+            target = coverage * ws_area / k
+            for _t in range(30):
+                c = ws[rng.integers(ws.shape[0])]
+                radius = math.sqrt(target / math.pi) * rng.uniform(0.8, 1.25)
+                verts = _star_polygon(rng, c, radius)
+                poly = Polygon(verts)
+                if not poly.is_valid or poly.distance(shapely.Point(0, 0)) < 0.05 or (
+                        union is not None and poly.intersects(union)):
+                    target *= 0.9
+                    continue
+                chk = CollisionChecker.create(arm, [verts])
+                if not np.all(chk.free(np.stack([q0, qg]))):
+                    target *= 0.9
+                    continue
+                polys.append(verts)
+                union = poly if union is None else union.union(poly)
+                break
+        if not polys:
+            continue
+        cov = float(shapely.contains_xy(union, ws[:, 0], ws[:, 1]).mean())
+        if cov > max_coverage:
+            continue
+        doc = {
+            "format": FORMAT, "version": VERSION, "name": name or f"random-{seed}",
+            "description": f"random environment (section V-C), seed {seed}, {len(polys)} obstacles covering "
+                           f"{cov * 100:.1f}% of the workspace",
+            "robot": arm.name if MASRS.get(arm.name) == arm else arm.to_dict(),
+            "obstacles": [p.tolist() for p in polys],
+            "start": q0.tolist(),
+            "goal": {"pose": arm.fk(qg).tolist(), "q": qg.tolist(), "e_p": e_p, "e_phi": e_phi},
+            "provenance": {"tool": "armbridge.planning.random_environment", "seed": seed, "coverage": cov},
+        }
+        try:
+            env = environment_from_dict(doc)
+        except ArmbridgeError:
+            continue
+        res = rrt_star.plan(env, planner="masr-rrt*", iterations=verify_iterations, goal_ik=ik, seed=seed)
+        if res.path is None:
+            continue
+        env.known_path = res.path
+        return env
+    raise ArmbridgeError(f"random_environment: no solvable environment after {max_tries} tries (seed {seed})")
+
+
+def obstacle_polygons(env: Environment) -> Sequence[np.ndarray]:
+    return env.obstacles
