@@ -22,6 +22,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import read_json
 from armbridge.planning import dls_ik
 from armbridge.planning.collision import SWEEP_RES, CollisionChecker
 from armbridge.robots.catalog import MASRS, get_masr
@@ -310,18 +311,8 @@ def load_environment(path: Any) -> Environment:
     """Read and validate an environment file (or a fixed name E1/E2/E3)."""
     if isinstance(path, str) and path.upper() in FIXED and not Path(path).exists():
         return fixed_environment(path)
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ArmbridgeError(f"{path}: no such environment file (fixed environments: {', '.join(FIXED)})") from None
-    except OSError as exc:
-        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ArmbridgeError(f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
-    return environment_from_dict(doc, path)
+    doc = read_json(path, "environment file", f" (fixed environments: {', '.join(FIXED)})")
+    return environment_from_dict(doc, Path(path))
 
 
 def save_environment(env: Environment, path: Any) -> Path:

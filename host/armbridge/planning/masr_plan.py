@@ -28,6 +28,7 @@ from typing import Any, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import read_json
 from armbridge.planning.environment import Environment, environment_from_dict
 from armbridge.robots.catalog import MASRS, get_masr
 from armbridge.robots.masr import MasrArm
@@ -244,15 +245,5 @@ def plan_from_document(doc: Any, source: Any = None) -> MasrPlan:
 
 def load_masr_plan(path: Any) -> MasrPlan:
     """Read and validate a MASR plan file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ArmbridgeError(f"{path}: no such plan file") from None
-    except OSError as exc:
-        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ArmbridgeError(f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
-    return plan_from_document(doc, path)
+    doc = read_json(path, "plan file")
+    return plan_from_document(doc, Path(path))

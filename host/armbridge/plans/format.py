@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import parse_json, read_json
 from armbridge.robots.catalog import ROBOTS
 from armbridge.robots.planar import PlanarChain
 
@@ -155,13 +156,6 @@ def robot_from_dict(d: Any, ctx: _Ctx | None = None) -> PlanarChain:
 # parse + validate
 
 
-def _parse_json(text: str, ctx: _Ctx) -> Any:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ctx.err(f"line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
-
-
 def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
     """Validate a parsed plan document and build the Plan. Raises ArmbridgeError."""
     ctx = _Ctx(source)
@@ -291,23 +285,12 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
 
 def loads_plan(text: str, source: Path | str | None = None) -> Plan:
     """Parse and validate plan text."""
-    return plan_from_dict(_parse_json(text, _Ctx(source)), source)
+    return plan_from_dict(parse_json(text, _Ctx(source).name), source)
 
 
 def load_plan(path: Path | str) -> Plan:
     """Read, parse and validate a plan file. Raises ArmbridgeError naming what is wrong."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ArmbridgeError(f"{path}: no such plan file") from None
-    except IsADirectoryError:
-        raise ArmbridgeError(f"{path}: is a directory, not a plan file") from None
-    except UnicodeDecodeError as exc:
-        raise ArmbridgeError(f"{path}: not UTF-8 text (byte {exc.start}): a plan is a JSON file") from None
-    except OSError as exc:
-        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
-    return loads_plan(text, path)
+    return plan_from_dict(read_json(path, "plan file"), Path(path))
 
 
 def validate(plan: Plan | dict, source: Path | str | None = None) -> Plan:
