@@ -31,7 +31,7 @@ from typing import Any, Union
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.planar import wrap_angle
+from armbridge.robots.planar import description_fields, wrap_angle
 
 _ARRAY_FIELDS = ("link_lengths", "theta_b")
 _SCALAR_FIELDS = ("ma_speed", "joint_speed", "link_width")
@@ -338,18 +338,7 @@ class MasrArm:
     @classmethod
     def from_dict(cls, d: Any) -> MasrArm:
         """Build from a JSON description with exactly the keys of to_dict() (SI units, rad)."""
-        if not isinstance(d, dict):
-            raise ArmbridgeError(f"MASR description must be a JSON object, got {type(d).__name__}")
-        missing = [k for k in _FIELDS if k not in d]
-        unknown = sorted(set(d) - set(_FIELDS))
-        if missing or unknown:
-            problems = ([f"missing keys {missing}"] if missing else []) + (
-                [f"unknown keys {unknown}"] if unknown else []
-            )
-            raise ArmbridgeError(
-                f"MASR description {d.get('name', '?')!r}: {'; '.join(problems)} (expected keys {list(_FIELDS)})"
-            )
-        return cls(**{k: d[k] for k in _FIELDS})
+        return cls(**description_fields(d, _FIELDS, "MASR description"))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, MasrArm) and self.to_dict() == other.to_dict()

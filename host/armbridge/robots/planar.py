@@ -121,24 +121,25 @@ class PlanarChain:
     @classmethod
     def from_dict(cls, d: Any) -> PlanarChain:
         """Build from a JSON description with exactly the keys of to_dict()."""
-        if not isinstance(d, dict):
-            raise ArmbridgeError(f"robot description must be a JSON object, got {type(d).__name__}")
-        missing = [k for k in _FIELDS if k not in d]
-        unknown = sorted(set(d) - set(_FIELDS))
-        if missing or unknown:
-            problems = ([f"missing keys {missing}"] if missing else []) + (
-                [f"unknown keys {unknown}"] if unknown else []
-            )
-            raise ArmbridgeError(
-                f"robot description {d.get('name', '?')!r}: {'; '.join(problems)} (expected keys {list(_FIELDS)})"
-            )
-        return cls(**{k: d[k] for k in _FIELDS})
+        return cls(**description_fields(d, _FIELDS, "robot description"))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, PlanarChain) and self.to_dict() == other.to_dict()
 
     def __hash__(self) -> int:
         return hash(json.dumps(self.to_dict()))
+
+
+def description_fields(d: Any, fields: tuple[str, ...], what: str) -> dict[str, Any]:
+    """The values of a JSON robot description that has exactly `fields`."""
+    if not isinstance(d, dict):
+        raise ArmbridgeError(f"{what} must be a JSON object, got {type(d).__name__}")
+    missing = [k for k in fields if k not in d]
+    unknown = sorted(set(d) - set(fields))
+    if missing or unknown:
+        problems = ([f"missing keys {missing}"] if missing else []) + ([f"unknown keys {unknown}"] if unknown else [])
+        raise ArmbridgeError(f"{what} {d.get('name', '?')!r}: {'; '.join(problems)} (expected keys {list(fields)})")
+    return {k: d[k] for k in fields}
 
 
 def _float_vector(name: str, field: str, value: Any) -> np.ndarray:
