@@ -55,3 +55,146 @@ def link_cmd(
     table.add_row("soak: resets / resyncs / retransmitted", f"{so['resets']} / {so['resyncs']} / {so['retransmitted']}", "")
     console.print(table)
     console.print(f"wrote {json_out}")
+
+
+@bench_app.command("masr-ik")
+def masr_ik_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 40 trials, NR on 4 of them with m = 50."),
+    trials: int = typer.Option(None, "--trials", help="Table I trials (full run: 5000)."),
+    nr_trials: int = typer.Option(None, "--nr-trials", help="How many of the trials the NR baseline solves (full: all)."),
+    nr_restarts: int = typer.Option(None, "--nr-restarts", help="NR restarts m (full run: 1000)."),
+    card12: Path = typer.Option(None, "--card", help="IK-NN (12) model card [default: models/onnx/masr5-iknn-card.json]."),
+    card11: Path = typer.Option(None, "--card11", help="IK-NN (11) model card [default: models/onnx/masr5-iknn-reg11-card.json]."),
+    seed: int = typer.Option(2024, "--seed", help="Seed of the random trials."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-ik.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Table I of the masr paper (section V-B): IK-NN (11), IK-NN (12), + refinement,
+    int8, and the numeric NR baseline; accuracy, action time and time per query."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.bench import masr_ik
+
+    size = masr_ik.QUICK if quick else masr_ik.FULL
+    for name, v in (("trials", trials), ("nr_trials", nr_trials), ("nr_restarts", nr_restarts)):
+        if v is not None:
+            size = replace(size, **{name: v})
+    console = Console()
+    result = masr_ik.run(size, card12=card12 or masr_ik.CARD_12, card11=card11 or masr_ik.CARD_11,
+                         seed=seed, progress=lambda text: console.print(f"[dim]bench masr-ik: {text}[/]"))
+    write_json(result, json_out)
+
+    table = Table(title=f"armbridge bench masr-ik (Table I protocol, {size.trials} trials, "
+                        f"e_p 8 mm, e_phi 4 deg; NR on {result['nr_trials']})")
+    for col in ("row", "mean dp (mm)", "mean dphi (deg)", "success (%)", "mean action time (s)",
+                "single query (ms, median)", "batched (queries/s)"):
+        table.add_column(col, justify="left" if col == "row" else "right")
+    for r in result["rows"]:
+        if "missing" in r:
+            table.add_row(r["row"], r["missing"], "", "", "", "", "")
+            continue
+        table.add_row(f"{r['row']}" + (f" [{r['model']}]" if r["row"].startswith("NR") else ""),
+                      f"{r['mean_dp_mm']:.2f}", f"{r['mean_dphi_deg']:.2f}", f"{r['success_rate']:.1f}",
+                      f"{r['mean_action_time_s']:.2f}", f"{r['single']['median_ms']:.3f}",
+                      f"{r['batched_queries_per_s']:,.0f}")
+    console.print(table)
+    if result["nr_trials"]:
+        sub = Table(title=f"on the NR trials ({result['nr_trials']}): same queries for every row")
+        for col in ("row", "mean dp (mm)", "success (%)", "mean action time (s)"):
+            sub.add_column(col, justify="left" if col == "row" else "right")
+        for r in result["rows"]:
+            s = r if r["row"].startswith("NR") else r.get("on_nr_subset")
+            if s:
+                sub.add_row(r["row"], f"{s['mean_dp_mm']:.2f}", f"{s['success_rate']:.1f}",
+                            f"{s['mean_action_time_s']:.2f}")
+        console.print(sub)
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")
+
+
+@bench_app.command("masr-plan")
+def masr_plan_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 environments, 4 trials, 200 iterations."),
+    environments: int = typer.Option(None, "--environments", help="Fig. 5 random environments (full run: 300)."),
+    fig5_iterations: int = typer.Option(None, "--fig5-iterations", help="Fig. 5 iterations per run (full: 3000)."),
+    trials: int = typer.Option(None, "--trials", help="Fig. 7 trials per environment and planner (full: 200)."),
+    fig7_iterations: int = typer.Option(None, "--fig7-iterations", help="Fig. 7 iterations per trial (full: 12000)."),
+    timing_runs: int = typer.Option(None, "--timing-runs", help="Runs of 1,000 iterations per planner and environment."),
+    ompl_runs: int = typer.Option(None, "--ompl-runs", help="OMPL RRT* runs per environment (0: skip)."),
+    parts: str = typer.Option("timing,ompl,fig7,fig5", "--parts", help="Which parts to run (comma-separated)."),
+    card: Path = typer.Option(None, "--card", help="Goal IK model card [default: models/onnx/masr5-iknn-card.json]."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results."),
+    png_dir: Path = typer.Option(None, "--png-dir", help="Also write Fig. 5 / Fig. 7 plots (PNG) here."),
+) -> None:
+    """Section V-C of the masr paper: Fig. 5 (random environments, p_c in {0, 0.2, 0.6, 1}),
+    Fig. 7 (E1-E3 cost percentiles), time per 1,000 iterations, and OMPL's RRT* beside ours."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.bench import masr_plan as mp
+
+    size = mp.QUICK if quick else mp.FULL
+    for name, v in (("environments", environments), ("fig5_iterations", fig5_iterations), ("trials", trials),
+                    ("fig7_iterations", fig7_iterations), ("timing_runs", timing_runs), ("ompl_runs", ompl_runs)):
+        if v is not None:
+            size = replace(size, **{name: v})
+    console = Console()
+    chosen = tuple(p.strip() for p in parts.split(",") if p.strip())
+    result = mp.run(size, card=card or mp.CARD_12, parts=chosen,
+                    progress=lambda text: console.print(f"[dim]bench masr-plan: {text}[/]"))
+    write_json(result, json_out)
+
+    def fmt(v: object, spec: str = ".2f") -> str:
+        return "-" if v is None else format(v, spec)
+
+    if "timing" in result:
+        t = Table(title="seconds per 1,000 iterations (median) and cost at 1,000 iterations")
+        for col in ("env", "planner", "s / 1000 it (median)", "success", "mean cost (s)"):
+            t.add_column(col, justify="left" if col in ("env", "planner") else "right")
+        om = result.get("ompl", {})
+        for env, row in result["timing"].items():
+            for pl, r in row.items():
+                t.add_row(env, pl, f"{r['median_s_per_1000']:.3f}", f"{r['success_rate']:.0%}", fmt(r["mean_cost_s"]))
+            if env in om:
+                o = om[env]
+                t.add_row(env, "OMPL RRTstar (eq. 8)", f"{o['median_s_per_1000']:.3f}", f"{o['success_rate']:.0%}",
+                          fmt(o["mean_cost_s"]))
+        console.print(t)
+    if "fig5" in result:
+        f5 = result["fig5"]
+        t = Table(title=f"Fig. 5: {f5['environments']} random environments: success rate / mean cost (s) "
+                        "over the commonly solved")
+        t.add_column("iterations", justify="right")
+        for pl in f5["curves"]:
+            t.add_column(pl, justify="right")
+        for row in f5["rows"]:
+            t.add_row(str(row["iterations"]), *[f"{row[pl]['success_rate']:.0%} / {fmt(row[pl]['mean_cost_common_s'])}"
+                                                for pl in f5["curves"]])
+        console.print(t)
+    if "fig7" in result:
+        f7 = result["fig7"]
+        t = Table(title=f"Fig. 7: E1-E3, {f7['trials']} trials each: share below the 15th / 25th percentile "
+                        "of the normalised cost range")
+        t.add_column("env")
+        t.add_column("iterations", justify="right")
+        pls = None
+        for env, e in f7["environments"].items():
+            if pls is None:
+                pls = list(e["curves"])
+                for pl in pls:
+                    t.add_column(pl, justify="right")
+            for row in e["rows"]:
+                t.add_row(env, str(row["iterations"]),
+                          *[f"{row[pl]['below_p15']:.0%} / {row[pl]['below_p25']:.0%}" for pl in pls])
+        console.print(t)
+    tgt = result["target_masr_not_worse"]
+    console.print(f"MASR-RRT* (p_c 0.6) at least as good as RRT* at every iteration count: "
+                  f"{'met' if tgt['met'] else 'MISSED: ' + ', '.join(tgt['violations'][:10])}")
+    if png_dir is not None:
+        for p in mp.plots(result, png_dir):
+            console.print(f"wrote {p}")
+    console.print(f"wrote {json_out}")

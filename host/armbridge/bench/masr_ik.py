@@ -1,0 +1,142 @@
+"""`armbridge bench masr-ik`: Table I of the masr paper (section V-B).
+
+Protocol: `trials` random trials (armbridge.ik.masr_ik.random_trials): q0
+uniform in C_f and a reachable goal pose x_goal = f(q) of an independent
+uniform q. A trial succeeds when the answer's MA pose is within e_p = 8 mm
+and e_phi = 4 deg of the goal (eq. 9). Rows:
+
+* IK-NN (11): the network trained with the joint regulariser eq. (11);
+* IK-NN (12): the shipped network, action-time regulariser eq. (12);
+* IK-NN (12) + refinement: then a few DLS steps (MasrIK.solve(refine=True));
+* int8 IK-NN (12): the weight-only int8 ONNX of the same card;
+* NR m = 10^3: the numeric baseline (armbridge.ik.masr_nr.MasrNR), on the
+  first `nr_trials` trials (it is ~10^4 times slower); the IK-NN rows are
+  also evaluated on that same subset so the action times compare like for like.
+
+Timing: "single" is one query per call (x_goal (3,), q_c (n+1,)), the median
+over `single_queries` calls; "batched" is every trial in one call, best of
+`batch_repeats`, in queries/s. onnxruntime runs on one thread.
+"""
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MODELS = Path(__file__).resolve().parents[3] / "models" / "onnx"
+CARD_12 = MODELS / "masr5-iknn-card.json"
+CARD_11 = MODELS / "masr5-iknn-reg11-card.json"
+
+
+@dataclass(frozen=True)
+class MasrIKBenchSize:
+    trials: int  # Table I trials for the IK-NN rows
+    nr_trials: int  # of them, how many the NR baseline solves
+    nr_restarts: int  # m
+    single_queries: int  # single-query timing calls per row
+    batch_repeats: int
+
+
+FULL = MasrIKBenchSize(trials=5000, nr_trials=5000, nr_restarts=1000, single_queries=1000, batch_repeats=3)
+QUICK = MasrIKBenchSize(trials=40, nr_trials=4, nr_restarts=50, single_queries=20, batch_repeats=1)
+
+
+def _time_single(fn: Callable[[np.ndarray, np.ndarray], Any], xg: np.ndarray, q0: np.ndarray, count: int) -> dict:
+    fn(xg[0], q0[0])  # warm-up (session creation)
+    ts = []
+    for i in range(min(count, xg.shape[0])):
+        t0 = time.perf_counter()
+        fn(xg[i], q0[i])
+        ts.append(time.perf_counter() - t0)
+    a = np.array(ts) * 1e3
+    return {"n": int(a.size), "median_ms": float(np.median(a)), "mean_ms": float(a.mean()),
+            "p95_ms": float(np.percentile(a, 95))}
+
+
+def _time_batch(fn: Callable[[np.ndarray, np.ndarray], np.ndarray], xg: np.ndarray, q0: np.ndarray,
+                repeats: int) -> tuple[np.ndarray, float]:
+    fn(xg[:1], q0[:1])  # warm-up (session creation)
+    best = np.inf
+    q = None
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        q = fn(xg, q0)
+        best = min(best, time.perf_counter() - t0)
+    assert q is not None
+    return q, xg.shape[0] / best
+
+
+def run(size: MasrIKBenchSize, card12: Path = CARD_12, card11: Path | None = CARD_11, seed: int = 2024,
+        nr_backend: str = "auto", progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    from armbridge.ik.masr_ik import E_P, E_PHI, MasrIK, evaluate, random_trials
+    from armbridge.ik.masr_nr import MasrNR
+
+    ik12 = MasrIK.load(card12)
+    arm = ik12.arm
+    xg, q0 = random_trials(arm, size.trials, seed)
+    n_nr = min(size.nr_trials, size.trials)
+    rows: list[dict[str, Any]] = []
+
+    def add(label: str, model: str, fn_batch: Callable, fn_single: Callable, extra: dict | None = None) -> None:
+        progress(f"{label}: {size.trials} trials")
+        q, qps = _time_batch(fn_batch, xg, q0, size.batch_repeats)
+        row = {"row": label, "model": model, **evaluate(arm, xg, q0, q),
+               "single": _time_single(fn_single, xg, q0, size.single_queries), "batched_queries_per_s": qps}
+        if n_nr:
+            sub = evaluate(arm, xg[:n_nr], q0[:n_nr], q[:n_nr])
+            row["on_nr_subset"] = {k: sub[k] for k in ("trials", "mean_dp_mm", "success_rate", "mean_action_time_s")}
+        row.update(extra or {})
+        rows.append(row)
+
+    if card11 is not None and Path(card11).is_file():
+        ik11 = MasrIK.load(card11)
+        add("IK-NN (11)", Path(card11).name, ik11.solve, ik11.solve)
+    else:
+        rows.append({"row": "IK-NN (11)", "missing": f"no model card at {card11}"})
+    add("IK-NN (12)", card12.name, ik12.solve, ik12.solve)
+
+    def refined(x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return ik12.solve(x, q, refine=True)
+
+    add("IK-NN (12) + refinement", card12.name, refined, refined)
+    ik8 = MasrIK.load(card12, int8=True)
+    add("int8 IK-NN (12)", ik8.onnx_path.name, ik8.solve, ik8.solve)
+
+    nr_row: dict[str, Any]
+    if n_nr:
+        nr = MasrNR(arm, restarts=size.nr_restarts, seed=seed, backend=nr_backend)
+        progress(f"NR m={size.nr_restarts} ({nr.method}): {n_nr} trials")
+        t0 = time.perf_counter()
+        qn = nr.solve(xg[:n_nr], q0[:n_nr])
+        elapsed = time.perf_counter() - t0
+        per_ms = elapsed / n_nr * 1e3
+        nr_row = {"row": f"NR m={size.nr_restarts}", "model": nr.method, **nr.describe(),
+                  **evaluate(arm, xg[:n_nr], q0[:n_nr], qn),
+                  "single": {"n": n_nr, "median_ms": per_ms, "mean_ms": per_ms, "p95_ms": None},
+                  "batched_queries_per_s": n_nr / elapsed}
+        rows.append(nr_row)
+
+    by = {r["row"]: r for r in rows}
+    f12, r12, i12 = by["IK-NN (12)"], by["IK-NN (12) + refinement"], by["int8 IK-NN (12)"]
+    targets = {
+        "iknn12_success_ge_87": f12["success_rate"] >= 87.0,
+        "iknn12_mean_dp_le_3.5mm": f12["mean_dp_mm"] <= 3.5,
+        "refined_success_ge_99": r12["success_rate"] >= 99.0,
+        "refined_single_lt_1ms": r12["single"]["median_ms"] < 1.0,
+        "refined_batched_ge_50k_qps": r12["batched_queries_per_s"] >= 50_000,
+        "int8_within_1pt": abs(i12["success_rate"] - f12["success_rate"]) <= 1.0,
+    }
+    if n_nr:
+        targets["refined_action_time_le_nr"] = (r12["on_nr_subset"]["mean_action_time_s"]
+                                                <= rows[-1]["mean_action_time_s"])
+    return {
+        "benchmark": "masr-ik (Table I, section V-B)",
+        "size": asdict(size), "seed": seed, "robot": arm.name, "e_p_m": E_P, "e_phi_deg": float(np.degrees(E_PHI)),
+        "nr_trials": n_nr, "rows": rows, "targets": targets,
+        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+    }

@@ -1,0 +1,289 @@
+"""`armbridge bench masr-plan`: the planning experiments of the masr paper (section V-C).
+
+* Fig. 5: `environments` random environments (planning.environment.
+  random_environment, seeds 0..environments-1, each with a known solution);
+  per environment one run of each planner with the same seed: the baseline
+  RRT* (p_c = 0, goal bias 0.1, the paper's "p_c = 0") and MASR-RRT* with
+  p_c in {0.2, 0.6, 1} (goal IK: the shipped IK-NN, MasrIK.solve). Success
+  rate (share of environments with a path) and cost vs iterations; the cost
+  is the mean best tau (eq. 7, s) over the environments every planner has
+  solved by that iteration count (so the means are over the same set), plus
+  the mean over each planner's own solved set.
+* Fig. 7: E1-E3, `trials` runs (seeds 0..trials-1) of MASR-RRT* (p_c 0.6)
+  and RRT*, `fig7_iterations` iterations each; the share of trials whose best
+  cost is at or below the 15th / 25th percentile of the normalised cost range
+  (rrt_star.percentile_success: range over every cost recorded in all trials
+  of both planners on that environment).
+* Timing: seconds per 1,000 iterations of each planner on E1-E3 (median of
+  `timing_runs` runs).
+* OMPL: OMPL's RRT* (PyPI `ompl`, planning.ompl_compare, objective eq. 8, our
+  collision checker) for 1,000 iterations on E1-E3: time per 1,000 iterations
+  and the eq. (7) cost of its path, beside ours at 1,000 iterations.
+"""
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from armbridge.bench.masr_ik import CARD_12
+
+P_CS = (0.0, 0.2, 0.6, 1.0)
+FIXED = ("E1", "E2", "E3")
+LEVELS = (0.15, 0.25)
+
+
+@dataclass(frozen=True)
+class MasrPlanBenchSize:
+    environments: int  # Fig. 5
+    fig5_iterations: int
+    trials: int  # Fig. 7, per environment and planner
+    fig7_iterations: int
+    timing_runs: int
+    ompl_runs: int  # per environment (0: skip OMPL)
+
+
+FULL = MasrPlanBenchSize(environments=300, fig5_iterations=3000, trials=200, fig7_iterations=12000,
+                         timing_runs=20, ompl_runs=5)
+QUICK = MasrPlanBenchSize(environments=3, fig5_iterations=200, trials=4, fig7_iterations=200,
+                          timing_runs=1, ompl_runs=0)
+
+
+def checkpoints(iterations: int) -> list[int]:
+    """Iteration counts to report: 1-2-5 steps up to `iterations`, which is always last."""
+    out = []
+    for dec in (10, 100, 1000, 10000, 100000):
+        for m in (1, 2, 5):
+            k = m * dec
+            if 50 <= k < iterations:
+                out.append(k)
+    return out + [iterations]
+
+
+def label(p_c: float) -> str:
+    return "RRT* (p_c = 0)" if p_c == 0 else f"MASR-RRT* p_c = {p_c:g}"
+
+
+def _run(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, checker: Any) -> Any:
+    from armbridge.planning import rrt_star
+
+    if p_c == 0:
+        return rrt_star.plan(env, planner="rrt*", iterations=iterations, seed=seed, checker=checker)
+    return rrt_star.plan(env, planner="masr-rrt*", iterations=iterations, goal_ik=goal_ik, p_c=p_c, seed=seed,
+                         checker=checker)
+
+
+def fig5(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
+    from armbridge.planning.environment import random_environment
+    from armbridge.robots import get_masr
+
+    arm = get_masr("masr5")
+    its = size.fig5_iterations
+    costs = {p: np.full((size.environments, its), np.inf) for p in P_CS}
+    times = {p: np.zeros(size.environments) for p in P_CS}
+    t0 = time.perf_counter()
+    gen_s = 0.0
+    for e in range(size.environments):
+        tg = time.perf_counter()
+        env = random_environment(arm, seed=e)
+        gen_s += time.perf_counter() - tg
+        chk = env.checker()
+        for p in P_CS:
+            r = _run(env, p, its, e, goal_ik, chk)
+            costs[p][e] = r.best_costs
+            times[p][e] = r.time_s
+        if (e + 1) % 10 == 0 or e + 1 == size.environments:
+            progress(f"fig5: {e + 1}/{size.environments} environments ({time.perf_counter() - t0:.0f} s)")
+    cps = checkpoints(its)
+    rows = []
+    for k in cps:
+        at = {p: costs[p][:, k - 1] for p in P_CS}
+        common = np.all([np.isfinite(at[p]) for p in P_CS], axis=0)
+        row: dict[str, Any] = {"iterations": k, "common_solved": int(common.sum())}
+        for p in P_CS:
+            ok = np.isfinite(at[p])
+            row[label(p)] = {
+                "success_rate": float(ok.mean()),
+                "mean_cost_common_s": float(at[p][common].mean()) if common.any() else None,
+                "mean_cost_own_s": float(at[p][ok].mean()) if ok.any() else None,
+            }
+        rows.append(row)
+    return {"environments": size.environments, "iterations": its, "environment_generation_s": gen_s,
+            "rows": rows,
+            "time_per_1000_s_mean": {label(p): float(times[p].mean() / its * 1000) for p in P_CS},
+            "curves": {label(p): {"success_rate": np.isfinite(costs[p]).mean(0).tolist()} for p in P_CS}}
+
+
+def fig7(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
+    from armbridge.planning.environment import fixed_environment
+    from armbridge.planning.rrt_star import percentile_success
+
+    its = size.fig7_iterations
+    cps = checkpoints(its)
+    out: dict[str, Any] = {"trials": size.trials, "iterations": its, "environments": {}}
+    for name in FIXED:
+        env = fixed_environment(name)
+        chk = env.checker()
+        costs = {}
+        times = {}
+        for p in (0.0, 0.6):
+            runs = [_run(env, p, its, s, goal_ik, chk) for s in range(size.trials)]
+            costs[label(p)] = np.array([r.best_costs for r in runs])
+            times[label(p)] = np.array([r.time_s for r in runs])
+        rates = percentile_success(costs, LEVELS)
+        seen = np.concatenate([c[np.isfinite(c)] for c in costs.values()])
+        rows = []
+        for k in cps:
+            row: dict[str, Any] = {"iterations": k}
+            for pl, c in costs.items():
+                ok = np.isfinite(c[:, k - 1])
+                row[pl] = {"success_rate": float(ok.mean()),
+                           "mean_cost_s": float(c[ok, k - 1].mean()) if ok.any() else None,
+                           **{f"below_p{int(lv * 100)}": float(rates[pl][lv][k - 1]) for lv in LEVELS}}
+            rows.append(row)
+        out["environments"][name] = {
+            "cost_range_s": [float(seen.min()), float(seen.max())] if seen.size else None,
+            "rows": rows,
+            "time_per_1000_s_mean": {pl: float(t.mean() / its * 1000) for pl, t in times.items()},
+            "curves": {pl: {f"below_p{int(lv * 100)}": rates[pl][lv].tolist() for lv in LEVELS} for pl in costs},
+        }
+        progress(f"fig7: {name} done")
+    return out
+
+
+def timing(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
+    from armbridge.planning.environment import fixed_environment
+
+    out: dict[str, Any] = {}
+    for name in FIXED:
+        env = fixed_environment(name)
+        chk = env.checker()
+        row = {}
+        for p in (0.0, 0.6):
+            runs = [_run(env, p, 1000, 1000 + s, goal_ik, chk) for s in range(size.timing_runs)]
+            ts = np.array([r.time_s for r in runs])
+            cs = np.array([r.cost for r in runs])
+            row[label(p)] = {"median_s_per_1000": float(np.median(ts)), "max_s_per_1000": float(ts.max()),
+                             "success_rate": float(np.isfinite(cs).mean()),
+                             "mean_cost_s": float(cs[np.isfinite(cs)].mean()) if np.isfinite(cs).any() else None}
+        out[name] = row
+    progress("timing done")
+    return out
+
+
+def ompl(size: MasrPlanBenchSize, progress: Callable[[str], None]) -> dict[str, Any]:
+    from armbridge.planning.environment import fixed_environment
+    from armbridge.planning.ompl_compare import ompl_available, ompl_rrt_star
+
+    why = ompl_available()
+    if why or size.ompl_runs == 0:
+        return {"skipped": why or "ompl_runs = 0"}
+    out: dict[str, Any] = {}
+    for name in FIXED:
+        env = fixed_environment(name)
+        rs = [ompl_rrt_star(env, iterations=1000, seed=s) for s in range(size.ompl_runs)]
+        cs = np.array([r["cost_s"] if r["success"] else np.inf for r in rs])
+        out[name] = {"runs": len(rs), "median_s_per_1000": float(np.median([r["time_per_1000_s"] for r in rs])),
+                     "success_rate": float(np.isfinite(cs).mean()),
+                     "mean_cost_s": float(cs[np.isfinite(cs)].mean()) if np.isfinite(cs).any() else None,
+                     "iterations_done": [int(r["iterations"]) for r in rs]}
+        progress(f"ompl: {name} done")
+    return out
+
+
+def masr_not_worse(result: dict[str, Any]) -> dict[str, Any]:
+    """Target check: MASR-RRT* (p_c 0.6) at least as good as RRT* at every reported iteration count."""
+    base, masr = label(0.0), label(0.6)
+    bad = []
+    if "fig5" in result:
+        for row in result["fig5"]["rows"]:
+            b, m = row[base], row[masr]
+            if m["success_rate"] < b["success_rate"]:
+                bad.append(f"fig5 success @ {row['iterations']}")
+            if b["mean_cost_common_s"] is not None and m["mean_cost_common_s"] > b["mean_cost_common_s"] + 1e-9:
+                bad.append(f"fig5 cost @ {row['iterations']}")
+    for name, e in result.get("fig7", {}).get("environments", {}).items():
+        for row in e["rows"]:
+            for key in ("success_rate", "below_p15", "below_p25"):
+                if row[masr][key] < row[base][key]:
+                    bad.append(f"fig7 {name} {key} @ {row['iterations']}")
+    return {"met": not bad, "violations": bad}
+
+
+def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = ("fig5", "fig7", "timing", "ompl"),
+        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    from armbridge.ik.masr_ik import MasrIK
+
+    ik = MasrIK.load(card)
+
+    def goal_ik(x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:
+        return ik.solve(x_goal, q_c)
+
+    result: dict[str, Any] = {"benchmark": "masr-plan (section V-C)", "size": asdict(size), "goal_ik": card.name,
+                              "machine": {"python": platform.python_version(),
+                                          "cpu": platform.processor() or platform.machine()}}
+    t0 = time.perf_counter()
+    if "timing" in parts:
+        result["timing"] = timing(size, goal_ik, progress)
+    if "ompl" in parts:
+        result["ompl"] = ompl(size, progress)
+    if "fig7" in parts:
+        result["fig7"] = fig7(size, goal_ik, progress)
+    if "fig5" in parts:
+        result["fig5"] = fig5(size, goal_ik, progress)
+    result["target_masr_not_worse"] = masr_not_worse(result)
+    result["wall_s"] = time.perf_counter() - t0
+    return result
+
+
+def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
+    """Fig. 5 (success rate and cost vs iterations) and Fig. 7 (share below the 15th/25th percentile)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    if "fig5" in result:
+        f5 = result["fig5"]
+        fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+        its = np.arange(1, f5["iterations"] + 1)
+        for pl, c in f5["curves"].items():
+            a.plot(its, np.array(c["success_rate"]) * 100, label=pl)
+        ks = [r["iterations"] for r in f5["rows"]]
+        for pl in f5["curves"]:
+            ys = [r[pl]["mean_cost_common_s"] for r in f5["rows"]]
+            b.plot(ks, [np.nan if y is None else y for y in ys], marker="o", label=pl)
+        a.set(xlabel="iterations N_c", ylabel="success rate (%)", title=f"{f5['environments']} random environments")
+        b.set(xlabel="iterations N_c", ylabel="mean cost tau (s), commonly solved", xscale="log")
+        a.legend()
+        b.legend()
+        fig.tight_layout()
+        p = png_dir / "masr-fig5.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
+    if "fig7" in result:
+        f7 = result["fig7"]
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+        its = np.arange(1, f7["iterations"] + 1)
+        for ax, key, title in zip(axes, ("below_p15", "below_p25"), ("15th", "25th")):
+            for name, e in f7["environments"].items():
+                for pl, c in e["curves"].items():
+                    ax.plot(its, np.array(c[key]) * 100, ls="-" if "MASR" in pl else "--",
+                            label=f"{name} {pl}")
+            ax.set(xlabel="iterations", ylabel=f"trials below the {title} percentile (%)",
+                   title=f"{f7['trials']} trials per environment")
+        axes[1].legend(fontsize=7)
+        fig.tight_layout()
+        p = png_dir / "masr-fig7.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
+    return written
