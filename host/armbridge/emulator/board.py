@@ -99,12 +99,10 @@ class Faults:
     stall: tuple[tuple[int, float], ...] = ()
 
     def __post_init__(self) -> None:
-        for name in ("drop", "corrupt", "dup", "delay"):
-            r = getattr(self, name)
-            if not 0.0 <= r <= 1.0:
-                raise ArmbridgeError(f"fault rate {name}={r} is outside the range [0, 1]")
-        if self.delay_ms < 0:
-            raise ArmbridgeError(f"fault delay_ms={self.delay_ms} must be >= 0")
+        try:
+            self.link  # LinkFaults checks the rates and the delay
+        except ValueError as exc:
+            raise ArmbridgeError(f"fault {exc}") from None
         for lane in self.lanes:
             if lane not in LANES:
                 raise ArmbridgeError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
