@@ -250,6 +250,25 @@ def test_refinement_reduces_error():
     assert np.all(out[0, ARM.locate(out[0, 5])[0] + 1 : 5] == 0)
 
 
+def test_refinement_sparsifies_within_margin():
+    rng = np.random.default_rng(9)
+    q_true = random_configs(ARM, 200, rng)
+    q_c = random_configs(ARM, 200, rng)
+    xg = ARM.fk(q_true)
+    start = q_true.copy()
+    start[:, :5] = np.clip(start[:, :5] + rng.normal(0, 0.03, (200, 5)), -ARM.theta_b, ARM.theta_b)
+    plain = refine(ARM, xg, start, q_c=q_c, snap_margin=0.0)
+    sparse = refine(ARM, xg, start, q_c=q_c, snap_margin=0.5)
+    changed = np.any(sparse != plain, axis=1)
+    assert changed.sum() > 20  # most random goals leave some joint that need not turn
+    assert np.all(ARM.action_cost(q_c, sparse)[changed] < ARM.action_cost(q_c, plain)[changed])
+    dp, dphi = pose_errors(ARM, xg, sparse)
+    assert np.all(np.maximum(dp / 0.008, dphi / math.radians(4))[changed] <= 0.5 + 1e-9)
+    turned = lambda q: (np.abs(q[:, :5] - q_c[:, :5]) > 1e-9).sum(axis=1)  # noqa: E731
+    assert np.all(turned(sparse)[changed] <= turned(plain)[changed])
+    assert ARM.feasible(sparse).all()
+
+
 def test_masr_ik_interface(tmp_path, exported):
     model, f, w, *_ = exported
     card = {"robot": ARM.to_dict(), "files": {"onnx": ex.file_entry(f, f.parent), "onnx_int8": ex.file_entry(w, f.parent)}}

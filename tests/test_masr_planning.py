@@ -1,6 +1,5 @@
 """MASR planning (masr paper, section IV): environments, collision checking, MASR-RRT* vs RRT*, plan files, CLI."""
 import json
-import time
 
 import numpy as np
 import pytest
@@ -177,14 +176,6 @@ def test_planner_is_deterministic_and_prefix_consistent(goal_ik):
     c = rrt_star.plan(env, iterations=200, goal_ik=goal_ik, seed=3)
     np.testing.assert_array_equal(a.best_costs, b.best_costs)
     np.testing.assert_array_equal(a.best_costs[:200], c.best_costs)  # same random streams for any N_c
-
-
-def test_planner_speed(goal_ik):
-    env = fixed_environment("E1")
-    rrt_star.plan(env, iterations=50, goal_ik=goal_ik, seed=0)  # warm
-    t = time.perf_counter()
-    rrt_star.plan(env, iterations=1000, goal_ik=goal_ik, seed=1)
-    assert time.perf_counter() - t < 1.5  # target 0.5 s; loose for a loaded CI machine
 
 
 def test_baseline_needs_no_ik_and_masr_needs_one():

@@ -12,9 +12,10 @@ damped least-squares system on the error measured in goal-tolerance units (dp / 
 the joint limits; the best iterate per query is kept, so refinement never
 returns a worse pose than the NN's. Then the joints past the MA's link go
 back to their current values q_c (they do not move the MA; the action time
-can only drop).
+can only drop), and joints whose turn the others can make up within half the
+goal tolerance are turned back to q_c too (see `refine`).
 
-Pure numpy + onnxruntime: no torch at run time.
+numpy, numba and onnxruntime: no torch at run time.
 """
 from __future__ import annotations
 
@@ -26,9 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numba import njit, prange
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.masr import MasrArm
+from armbridge.robots.masr import ANGLE_TOL, MasrArm
+from armbridge.robots.masr_kernels import action_cost, ma_pose, wrap
 from armbridge.robots.planar import wrap_angle
 
 E_P = 0.008  # m, eq. (9) bound of section V-A
@@ -85,123 +88,190 @@ def evaluate(arm: MasrArm, x_goal: np.ndarray, q0: np.ndarray, q: np.ndarray,
 
 # ------------------------------------------------------------------- refinement
 
-
-def masr_pose_jacobian(arm: MasrArm, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """MA pose (B, 3) (phi unwrapped), its Jacobian (B, 3, n+1) w.r.t. q, and j_d (B,).
-
-    Columns of joints past the MA's link are zero (they do not move the MA);
-    d's column is (cos phi, sin phi, 0) (phi is piecewise constant in d).
-    """
-    n = arm.n
-    j, d_link = arm.locate(q[:, n])
-    cum = np.cumsum(q[:, :n], axis=1)
-    u = np.stack([np.cos(cum), np.sin(cum)], axis=-1)  # (B, n, 2)
-    joints = np.concatenate([np.zeros((q.shape[0], 1, 2)), np.cumsum(arm.link_lengths[None, :, None] * u, axis=1)], axis=1)
-    rows = np.arange(q.shape[0])
-    phi = cum[rows, j]
-    p = joints[rows, j] + d_link[:, None] * u[rows, j]
-    rel = p[:, None, :] - joints[:, :n, :]  # MA relative to each joint
-    jac = np.zeros((q.shape[0], 3, n + 1))
-    active = np.arange(n)[None, :] <= j[:, None]
-    jac[:, 0, :n] = np.where(active, -rel[:, :, 1], 0.0)
-    jac[:, 1, :n] = np.where(active, rel[:, :, 0], 0.0)
-    jac[:, 2, :n] = active
-    jac[:, 0, n] = u[rows, j, 0]
-    jac[:, 1, n] = u[rows, j, 1]
-    return np.concatenate([p, phi[:, None]], axis=1), jac, j
-
-
 CONVERGED = 0.01  # score at which DLS stops early: 0.08 mm and 0.04 deg for e_p = 8 mm, e_phi = 4 deg
+SNAP_MARGIN = 0.5  # a sparser answer must stay within this share of the goal tolerance
+_SNAP_ROUNDS = 2
+_SNAP_ITERS = 3
 
 
-def _score(arm: MasrArm, xg: np.ndarray, q: np.ndarray, e_p: float, e_phi: float) -> np.ndarray:
+@njit(cache=True)
+def _score(xg, q, lengths, rj, total, jp, e_p, e_phi):
     """max(dp / e_p, |dphi| / e_phi): <= 1 exactly when the goal is reached (eq. 9)."""
-    dp, dphi = pose_errors(arm, xg, q)
-    return np.maximum(dp / e_p, dphi / e_phi)
+    px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
+    return max(math.hypot(xg[0] - px, xg[1] - py) / e_p, abs(wrap(xg[2] - phi)) / e_phi)
 
 
-def _dls(arm: MasrArm, xg: np.ndarray, q: np.ndarray, iters: int, damping: float,
-         e_p: float, e_phi: float) -> tuple[np.ndarray, np.ndarray]:
-    """DLS on the MA's link (q (B, n+1), already within limits); best iterate and its score."""
-    n = arm.n
-    q = q.copy()
-    j0, _ = arm.locate(q[:, n])
-    d_lo = arm.r[j0]
-    d_hi = arm.r[j0] + arm.link_lengths[j0]
-    d_hi = np.where(j0 < n - 1, np.nextafter(d_hi, d_lo), d_hi)  # stay below the next joint
-    w = np.array([1 / e_p, 1 / e_p, 1 / e_phi])
-    eye = np.eye(3) * damping**2
-    best = q.copy()
-    best_score = _score(arm, xg, q, e_p, e_phi)
-    for _ in range(iters):
-        pose, jac, _ = masr_pose_jacobian(arm, q)
-        e = xg - pose
-        e[:, 2] = wrap_angle(e[:, 2])
-        e, jac = e * w, jac * w[None, :, None]
-        jjt = jac @ np.swapaxes(jac, 1, 2) + eye
-        step = np.swapaxes(jac, 1, 2) @ np.linalg.solve(jjt, e[:, :, None])
-        q = q + step[:, :, 0]
-        q[:, :n] = np.clip(q[:, :n], -arm.theta_b, arm.theta_b)
-        q[:, n] = np.clip(q[:, n], d_lo, d_hi)  # a joint crossing would make phi jump
-        score = _score(arm, xg, q, e_p, e_phi)
-        better = score < best_score
-        best[better] = q[better]
-        best_score = np.where(better, score, best_score)
-        if best_score.max() <= CONVERGED:  # all within 1 % of the tolerance: more steps buy nothing
+@njit(cache=True)
+def _solve_damped(J, lam2, e0, e1, e2):
+    """(J J^T + lam2 I)^-1 e for a 3-row J, by cofactors (no allocation: the hot loop)."""
+    a = b = c = d = f = g = 0.0  # the symmetric matrix [[a, b, c], [b, d, f], [c, f, g]]
+    for k in range(J.shape[1]):
+        a += J[0, k] * J[0, k]
+        b += J[0, k] * J[1, k]
+        c += J[0, k] * J[2, k]
+        d += J[1, k] * J[1, k]
+        f += J[1, k] * J[2, k]
+        g += J[2, k] * J[2, k]
+    a += lam2
+    d += lam2
+    g += lam2
+    c00 = d * g - f * f
+    c01 = c * f - b * g
+    c02 = b * f - c * d
+    det = a * c00 + b * c01 + c * c02
+    c11 = a * g - c * c
+    c12 = b * c - a * f
+    c22 = a * d - b * b
+    return ((c00 * e0 + c01 * e1 + c02 * e2) / det, (c01 * e0 + c11 * e1 + c12 * e2) / det,
+            (c02 * e0 + c12 * e1 + c22 * e2) / det)
+
+
+@njit(cache=True)
+def _dls(xg, q0, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, out):
+    """DLS on the MA's link: theta_k for k <= link (not frozen) and d within that link.
+
+    Each step solves the 3-row damped system on the error in goal-tolerance
+    units, then clips to the limits; d stays on its link (a joint crossing
+    would make phi jump). The best iterate goes into out; returns its score.
+    """
+    n = lengths.size
+    jp = np.empty((n + 1, 2))
+    J = np.zeros((3, n + 1))
+    q = q0.copy()
+    link = ma_pose(q, lengths, rj, total, jp)[3]
+    d_lo = rj[link]
+    d_hi = rj[link] + lengths[link]
+    if link < n - 1:
+        d_hi -= 1e-12  # stay below the next joint
+    best = np.inf
+    for it in range(iters + 1):
+        px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
+        ex = (xg[0] - px) / e_p
+        ey = (xg[1] - py) / e_p
+        ea = wrap(xg[2] - phi) / e_phi
+        score = max(math.hypot(ex, ey), abs(ea))
+        if score < best:
+            best = score
+            out[:] = q
+        if it == iters or best <= CONVERGED:
             break
-    return best, best_score
+        for k in range(n):
+            on = k <= link and not frozen[k]
+            J[0, k] = -(py - jp[k, 1]) / e_p if on else 0.0
+            J[1, k] = (px - jp[k, 0]) / e_p if on else 0.0
+            J[2, k] = 1.0 / e_phi if on else 0.0
+        J[0, n] = math.cos(phi) / e_p
+        J[1, n] = math.sin(phi) / e_p
+        y0, y1, y2 = _solve_damped(J, lam * lam, ex, ey, ea)
+        for k in range(n + 1):
+            step = J[0, k] * y0 + J[1, k] * y1 + J[2, k] * y2  # J^T (J J^T + lam^2 I)^-1 e
+            if k < n:
+                q[k] = min(max(q[k] + step, -theta_b[k]), theta_b[k])
+            else:
+                q[n] = min(max(q[n] + step, d_lo), d_hi)
+    return best
+
+
+@njit(cache=True)
+def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                iters, lam, neighbours, margin, out):
+    n = lengths.size
+    jp = np.empty((n + 1, 2))
+    q = q_in.copy()
+    for k in range(n):
+        q[k] = min(max(q[k], -theta_b[k]), theta_b[k])
+    q[n] = min(max(q[n], 0.0), total)
+    frozen = np.zeros(n, np.bool_)
+    s = _dls(xg, q, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, out)
+    cand = np.empty(n + 1)
+    if neighbours and iters > 0:
+        # the NN often ends at a link's end when the answer is just past it
+        for side in (1, -1):
+            if s <= 1.0:
+                break
+            j = ma_pose(out, lengths, rj, total, jp)[3]
+            far = (out[n] - rj[j] > 0.5 * lengths[j]) == (side == 1)
+            k = j + side
+            if not far or k < 0 or k >= n:
+                continue
+            alt = out.copy()
+            alt[n] = rj[k] if side == 1 else rj[k] + lengths[k] - 1e-12
+            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, cand)
+            if cs < s:
+                out[:] = cand
+                s = cs
+    if not has_qc:
+        return
+    link = ma_pose(out, lengths, rj, total, jp)[3]
+    for k in range(link + 1, n):
+        out[k] = qc[k]  # they do not move the MA: same pose, less action time
+    if margin <= 0.0 or iters == 0:
+        return
+    # Sparsify: every joint left where it is saves its turn and maybe MA travel.
+    # Greedily turn joints back to q_c, smallest turn first, while the others
+    # can make up within margin of the goal tolerance and c(a) drops.
+    cost = action_cost(qc, out, rj, inv_ms, inv_js)
+    for k in range(n):
+        frozen[k] = abs(out[k] - qc[k]) <= ANGLE_TOL
+    for _ in range(_SNAP_ROUNDS):
+        changed = False
+        for i in np.argsort(np.abs(out[:n] - qc[:n])):
+            if frozen[i]:
+                continue
+            alt = out.copy()
+            alt[i] = qc[i]
+            frozen[i] = True
+            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, min(iters, _SNAP_ITERS), lam, cand)
+            cc = action_cost(qc, cand, rj, inv_ms, inv_js)
+            if cs <= margin and cc < cost:
+                out[:] = cand
+                cost = cc
+                changed = True
+            else:
+                frozen[i] = False
+        if not changed:
+            break
+
+
+@njit(cache=True, parallel=True)
+def _refine_batch(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                  iters, lam, neighbours, margin):
+    out = np.empty_like(Q)
+    for b in prange(Q.shape[0]):
+        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                    iters, lam, neighbours, margin, out[b])
+    return out
 
 
 def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0.05,
-           e_p: float = E_P, e_phi: float = E_PHI, q_c: Any = None, neighbours: bool = True) -> np.ndarray:
+           e_p: float = E_P, e_phi: float = E_PHI, q_c: Any = None, neighbours: bool = True,
+           snap_margin: float = SNAP_MARGIN) -> np.ndarray:
     """A few damped least-squares steps on theta_1..theta_{j_d} and d (within link j_d).
 
     x_goal (..., 3), q (..., n+1) -> refined q (..., n+1), within C_f; per query
-    the best iterate (score max(dp/e_p, dphi/e_phi)) is returned, never worse
-    than q. With `neighbours`, a query still off the goal is tried again with
-    the MA moved across the nearer joint onto the adjacent link (same MA point,
-    phi then set by that joint): the NN often ends at a link's end when the
-    answer is just past it. With q_c given, the joints past the MA's link are
-    then set back to their q_c values: they do not move the MA, so the pose is
-    unchanged and the action time can only drop (as the paper's GoalFix does,
-    section IV-B).
+    the best iterate (score max(dp/e_p, dphi/e_phi)) is kept, so the DLS never
+    returns a worse pose than q. With `neighbours`, a query still off the goal
+    is tried again with the MA moved across the nearer joint onto the adjacent
+    link. With q_c given, the joints past the MA's link go back to their q_c
+    values (they do not move the MA; as the paper's GoalFix, section IV-B),
+    then, if snap_margin > 0, joints are turned back to q_c one at a time while
+    the rest can still reach the goal within snap_margin of the tolerance and
+    c(a) (eq. 8) drops: on a MASR every joint not turned saves its rotation and
+    often the MA's drive to it. Runs in numba, in parallel over the batch.
     """
     x_goal = np.asarray(x_goal, dtype=float)
     q = np.asarray(q, dtype=float)
     shape = q.shape
     n = arm.n
-    xg = np.broadcast_to(x_goal, (*shape[:-1], 3)).reshape(-1, 3)
-    q = q.reshape(-1, n + 1).copy()
-    q[:, :n] = np.clip(q[:, :n], -arm.theta_b, arm.theta_b)
-    q[:, n] = np.clip(q[:, n], 0.0, arm.total_length)
-    best, score = _dls(arm, xg, q, iters, damping, e_p, e_phi)
-    if neighbours and iters > 0:
-        j, d_link = arm.locate(best[:, n])
-        for side in (1, -1):
-            miss = np.flatnonzero(score > 1)
-            if miss.size == 0:
-                break
-            jj = j[miss]
-            # the joint between link jj and its neighbour on `side`, nearer end first
-            far = (d_link[miss] > 0.5 * arm.link_lengths[jj]) == (side == 1)
-            k = jj + side
-            ok = far & (k >= 0) & (k < n)
-            if not ok.any():
-                continue
-            rows, k = miss[ok], k[ok]
-            alt = best[rows].copy()
-            joint = np.where(side == 1, arm.r[k], arm.r[k] + arm.link_lengths[k])
-            alt[:, n] = joint if side == 1 else np.nextafter(joint, 0.0)
-            cand, cand_score = _dls(arm, xg[rows], alt, iters, damping, e_p, e_phi)
-            better = cand_score < score[rows]
-            best[rows[better]] = cand[better]
-            score[rows[better]] = cand_score[better]
-    if q_c is not None:
-        qc = np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)
-        j, _ = arm.locate(best[:, n])
-        distal = np.arange(n)[None, :] > j[:, None]
-        best[:, :n] = np.where(distal, qc[:, :n], best[:, :n])
-    return best.reshape(shape)
+    X = np.ascontiguousarray(np.broadcast_to(x_goal, (*shape[:-1], 3)).reshape(-1, 3))
+    Q = np.ascontiguousarray(q.reshape(-1, n + 1))
+    has_qc = q_c is not None
+    QC = np.ascontiguousarray(np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)) if has_qc else Q
+    out = _refine_batch(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
+                        np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
+                        float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
+                        float(e_phi), int(iters), float(damping), bool(neighbours), float(snap_margin))
+    return out.reshape(shape)
 
 
 _refine = refine  # solve() has a parameter called refine

@@ -39,8 +39,12 @@ def shipped_ik_card(arm_name: str = "masr5", models_dir: Path | None = None) -> 
     return cards[0] if cards else None
 
 
-def resolve_goal_ik(env: Any, ik: str = "auto", refine: bool = False) -> tuple[Callable, str]:
-    """The goal IK for env: ("auto" | "dls" | a model card path) -> (goal_ik(x_goal, q_c), description)."""
+def resolve_goal_ik(env: Any, ik: str = "auto") -> tuple[Callable, str]:
+    """The goal IK for env: ("auto" | "dls" | a model card path) -> (goal_ik(x_goal, q_c), description).
+
+    An IK-NN answer is always refined (MasrIK.solve(refine=True)): it reaches
+    the goal region more often and with sparser, cheaper actions.
+    """
     from armbridge.planning import dls_ik
 
     if ik == "dls":
@@ -60,9 +64,9 @@ def resolve_goal_ik(env: Any, ik: str = "auto", refine: bool = False) -> tuple[C
                              " with different parameters")
 
     def goal_ik(x_goal: Any, q_c: Any) -> Any:
-        return model.solve(x_goal, q_c, refine=refine)
+        return model.solve(x_goal, q_c, refine=True)
 
-    return goal_ik, f"IK-NN {card}" + (" + DLS refine" if refine else "")
+    return goal_ik, f"IK-NN {card} + refinement"
 
 
 @plan_app.callback()

@@ -21,41 +21,7 @@ import numpy as np
 from numba import njit
 
 from armbridge.robots.masr import MasrArm
-
-
-@njit(cache=True)
-def _ma_pose(q, lengths, rj, total, jp):
-    """MA point, heading (unwrapped), link index; jp (n+1, 2) gets the joint points."""
-    n = lengths.size
-    d = min(max(q[n], 0.0), total)
-    link = n - 1
-    for k in range(1, n):
-        if d < rj[k]:
-            link = k - 1
-            break
-    th = 0.0
-    x = 0.0
-    y = 0.0
-    jp[0, 0] = 0.0
-    jp[0, 1] = 0.0
-    phi = 0.0
-    for k in range(n):
-        th += q[k]
-        if k == link:
-            phi = th
-        x += lengths[k] * math.cos(th)
-        y += lengths[k] * math.sin(th)
-        jp[k + 1, 0] = x
-        jp[k + 1, 1] = y
-    dl = d - rj[link]
-    px = jp[link, 0] + dl * math.cos(phi)
-    py = jp[link, 1] + dl * math.sin(phi)
-    return px, py, phi, link
-
-
-@njit(cache=True)
-def _wrap(a):
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+from armbridge.robots.masr_kernels import ma_pose, wrap
 
 
 @njit(cache=True)
@@ -67,10 +33,10 @@ def dls_solve(x_goal, q0, lengths, rj, theta_b, total, t_theta, t_d, e_p, e_phi,
     J = np.zeros((3, n + 1))
     best = np.inf
     for it in range(iters + 1):
-        px, py, phi, link = _ma_pose(q, lengths, rj, total, jp)
+        px, py, phi, link = ma_pose(q, lengths, rj, total, jp)
         ex = (x_goal[0] - px) / e_p
         ey = (x_goal[1] - py) / e_p
-        ea = _wrap(x_goal[2] - phi) / e_phi
+        ea = wrap(x_goal[2] - phi) / e_phi
         err = math.sqrt(ex * ex + ey * ey + ea * ea)
         if err < best:
             best = err

@@ -66,9 +66,8 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     from ompl import util as ou  # type: ignore[import-untyped]
 
     from armbridge.planning.collision import config_hit, edge_hit, feasible
-    from armbridge.planning.dls_ik import _ma_pose
+    from armbridge.robots.masr_kernels import action_cost, ma_pose
     from armbridge.planning.environment import find_goal_configs
-    from armbridge.planning.rrt_star import action_cost
 
     if objective not in ("eq8", "length"):
         raise ArmbridgeError(f"objective must be eq8 or length, got {objective!r}")
@@ -146,7 +145,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
             self.setThreshold(1.0)
 
         def distanceGoal(self, s: Any) -> float:  # noqa: N802
-            x, y, phi = _ma_pose(to_np(s), chk.lengths, rj, K[4], pts)[:3]
+            x, y, phi = ma_pose(to_np(s), chk.lengths, rj, K[4], pts)[:3]
             dp = math.hypot(x - gx, y - gy)
             dphi = abs((phi - gphi + math.pi) % (2 * math.pi) - math.pi)
             return max(dp / env.e_p, dphi / env.e_phi)

@@ -50,7 +50,8 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.collision import config_hit, edge_hit, rotation_order
-from armbridge.robots.masr import ANGLE_TOL, POS_TOL
+from armbridge.robots.masr import POS_TOL
+from armbridge.robots.masr_kernels import action_cost, wrap
 
 GoalIK = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -69,33 +70,6 @@ _WARM = False  # kernels loaded in this process (see plan)
 
 
 # --------------------------------------------------------------------- kernels
-@njit(cache=True)
-def action_cost(qc, qd, rj, inv_ms, inv_js):
-    """c(a), eq. (8), for one pair: MasrArm.action_cost in numba."""
-    n = rj.size
-    dc = qc[n]
-    df = qd[n]
-    lo = dc
-    hi = dc
-    turn = 0.0
-    for j in range(n):
-        dth = abs(qd[j] - qc[j])
-        turn += dth
-        if dth > ANGLE_TOL:
-            s = rj[j]
-            if abs(s - dc) <= POS_TOL:
-                s = dc
-            if s < lo:
-                lo = s
-            if s > hi:
-                hi = s
-    if df - dc > 0.0:
-        travel = (dc - lo) + (hi - lo) + abs(df - hi)
-    else:
-        travel = (hi - dc) + (hi - lo) + abs(df - lo)
-    return travel * inv_ms + turn * inv_js
-
-
 @njit(cache=True)
 def costs_to(Q, count, q, rj, inv_ms, inv_js):
     """c(Q[i] -> q) for i < count."""
@@ -173,11 +147,6 @@ def _nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, delta, mode, out):
 
 
 @njit(cache=True)
-def _wrap(a):
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
-
-
-@njit(cache=True)
 def _on_goal(q, lengths, rj, goal, half_w, e_phi, cand_d, cand_link):
     """OnGoal: links whose rectangle holds the goal point and whose heading is within e_phi.
 
@@ -193,7 +162,7 @@ def _on_goal(q, lengths, rj, goal, half_w, e_phi, cand_d, cand_link):
         th += q[i]
         c = math.cos(th)
         s = math.sin(th)
-        if abs(_wrap(th - goal[2])) <= e_phi:
+        if abs(wrap(th - goal[2])) <= e_phi:
             gx = goal[0] - x
             gy = goal[1] - y
             t = gx * c + gy * s
