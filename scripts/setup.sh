@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Build the development environment: .venv (package + [test,train] extras),
+# Build the development environment: .venv (package + the extras in PIP_EXTRAS),
 # node_modules (MicroPython WebAssembly interpreter), typings (ESP32 stubs)
 # and, as root, the Debian AVR toolchain.
 #
@@ -12,7 +12,7 @@ cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
 VENV=.venv
 # Exact pins for these live in constraints.txt (one place for every pin).
-PIP_EXTRAS="[test,train,masr,ompl]"
+PIP_EXTRAS="[test,train,masr,ompl,smm-peer]"
 STUBS=micropython-esp32-stubs
 APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev)
 

@@ -45,12 +45,14 @@ def _register() -> None:
     from armbridge.emulator.command import emulate_cmd
     from armbridge.executor.command import run_cmd
     from armbridge.planning.command import plan_app
+    from armbridge.smm.command import smm_cmd
     from armbridge.telemetry.command import view_cmd
     from armbridge.train.command import train_app
 
     app.command("demo")(demo_cmd)
     app.command("emulate")(emulate_cmd)
     app.command("run")(run_cmd)
+    app.command("smm")(smm_cmd)
     app.command("view")(view_cmd)
     app.add_typer(bench_app, name="bench")
     app.add_typer(plan_app, name="plan")

@@ -2,6 +2,7 @@
 
 Plan (closed-form IK along a square) -> plan file -> executor -> the real
 firmware in the emulator over a pty -> Rerun recording and a run summary.
+`--fault-tolerant` runs the locked-joint scenario of armbridge.smm.ft_demo instead.
 """
 from __future__ import annotations
 
@@ -40,14 +41,36 @@ def demo_cmd(
     port: str = typer.Option("emu:esp32", help="Board to run on: emu:esp32 (built-in emulator), a serial device or a pyserial URL."),
     rrd: Path = typer.Option(None, help="Rerun recording to write (default: runs/<time>-demo-square.rrd)."),
     write_plan: Path = typer.Option(None, "--write-plan", help="Only write the square plan to this file and exit."),
+    robot: str = typer.Option("arm3r", help="Robot to run: arm3r (the only one so far)."),
+    fault_tolerant: bool = typer.Option(
+        False, "--fault-tolerant",
+        help="Instead of the square: a target appears, a joint stalls on the way, and the arm still reaches it "
+             "(SMM bounding boxes, Clark and Xie Fig. 15). Needs an emu: port.",
+    ),
+    seed: int = typer.Option(0, help="Seed of the fault-tolerant scenario (target, stalled joint)."),
 ) -> None:
-    """Draw a square with the 3R arm on the emulated ESP32 and record it to Rerun."""
+    """Draw a square with the 3R arm on the emulated ESP32 (or, with --fault-tolerant, reach a target
+    despite a joint that stalls on the way) and record it to Rerun."""
     from rich.console import Console
 
+    from armbridge.errors import ArmbridgeError
     from armbridge.executor.run import run_plan
 
-    plan = square_plan(get_robot("arm3r"))
+    if robot.lower() != "arm3r":
+        raise ArmbridgeError(f"--robot {robot!r}: the demo runs on arm3r only so far")
     console = Console()
+    if fault_tolerant:
+        from armbridge.smm.ft_demo import run_ft_demo
+
+        if write_plan is not None:
+            raise ArmbridgeError("--write-plan writes the square plan; it does not go with --fault-tolerant")
+        result = run_ft_demo(port, rrd, seed, console=console)
+        console.print(result.table())
+        console.print(f"recording: {result.rrd}   view it with: armbridge view {result.rrd}")
+        if not result.reached:
+            raise ArmbridgeError("the fault-tolerant demo did not reach its target (see the table above)")
+        return
+    plan = square_plan(get_robot("arm3r"))
     if write_plan is not None:
         save_plan(plan, write_plan)
         console.print(f"wrote {write_plan} ({plan.k} waypoints, {plan.total_duration:.1f} s)")

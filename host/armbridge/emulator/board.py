@@ -464,6 +464,15 @@ class EmulatedBoard:
         with self._lock:
             bisect.insort(self._reset_times, float(t))
 
+    def schedule_stall(self, joint: int, t: float) -> None:
+        """Stall joint `joint` (1..n, as in the protocol) from sim time t (s) on,
+        like Faults.stall but decided while the emulator runs."""
+        if not (isinstance(joint, int) and 1 <= joint <= self.n) or not t >= 0:
+            raise ArmbridgeError(f"stall {joint}@{t}: the {self.device} board has joints 1..{self.n}, "
+                                 "the time must be >= 0")
+        with self._lock:
+            self.plant.stall(joint - 1, float(t))
+
     def now(self) -> float:
         """Sim time in seconds."""
         return self.clock.t

@@ -92,3 +92,71 @@ def masr_iknn_cmd(
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(acc, indent=2) + "\n")
+
+
+@train_app.command("smm-7r")
+@train_app.command("smm-4r")
+@train_app.command("smm-3r")
+def smm_cmd(
+    ctx: typer.Context,
+    robot: str = typer.Option("", "--robot", help="SMM arm (default: planar3r, spatial4r, spatial7r); smm-3r also takes arm3r."),
+    dataset: Optional[Path] = typer.Option(None, "--dataset", help="SMM data set .npz; built over --grid and saved there if absent (default: WORK_DIR/dataset.npz)."),
+    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R) or 250x400 (4R) (default: the paper's)."),
+    k: int = typer.Option(40, "--k", help="Fourier components kept when building the data set."),
+    cls_hidden: str = typer.Option("", "--cls-hidden", help="Classifier hidden layers, e.g. 5,5 or 3x50 (default: section VI-A)."),
+    reg_hidden: str = typer.Option("", "--reg-hidden", help="Regressor hidden layers, e.g. 4x150 (default: section VI-A)."),
+    epochs: int = typer.Option(200, "--epochs", help="Epochs over each network's training locations."),
+    min_steps: int = typer.Option(2000, "--min-steps", help="Least optimiser steps per network (small clusters)."),
+    batch: int = typer.Option(256, "--batch", help="Batch size."),
+    cls_lr: float = typer.Option(1e-3, "--cls-lr", help="Classifier AdamW learning rate (paper: 1e-3)."),
+    reg_lr: float = typer.Option(3e-3, "--reg-lr", help="Regressor AdamW learning rate (paper: 3e-3)."),
+    lr_decay: float = typer.Option(0.01, "--lr-decay", help="Final lr / initial lr of the cosine decay (1 = constant)."),
+    holdout: float = typer.Option(0.1, "--holdout", help="Share of each cluster held out for the card's accuracy."),
+    correct_iters: int = typer.Option(3, "--correct-iters", help="Eq. (18) iterations for the card's 'after' FK error."),
+    seed: int = typer.Option(0, "--seed", help="Seed of training (and of the data set's IK seeds)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Model folder (default: models/onnx/smm-ROBOT)."),
+    work_dir: Optional[Path] = typer.Option(None, "--work-dir", help="Checkpoint and data set (default: runs/smm-ROBOT)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint in --work-dir."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),
+) -> None:
+    """Train the learned-SMM networks (section V-D), export ONNX and a card with held-out accuracy."""
+    from armbridge.smm.arms import get_smm_arm
+    from armbridge.smm.networks import default_architecture
+    from armbridge.train import smm as tr
+
+    kind = ctx.info_name or "smm-3r"
+    arm = get_smm_arm(robot or tr.ROBOTS[kind])
+    if f"{arm.n}r" != kind.split("-")[1]:
+        raise ArmbridgeError(f"--robot {arm.name!r} has {arm.n} joints; `train {kind}` trains a {kind[4:-1]}-joint arm")
+    arch = default_architecture(arm.n) if not (cls_hidden and reg_hidden) else None
+    cfg = tr.SmmTrainConfig(
+        cls_hidden=tr.parse_sizes(cls_hidden, "--cls-hidden") if cls_hidden else arch.classifier,  # type: ignore[union-attr]
+        reg_hidden=tr.parse_sizes(reg_hidden, "--reg-hidden") if reg_hidden else arch.regressor,  # type: ignore[union-attr]
+        epochs=epochs, min_steps=min_steps, batch=batch, cls_lr=cls_lr, reg_lr=reg_lr, lr_decay=lr_decay,
+        holdout=holdout, seed=seed)
+    work = work_dir or Path("runs") / f"smm-{arm.name}"
+    data_path = dataset or work / "dataset.npz"
+    console = Console(stderr=True)
+
+    def log(s: str) -> None:
+        console.print(s, highlight=False)
+
+    argv = sys.argv[sys.argv.index(kind) + 1 :] if kind in sys.argv else []
+    command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
+    ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log)
+    pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=out or Path("models/onnx") / f"smm-{arm.name}",
+                             work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
+    card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)
+    held = card["accuracy"]["held_out"]
+    table = Table(title=f"{card['name']}: {held['locations'] if held else 0} held-out locations")
+    for col in ("metric", "value"):
+        table.add_column(col)
+    if held:
+        table.add_row("classifier accuracy (%)", f"{held['classifier_accuracy_pct']:.2f}")
+        table.add_row("branch-count mismatch (%)", f"{held['branch_count_mismatch_pct']:.2f}")
+        for label in ("before", "after"):
+            e = held[f"fk_error_pct_{label}"]
+            nan = float("nan")
+            table.add_row(f"FK error (%) {label} ({e['correct_iters']} iters): mean +- std, median",
+                          f"{e.get('mean', nan):.3g} +- {e.get('std', nan):.2g}, {e.get('median', nan):.2g}")
+    Console().print(table)

@@ -1,0 +1,404 @@
+"""`armbridge demo --robot arm3r --fault-tolerant`: Fig. 15 on the emulated ESP32 arm.
+
+The scenario of section VI-B/VI-C on the bridge's 3R arm (links 0.19, 0.12,
+0.07 m; the joint limits of catalog.ARM3R, which SMMs ignore, so boxes and
+recovery use the runs of the SMMs within the limits, see
+faulttolerant.branch_boxes):
+
+1. A target appears (FK of a random configuration within the limits, drawn
+   from `seed`). Its SMMs are computed ('arm3r' SmmArm; by default the
+   nullspace method, `method` takes any other, e.g. the learned model's
+   compute) and the time that takes is the latency.
+2. The plan: damped least squares toward the target for the latency (the arm
+   does not wait for the SMMs, Fig. 15c), then into the SMM bounding box
+   reached soonest, then inside it to the SMM configuration reached soonest
+   (faulttolerant.approach), all at VMAX rad/s per joint.
+3. The plant stalls the joint that moves most inside the box, STALL_FRACTION
+   into that motion (EmulatedBoard.schedule_stall, the emulator's stall fault).
+   A candidate target whose inside motion leaves the stalled joint less than
+   MIN_TRAVEL to go (a stall nobody would notice) is skipped for the next one.
+4. The plan is streamed through the executor's BoardClient. The host watches
+   the telemetry: a joint whose set point runs more than STALL_RAD ahead of its
+   measured position while the others follow is stalled. The host sends the
+   e-stop byte (the board's own following-error FAULT, 350 mrad for 300 ms,
+   would come later and is handled the same way), lets the arm come to rest,
+   clears the latch (CLR: set point = measured position) and reads the locked
+   joint's value.
+5. Recovery (section III-A): the SMM configurations with that value, within
+   the limits, the nearest by travel time, corrected by a few Gauss-Newton
+   steps on the healthy joints; streamed with the locked joint held where it
+   stopped. The tip's distance to the target is measured from telemetry and
+   from the plant's true positions.
+
+Everything goes into one Rerun recording (telemetry/recording.py entities,
+plus): task/target, task/smm (the arm along its SMM within the limits),
+task/recovery (the arm at the recovery configuration), joint_space/<a>-<b>/smm,
+/box and /q (Fig. 2 style projections on joint planes), joints/<name>/box_lo
+and box_hi (the artificial limits while they hold), and host events (target,
+SMMs ready, stall detected, recovery, result) in `events`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+from armbridge.errors import ArmbridgeError
+from armbridge.link import protocol as P
+from armbridge.plans.format import Plan, make_plan
+from armbridge.robots.catalog import ARM3R
+from armbridge.robots.dh import DHChain
+from armbridge.robots.planar import PlanarChain
+from armbridge.smm import faulttolerant as ft
+from armbridge.smm.arms import get_smm_arm
+from armbridge.smm.manifold import SmmSet
+from armbridge.smm.simulate import Scenario, dls_path, refine
+
+VMAX = 1.0  # rad/s per joint for every planned motion (the board allows 3)
+WAYPOINT_DT = 0.05  # s between the waypoints of a planned motion
+STALL_FRACTION = 0.25  # the stall comes this far into the motion inside the box
+MIN_TRAVEL = 0.25  # rad the stalled joint must still have to go after the stall
+STALL_RAD = 0.1  # rad of following error the host takes for a stalled joint (tracking at 1 rad/s: < 0.025)
+SETTLE_S = 0.3  # s of board time for the arm to come to rest after a stop
+TOL_M = 0.003  # m: the tip must end this close to the target
+CANDIDATES = 20  # targets tried before giving up on a seed
+RATE_HZ = 50  # telemetry rate
+START_S = 0.02  # s for the first waypoint of a plan: where the arm already is
+
+SmmMethod = Callable[[DHChain, np.ndarray], SmmSet]
+
+
+def nullspace_method(arm: DHChain, x: np.ndarray) -> SmmSet:
+    """The ground-truth SMMs (section III-B), the default method. The learned
+    model plugs in as `method=lambda arm, x: model.compute(x, correct_iters)`
+    with `model = LearnedSmm.load(dir)` loaded once, outside the timed call."""
+    from armbridge.smm import nullspace
+
+    return nullspace.compute(arm, x)
+
+
+@dataclass(frozen=True)
+class FtScenario:
+    """The target, its SMMs and the planned approach with the stall to come."""
+
+    x: np.ndarray  # (2,) target, m
+    smm: SmmSet
+    latency: float  # s the SMMs took (or the latency asked for)
+    approach: ft.Approach
+    joint: int  # 0-based joint the plant stalls
+    stall_after: float  # s from the plan's start
+    plan: Plan
+
+
+def limits(robot: PlanarChain = ARM3R) -> ft.Limits:
+    return robot.q_min.copy(), robot.q_max.copy()
+
+
+def _segment(move: ft.Move, dt: float = WAYPOINT_DT) -> tuple[np.ndarray, np.ndarray]:
+    """A move as waypoints every <= dt s: (q (k, n), durations (k,)), without its start."""
+    k = max(1, math.ceil(move.duration / dt))
+    f = np.arange(1, k + 1) / k
+    return move.start + f[:, None] * (move.goal - move.start), np.full(k, max(move.duration, 1e-3) / k)
+
+
+def _dls_waypoints(times: np.ndarray, path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The DLS path (K+1 samples from its start) as waypoints every ~WAYPOINT_DT."""
+    step = max(1, int(round(WAYPOINT_DT / (times[1] - times[0])))) if len(times) > 1 else 1
+    idx = np.unique(np.r_[np.arange(step, len(times), step), len(times) - 1])
+    idx = idx[idx > 0]
+    return path[idx], np.diff(np.r_[0.0, times[idx]])
+
+
+def plan_scenario(x: np.ndarray, smm: SmmSet, latency: float, q0: np.ndarray,
+                  robot: PlanarChain = ARM3R) -> FtScenario | None:
+    """The approach plan to x and the stall, or None when the target does not
+    suit the demo (no box within limits, or too short a motion inside it)."""
+    arm = get_smm_arm(robot.name)
+    lims = limits(robot)
+    curves = ft.smm_curves(smm, 0, lims)
+    if not curves:
+        return None
+    sc = Scenario(vmax=VMAX)
+    if latency > 0:
+        times, path = dls_path(arm, q0[None], x[None], latency, sc, lims)
+    else:
+        times, path = np.zeros(1), q0[None, None]
+    path = path[:, 0]
+    ap = ft.approach(path[-1], curves, VMAX, lims)
+    delta = ap.inside.goal - ap.inside.start
+    j = int(np.argmax(np.abs(delta)))
+    if (1 - STALL_FRACTION) * abs(delta[j]) < MIN_TRAVEL:
+        return None
+    parts = [(q0[None], np.array([START_S]))]
+    if latency > 0:
+        parts.append(_dls_waypoints(times, path))
+    parts += [_segment(ap.entry), _segment(ap.inside)] if ap.entry.duration > 0 else [_segment(ap.inside)]
+    q = np.clip(np.concatenate([p[0] for p in parts]), robot.q_min, robot.q_max)
+    durations = np.concatenate([p[1] for p in parts])
+    prov = {"tool": "armbridge demo --fault-tolerant", "name": "demo-fault-tolerant", "target_m": x.tolist(),
+            "latency_s": latency, "joint_speed_rad_s": VMAX}
+    plan = make_plan(robot, q, durations, prov)
+    stall_after = START_S + latency + ap.entry.duration + STALL_FRACTION * ap.inside.duration
+    return FtScenario(x, smm, latency, ap, j, stall_after, plan)
+
+
+def choose_scenario(seed: int = 0, method: SmmMethod = nullspace_method, latency: float | None = None,
+                    robot: PlanarChain = ARM3R) -> FtScenario:
+    """The first target drawn from `seed` that suits the demo. latency None:
+    the measured time of `method` on that target; a number fixes it (tests)."""
+    arm = get_smm_arm(robot.name)
+    rng = np.random.default_rng(seed)
+    q0 = (robot.q_min + robot.q_max) / 2  # where the emulated arm starts
+    margin = 0.1 * (robot.q_max - robot.q_min)
+    for _ in range(CANDIDATES):
+        x = np.asarray(arm.task(rng.uniform(robot.q_min + margin, robot.q_max - margin)))
+        t0 = time.perf_counter()
+        smm = method(arm, x[None])
+        took = time.perf_counter() - t0
+        if smm.count[0] == 0:
+            continue
+        found = plan_scenario(x, smm, took if latency is None else latency, q0, robot)
+        if found is not None:
+            return found
+    raise ArmbridgeError(f"seed {seed}: none of {CANDIDATES} targets suits the fault-tolerant demo; try another seed")
+
+
+@dataclass
+class FtResult:
+    """What the demo run did. Joints are numbered 1..n, times are board seconds."""
+
+    target: np.ndarray
+    latency: float
+    stalled_joint: int  # the joint the plant stalled
+    detected_joint: int | None = None  # the joint the host found stalled
+    detected_by: str | None = None  # 'host' (telemetry) or 'FAULT' (the board's following-error latch)
+    locked_value: float = math.nan  # rad
+    recovery_s: float = math.nan  # planned duration of the recovery
+    tip_error_m: float = math.nan  # from telemetry (what the host measures)
+    tip_error_true_m: float = math.nan  # from the plant's true positions
+    rrd: Path | None = None
+    events: list[str] = field(default_factory=list)
+
+    @property
+    def reached(self) -> bool:
+        return self.tip_error_true_m <= TOL_M
+
+    def table(self) -> Any:
+        from rich.table import Table
+
+        t = Table(title="fault-tolerant demo", show_header=False)
+        t.add_column("", style="bold")
+        t.add_column("")
+        t.add_row("target", f"({self.target[0]:.3f}, {self.target[1]:.3f}) m")
+        t.add_row("SMM latency", f"{self.latency:.3f} s")
+        t.add_row("stalled joint (plant)", str(self.stalled_joint))
+        t.add_row("detected", "-" if self.detected_joint is None else f"joint {self.detected_joint} by {self.detected_by}")
+        t.add_row("locked at", f"{self.locked_value:.3f} rad")
+        t.add_row("recovery", f"{self.recovery_s:.2f} s")
+        t.add_row("tip error", f"{self.tip_error_m * 1000:.2f} mm measured, {self.tip_error_true_m * 1000:.2f} mm true")
+        status = "target reached" if self.reached else "target NOT reached"
+        t.add_row("status", status + (" despite the locked joint" if self.reached and self.detected_joint else ""))
+        if self.rrd is not None:
+            t.add_row("recording", str(self.rrd))
+        return t
+
+
+class _Log:
+    """The demo's additions to the run's Rerun recording."""
+
+    PAIRS = ((0, 1), (1, 2), (0, 2))
+
+    def __init__(self, rec, robot: PlanarChain, sc: FtScenario) -> None:
+        self.rec = rec
+        self.stream = rec.rec
+        self.robot = robot
+        self.sc = sc
+        self.lims = limits(robot)
+        self._static()
+
+    def _pair(self, a: int, b: int) -> str:
+        return f"joint_space/{self.robot.joint_names[a]}-{self.robot.joint_names[b]}"
+
+    def _static(self) -> None:
+        s, robot = self.stream, self.robot
+        s.log("task/target", rr.Points2D([self.sc.x], colors=[(0, 200, 0)], radii=0.006), static=True)
+        curves = ft.smm_curves(self.sc.smm, 0, self.lims)
+        arms = [robot.joint_positions(c[i]) for c in curves for i in np.linspace(0, len(c) - 1, 6).astype(int)]
+        s.log("task/smm", rr.LineStrips2D(arms, colors=[(200, 160, 255)], radii=0.0006), static=True)
+        for a, b in self.PAIRS:
+            strips = []
+            for br in self.sc.smm.branches(0):  # whole branches, cut where they wrap
+                cut = np.nonzero(np.abs(np.diff(br[:, [a, b]], axis=0)).max(axis=1) > np.pi)[0] + 1
+                strips += [p for p in np.split(br[:, [a, b]], cut) if len(p) > 1]
+            s.log(f"{self._pair(a, b)}/smm", rr.LineStrips2D(strips, colors=[(150, 90, 220)], radii=0.01),
+                  static=True)
+            lo, hi = robot.q_min[[a, b]], robot.q_max[[a, b]]
+            s.log(f"{self._pair(a, b)}/limits", rr.Boxes2D(mins=[lo], sizes=[hi - lo], colors=[(90, 90, 90)]),
+                  static=True)
+
+    def at(self, t: float) -> None:
+        self.stream.set_time("board_time", duration=float(t))
+
+    def box(self, t: float, on: bool) -> None:
+        """The artificial joint limits: shown from the SMMs' arrival, released at the failure."""
+        self.at(t)
+        box = self.sc.approach.box
+        lo = ft.lift(box.lo, self.lims)
+        for a, b in self.PAIRS:
+            path = f"{self._pair(a, b)}/box"
+            if on:
+                self.stream.log(path, rr.Boxes2D(mins=[lo[[a, b]]], sizes=[box.width[[a, b]]], colors=[(255, 80, 200)]))
+            else:
+                self.stream.log(path, rr.Clear(recursive=False))
+        if on:  # the joint plots show the box as two lines while it holds
+            for j, name in enumerate(self.robot.joint_names):
+                for key, v in (("box_lo", lo[j]), ("box_hi", lo[j] + box.width[j])):
+                    self.stream.log(f"joints/{name}/{key}", rr.Scalars(float(v)))
+
+    def q(self, t: float, q: np.ndarray) -> None:
+        self.at(t)
+        for a, b in self.PAIRS:
+            self.stream.log(f"{self._pair(a, b)}/q", rr.Points2D([q[[a, b]]], colors=[(255, 140, 0)], radii=0.03))
+
+    def recovery(self, t: float, q_goal: np.ndarray, plan: Plan) -> None:
+        self.at(t)
+        self.stream.log("task/recovery", rr.LineStrips2D([self.robot.joint_positions(q_goal)], colors=[(255, 60, 60)],
+                                                         radii=0.002))
+        self.stream.log("recovery/path", rr.LineStrips2D([plan.ee_path()], colors=[(255, 60, 60)], radii=0.001))
+
+
+def _stream(plan: Plan) -> tuple[list[int], list[list[int]]]:
+    return [max(1, int(round(d * 1000))) for d in plan.durations], [P.to_milli(row) for row in plan.q]
+
+
+def plan_recovery(sc: FtScenario, q_lock: np.ndarray, j: int, robot: PlanarChain = ARM3R) -> Plan | None:
+    """Section III-A after the failure: joint j is locked at q_lock[j]; the
+    healthy joints go to the nearest SMM configuration with that value within
+    the limits, corrected onto the target by Gauss-Newton on the healthy joints.
+    None when the SMMs never take that value within the limits."""
+    lims = limits(robot)
+    move = ft.recovery_move(q_lock, j, ft.locked_configurations(sc.smm, 0, j, q_lock[j]), VMAX, lims)
+    if move is None:
+        return None
+    free = np.arange(robot.n) != j
+    goal = np.clip(refine(get_smm_arm(robot.name), move.goal, sc.x, free, Scenario().refine_iters),
+                   robot.q_min, robot.q_max)
+    qr, dr = _segment(ft.synchronised(q_lock, goal - q_lock, VMAX))
+    return make_plan(robot, np.vstack([q_lock, qr]), np.r_[START_S, dr],
+                     {"tool": "armbridge demo --fault-tolerant", "name": "recovery", "locked_joint": j + 1,
+                      "locked_value_rad": float(q_lock[j])})
+
+
+def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed: int = 0,
+                method: SmmMethod = nullspace_method, latency: float | None = None, console=None) -> FtResult:
+    """Run the scenario (module docstring) on an emulated board and record it."""
+    import torch
+
+    from armbridge.executor.client import LATCHED_STATES, BoardClient
+    from armbridge.link.transport import open_port
+    from armbridge.telemetry.recording import Recording, default_rrd_path
+
+    if not port_url.startswith("emu:"):
+        raise ArmbridgeError(f"port {port_url!r}: the fault-tolerant demo stalls a joint of the emulated plant, "
+                             "so it needs an emu: port (e.g. emu:esp32?speed=4)")
+    # One location's SMMs are a small batch: a second thread only fights the
+    # emulator for the CPU (2 threads: 2-8 s per location here, 1 thread: 0.3 s).
+    torch.set_num_threads(1)
+    robot = ARM3R
+    sc = choose_scenario(seed, method, latency, robot)
+    res = FtResult(target=sc.x, latency=sc.latency, stalled_joint=sc.joint + 1)
+    res.rrd = Path(rrd) if rrd is not None else default_rrd_path(sc.plan.name)
+    say = console.print if console is not None else (lambda *a, **k: None)
+    samples: list[tuple[float, np.ndarray]] = []  # (board time, measured q)
+    stall: dict[str, Any] = {}
+
+    with ExitStack() as stack:
+        rec = stack.enter_context(Recording(res.rrd, robot, sc.plan))
+        port = stack.enter_context(open_port(port_url))
+        emu = port.emulator
+        log = _Log(rec, robot, sc)
+
+        def note(t: float | None, text: str, level: str = "info") -> None:
+            res.events.append(text)
+            rec.event(t, "host: " + text, level)
+            say(text)
+
+        def on_telemetry(t: float, m: P.Telemetry) -> None:
+            samples.append((t, m.q))
+            rec.telemetry(t, m.q, m.target, m.effort, m.done)
+            log.q(t, m.q)
+            err = np.abs(m.target - m.q)
+            if m.state == "RUN" and not stall and err.max() > STALL_RAD:  # the host's own stall detector
+                stall.update(joint=int(np.argmax(err)), t=t, by="host")
+                client.estop()
+
+        def on_event(t: float | None, ev: P.Event) -> None:
+            rec.event(t, " ".join([ev.kind, *ev.args]), "error" if ev.kind in LATCHED_STATES else "info")
+            if ev.kind == "FAULT" and not stall:
+                stall.update(joint=int(ev.args[0]) - 1, t=t, by="FAULT")
+
+        def settle() -> np.ndarray:
+            """Let the arm come to rest: the mean measured q over the last 0.1 s."""
+            client.drain(SETTLE_S / client.speed)
+            return np.mean([q for t, q in samples if t >= samples[-1][0] - 0.1], axis=0)
+
+        def finish(q_end: np.ndarray) -> FtResult:
+            res.tip_error_m = float(np.linalg.norm(robot.fk(q_end)[:2] - sc.x))
+            res.tip_error_true_m = float(np.linalg.norm(robot.fk(emu.positions())[:2] - sc.x))
+            note(samples[-1][0], f"target {'reached' if res.reached else 'NOT reached'}: tip error "
+                                 f"{res.tip_error_true_m * 1000:.2f} mm (measured {res.tip_error_m * 1000:.2f} mm)",
+                 "info" if res.reached else "error")
+            return res
+
+        client = BoardClient(port, robot, on_telemetry=on_telemetry, on_event=on_event,
+                             on_error=lambda t, text: rec.error(t, text))
+        client.connect()
+        if client.stat()[0] in LATCHED_STATES:
+            client.command("CLR")
+        client.set_rate(RATE_HZ)
+        client.drain(0.1 / client.speed)
+        t0 = samples[-1][0]
+        note(t0, f"target appears at ({sc.x[0]:.3f}, {sc.x[1]:.3f}) m; SMMs take {sc.latency:.3f} s, "
+                 f"damped least squares meanwhile")
+        emu.schedule_stall(sc.joint + 1, emu.now() + sc.stall_after)
+        try:
+            client.execute(*_stream(sc.plan))
+        except ArmbridgeError:
+            if not stall:
+                raise
+        t_smm = client.start_times.get(0, t0) + sc.latency
+        note(t_smm, f"SMMs ready: {int(sc.smm.count[0])} branch(es); into box {sc.approach.curve + 1} in "
+                    f"{sc.approach.entry.duration:.2f} s, then {sc.approach.inside.duration:.2f} s inside it")
+        log.box(t_smm, on=True)
+        if not stall:  # the stalled joint had nowhere left to go: did the tip get there?
+            note(None, "no stall detected", "warn")
+            return finish(settle())
+        j = stall["joint"]
+        res.detected_joint, res.detected_by = j + 1, stall["by"]
+        log.box(stall["t"], on=True)
+        note(stall["t"], f"joint {j + 1} ({robot.joint_names[j]}) stalled (detected by {stall['by']}); arm stopped",
+             "error")
+        client.drain(SETTLE_S / client.speed, until=lambda: client.state in LATCHED_STATES)
+        settle()
+        client.command("CLR")  # set point = measured position; the other joints can drive again
+        client.stat()
+        q_lock = np.clip(settle(), robot.q_min, robot.q_max)
+        res.locked_value = float(q_lock[j])
+        log.box(samples[-1][0], on=False)
+        recovery = plan_recovery(sc, q_lock, j, robot)
+        if recovery is None:
+            note(None, f"no SMM configuration has joint {j + 1} at {q_lock[j]:.3f} rad within the limits", "error")
+            return res
+        res.recovery_s = recovery.total_duration - START_S
+        log.recovery(samples[-1][0], recovery.q[-1], recovery)
+        note(samples[-1][0], f"joint {j + 1} locked at {q_lock[j]:.3f} rad; recovering to "
+                             f"{np.round(recovery.q[-1], 3).tolist()} in {res.recovery_s:.2f} s with the other joints")
+        client.execute(*_stream(recovery))
+        return finish(settle())
