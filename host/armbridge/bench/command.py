@@ -198,3 +198,70 @@ def masr_plan_cmd(
         for p in mp.plots(result, png_dir):
             console.print(f"wrote {p}")
     console.print(f"wrote {json_out}")
+
+
+@bench_app.command("smm")
+def smm_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 40 locations, 2 for realtime-smm, 20 trials."),
+    locations: int = typer.Option(None, "--locations", help="Table III locations for the 3R and 4R (full run: 10000)."),
+    robots: str = typer.Option("planar3r,spatial4r,spatial7r", "--robots", help="Comma-separated SMM arms."),
+    json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Table III of the SMM paper (time per location, FK error before/after
+    correction, branch-count mismatch; ours, learned, realtime-smm), Fig. 3, and
+    the Figs. 15-16 locked-joint simulation."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.bench import smm
+    from armbridge.smm.arms import get_smm_arm
+
+    size = smm.QUICK if quick else smm.FULL
+    if locations is not None:
+        size = replace(size, locations=locations)
+    names = tuple(r.strip() for r in robots.split(",") if r.strip())
+    for name in names:
+        get_smm_arm(name)  # a clear error before any work
+    console = Console()
+    result = smm.run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"))
+    write_json(result, json_out)
+
+    def num(v: float | None, fmt: str) -> str:
+        return "-" if v is None else format(v, fmt)
+
+    for t in result["table3"]:
+        table = Table(title=f"Table III protocol, {t['robot']}: {t['locations']} random locations "
+                            f"(paper: {t['paper']['fk_before_pct']} % / {t['paper']['fk_after_pct']} %, "
+                            f"mismatch {t['paper']['mismatch_pct']} %)")
+        for col in ("method", "ms/location batched", "ms single", "FK error % mean +- std", "branch mismatch %"):
+            table.add_column(col, justify="left" if col == "method" else "right")
+        for r in t["rows"]:
+            if "missing" in r:
+                table.add_row(r["method"], r["missing"], "", "", "")
+                continue
+            fk = r["fk_error_pct"]
+            table.add_row(f"{r['method']} ({r['locations']})", num(r["batched_ms_per_location"], ".3f"),
+                          num(r["single_ms"], ".2f"), f"{fk['mean']:.3g} +- {fk['std']:.2g}" if fk else "-",
+                          num(r.get("branch_count_mismatch_pct"), ".2f"))
+        console.print(table)
+    f3 = result["fig3"]
+    table = Table(title="Fig. 3: mean |joint error| (rad) after keeping K Fourier components")
+    table.add_column("robot")
+    for k in f3["K"]:
+        table.add_column(f"K={k}", justify="right")
+    for name, errs in f3["mean_abs_error_rad"].items():
+        table.add_row(name, *(f"{e:.2e}" for e in errs))
+    console.print(table)
+    if "simulation" in result:
+        sim = result["simulation"]
+        table = Table(title=f"Figs. 15-16 simulation ({sim['robot']}, {sim['trials']} trials, a joint locks at random)")
+        for col in ("SMMs from", "latency (s)", "success %"):
+            table.add_column(col, justify="left" if col == "SMMs from" else "right")
+        for name, o in sim.items():
+            if isinstance(o, dict):
+                table.add_row(name, f"{o['latency_s']:.4f}", f"{100 * o['success'] / o['trials']:.1f}")
+        console.print(table)
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")

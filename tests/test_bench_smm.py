@@ -1,0 +1,59 @@
+"""`armbridge bench smm` in a reduced size, so the benchmark cannot rot.
+
+Correctness only (no wall-clock targets): every method row is there with
+finite numbers, correction lowers the learned FK error, realtime-smm (the
+paper's code) ran on the same locations, the simulation compared the methods.
+"""
+import json
+import math
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from armbridge.bench import smm as bench
+from armbridge.cli import build_app
+from armbridge.smm.arms import get_smm_arm
+from armbridge.smm.manifold import SmmSet
+
+
+def test_location_fk_error_averages_each_locations_points():
+    arm = get_smm_arm("planar3r")
+    q = np.zeros((2, 2, 4, 3))
+    q[0, 0] = [0.0, 0.0, 0.0]  # tip at (3, 0): error 0
+    q[0, 1] = [0.0, 0.0, np.pi]  # tip at (1, 0): 2 m off, 2/3 of the reach
+    q[1] = np.nan
+    smm = SmmSet(q, np.array([2, 0]), np.zeros(2, bool))
+    err = bench.location_fk_error(arm, smm, np.array([[3.0, 0.0], [3.0, 0.0]]))
+    assert err[0] == pytest.approx(100 * (2 / 3) / 2)
+    assert math.isnan(err[1])
+
+
+def test_bench_smm_quick_cli_writes_json(tmp_path):
+    out = tmp_path / "smm.json"
+    result = CliRunner().invoke(build_app(), ["bench", "smm", "--quick", "--robots", "planar3r", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    (t3,) = data["table3"]
+    rows = {r["method"]: r for r in t3["rows"]}
+    assert set(rows) == {"nullspace (ours)", "learned, before correction", "learned, after correction (3)",
+                         "realtime-smm 0.1.2 (paper's code, nullspace)"}
+    for name, r in rows.items():
+        assert r["single_ms"] > 0 and math.isfinite(r["fk_error_pct"]["mean"]), name
+    before, after = rows["learned, before correction"], rows["learned, after correction (3)"]
+    assert after["fk_error_pct"]["mean"] < before["fk_error_pct"]["mean"]
+    assert 0 <= after["branch_count_mismatch_pct"] <= 100
+    peer = rows["realtime-smm 0.1.2 (paper's code, nullspace)"]
+    assert peer["locations"] == bench.QUICK.peer_locations and sum(peer["statuses"].values()) == peer["locations"]
+    assert len(data["fig3"]["mean_abs_error_rad"]["planar3r"]) == len(data["fig3"]["K"])
+    errs = data["fig3"]["mean_abs_error_rad"]["planar3r"]
+    assert errs == sorted(errs, reverse=True)  # more components, less error
+    sim = data["simulation"]
+    assert {"nullspace (ours)", "learned"} <= set(sim)
+    assert all(0 <= sim[k]["success"] <= sim["trials"] for k in ("nullspace (ours)", "learned"))
+    assert set(data["targets"]) >= {"planar3r_fk_before_le_0.29pct", "planar3r_mismatch_le_0.7pct"}
+
+
+def test_bench_smm_rejects_unknown_robot(tmp_path):
+    result = CliRunner().invoke(build_app(), ["bench", "smm", "--robots", "planar9r", "--json", str(tmp_path / "x")])
+    assert result.exit_code != 0 and "unknown SMM robot" in str(result.exception)
