@@ -29,7 +29,7 @@ PORT = "emu:esp32?speed=2&seed=1"
 
 @pytest.fixture(scope="module")
 def scenario():
-    return ft_demo.choose_scenario(SEED, latency=LATENCY)
+    return ft_demo.choose_scenario(SEED, ft_demo.learned_method(), latency=LATENCY)  # run_ft_demo's default
 
 
 def test_the_scenario_stalls_a_joint_inside_its_box(scenario):
@@ -156,3 +156,5 @@ def test_demo_command_refuses_other_robots_and_ports():
     assert run.returncode != 0 and "arm3r only" in run.stdout + run.stderr
     with pytest.raises(ArmbridgeError, match="needs an emu: port"):
         ft_demo.run_ft_demo("/dev/ttyUSB0")
+    with pytest.raises(ArmbridgeError, match="choose learned or nullspace"):
+        ft_demo.smm_method("grid")

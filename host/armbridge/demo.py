@@ -48,6 +48,8 @@ def demo_cmd(
              "(SMM bounding boxes, Clark and Xie Fig. 15). Needs an emu: port.",
     ),
     seed: int = typer.Option(0, help="Seed of the fault-tolerant scenario (target, stalled joint)."),
+    smm: str = typer.Option("learned", help="SMMs for --fault-tolerant: learned (ms, the shipped model) or "
+                                            "nullspace (the slow ground truth; the arm waits longer)."),
 ) -> None:
     """Draw a square with the 3R arm on the emulated ESP32 (or, with --fault-tolerant, reach a target
     despite a joint that stalls on the way) and record it to Rerun."""
@@ -60,11 +62,11 @@ def demo_cmd(
         raise ArmbridgeError(f"--robot {robot!r}: the demo runs on arm3r only so far")
     console = Console()
     if fault_tolerant:
-        from armbridge.smm.ft_demo import run_ft_demo
+        from armbridge.smm.ft_demo import run_ft_demo, smm_method
 
         if write_plan is not None:
             raise ArmbridgeError("--write-plan writes the square plan; it does not go with --fault-tolerant")
-        result = run_ft_demo(port, rrd, seed, console=console)
+        result = run_ft_demo(port, rrd, seed, smm_method(smm), console=console)
         console.print(result.table())
         console.print(f"recording: {result.rrd}   view it with: armbridge view {result.rrd}")
         if not result.reached:

@@ -6,9 +6,9 @@ recovery use the runs of the SMMs within the limits, see
 faulttolerant.branch_boxes):
 
 1. A target appears (FK of a random configuration within the limits, drawn
-   from `seed`). Its SMMs are computed ('arm3r' SmmArm; by default the
-   nullspace method, `method` takes any other, e.g. the learned model's
-   compute) and the time that takes is the latency.
+   from `seed`). Its SMMs are computed ('arm3r' SmmArm; by default by the
+   shipped learned model models/onnx/smm-arm3r, or by the nullspace method)
+   and the time that takes is the latency.
 2. The plan: damped least squares toward the target for the latency (the arm
    does not wait for the SMMs, Fig. 15c), then into the SMM bounding box
    reached soonest, then inside it to the SMM configuration reached soonest
@@ -75,13 +75,35 @@ START_S = 0.02  # s for the first waypoint of a plan: where the arm already is
 SmmMethod = Callable[[DHChain, np.ndarray], SmmSet]
 
 
+MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "onnx" / "smm-arm3r"
+CORRECT_ITERS = 3  # eq. (18) steps on the learned SMMs
+
+
 def nullspace_method(arm: DHChain, x: np.ndarray) -> SmmSet:
-    """The ground-truth SMMs (section III-B), the default method. The learned
-    model plugs in as `method=lambda arm, x: model.compute(x, correct_iters)`
-    with `model = LearnedSmm.load(dir)` loaded once, outside the timed call."""
+    """The ground-truth SMMs (section III-B): seconds per location, the Fig. 16 case."""
     from armbridge.smm import nullspace
 
     return nullspace.compute(arm, x)
+
+
+def learned_method(folder: Path = MODEL_DIR) -> SmmMethod:
+    """The shipped learned model (loaded here, once, outside the timed call): milliseconds, Fig. 15."""
+    from armbridge.smm.learned import LearnedSmm
+
+    if not (folder / "card.json").is_file():
+        raise ArmbridgeError(f"no learned SMM model at {folder}; train it with "
+                             "`armbridge train smm-3r --robot arm3r`, or use --smm nullspace")
+    model = LearnedSmm.load(folder, robot="arm3r")
+    return lambda arm, x: model.compute(x, correct_iters=CORRECT_ITERS)
+
+
+def smm_method(name: str) -> SmmMethod:
+    """'learned' or 'nullspace'."""
+    if name == "learned":
+        return learned_method()
+    if name == "nullspace":
+        return nullspace_method
+    raise ArmbridgeError(f"--smm {name!r}: choose learned or nullspace")
 
 
 @dataclass(frozen=True)
@@ -149,7 +171,7 @@ def plan_scenario(x: np.ndarray, smm: SmmSet, latency: float, q0: np.ndarray,
     return FtScenario(x, smm, latency, ap, j, stall_after, plan)
 
 
-def choose_scenario(seed: int = 0, method: SmmMethod = nullspace_method, latency: float | None = None,
+def choose_scenario(seed: int, method: SmmMethod, latency: float | None = None,
                     robot: PlanarChain = ARM3R) -> FtScenario:
     """The first target drawn from `seed` that suits the demo. latency None:
     the measured time of `method` on that target; a number fixes it (tests)."""
@@ -297,8 +319,8 @@ def plan_recovery(sc: FtScenario, q_lock: np.ndarray, j: int, robot: PlanarChain
 
 
 def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed: int = 0,
-                method: SmmMethod = nullspace_method, latency: float | None = None, console=None) -> FtResult:
-    """Run the scenario (module docstring) on an emulated board and record it."""
+                method: SmmMethod | None = None, latency: float | None = None, console=None) -> FtResult:
+    """Run the scenario (module docstring) on an emulated board and record it; method None: the learned model."""
     import torch
 
     from armbridge.executor.client import LATCHED_STATES, BoardClient
@@ -312,7 +334,7 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
     # emulator for the CPU (2 threads: 2-8 s per location here, 1 thread: 0.3 s).
     torch.set_num_threads(1)
     robot = ARM3R
-    sc = choose_scenario(seed, method, latency, robot)
+    sc = choose_scenario(seed, method or learned_method(), latency, robot)
     res = FtResult(target=sc.x, latency=sc.latency, stalled_joint=sc.joint + 1)
     res.rrd = Path(rrd) if rrd is not None else default_rrd_path(sc.plan.name)
     say = console.print if console is not None else (lambda *a, **k: None)
