@@ -222,7 +222,7 @@ def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = 
     ik = MasrIK.load(card)
 
     def goal_ik(x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:
-        return ik.solve(x_goal, q_c, refine=True)
+        return ik.solve(x_goal, q_c, refine=True, sparsify=False)  # as planning.command.resolve_goal_ik
 
     result: dict[str, Any] = {"benchmark": "masr-plan (section V-C)", "size": asdict(size), "goal_ik": card.name,
                               "machine": {"python": platform.python_version(),

@@ -233,14 +233,30 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
             break
 
 
+@njit(cache=True)
+def _refine_serial(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                   iters, lam, neighbours, margin):
+    out = np.empty_like(Q)
+    for b in range(Q.shape[0]):
+        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                    iters, lam, neighbours, margin, out[b])
+    return out
+
+
 @njit(cache=True, parallel=True)
-def _refine_batch(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                  iters, lam, neighbours, margin):
+def _refine_parallel(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                     iters, lam, neighbours, margin):
     out = np.empty_like(Q)
     for b in prange(Q.shape[0]):
         _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
                     iters, lam, neighbours, margin, out[b])
     return out
+
+
+# Below this batch size the refinement runs on the calling thread: waking the
+# thread pool costs more than it saves, and far more on a busy machine (the
+# planner calls it with one query per iteration).
+PARALLEL_FROM = 256
 
 
 def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0.05,
@@ -257,7 +273,7 @@ def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0
     then, if snap_margin > 0, joints are turned back to q_c one at a time while
     the rest can still reach the goal within snap_margin of the tolerance and
     c(a) (eq. 8) drops: on a MASR every joint not turned saves its rotation and
-    often the MA's drive to it. Runs in numba, in parallel over the batch.
+    often the MA's drive to it. Runs in numba, in parallel over large batches.
     """
     x_goal = np.asarray(x_goal, dtype=float)
     q = np.asarray(q, dtype=float)
@@ -267,7 +283,8 @@ def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0
     Q = np.ascontiguousarray(q.reshape(-1, n + 1))
     has_qc = q_c is not None
     QC = np.ascontiguousarray(np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)) if has_qc else Q
-    out = _refine_batch(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
+    kernel = _refine_parallel if Q.shape[0] >= PARALLEL_FROM else _refine_serial
+    out = kernel(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
                         np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
                         float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
                         float(e_phi), int(iters), float(damping), bool(neighbours), float(snap_margin))
@@ -335,16 +352,19 @@ class MasrIK:
         return out.reshape(*batch, n + 1)
 
     def solve(self, x_goal: Any, q_c: Any, refine: bool = False, iters: int = 8,
-              hold_distal: bool = False) -> np.ndarray:
+              hold_distal: bool = False, sparsify: bool = True) -> np.ndarray:
         """A configuration reaching x_goal from q_c with little action time; (..., n+1).
 
-        refine=False: the network alone. refine=True: then `iters` DLS steps and
-        the joints past the MA's link back to q_c. hold_distal=True (no DLS):
-        only that last, exact step: same pose, never more action time.
+        refine=False: the network alone. refine=True: then `iters` DLS steps,
+        the joints past the MA's link back to q_c and, with `sparsify`, joints
+        turned back to q_c where the others make up (see `refine`).
+        hold_distal=True (no DLS): only the exact step: same pose, never more
+        action time.
         """
         q = self.predict(x_goal, q_c)
         if refine or hold_distal:
             x = np.broadcast_to(np.asarray(x_goal, float), (*q.shape[:-1], 3))
             q = _refine(self.arm, x, q, iters=iters if refine else 0,
-                        q_c=np.broadcast_to(np.asarray(q_c, float), q.shape))
+                        q_c=np.broadcast_to(np.asarray(q_c, float), q.shape),
+                        snap_margin=SNAP_MARGIN if sparsify else 0.0)
         return q
