@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -356,3 +357,41 @@ def fourier_free_locations(smm: LearnedSmm, count: int) -> np.ndarray:
     """Tips of random configurations of the model's arm."""
     q = np.random.default_rng(6).uniform(-np.pi, np.pi, (count, smm.arm.n))
     return np.asarray(smm.arm.task(q))
+
+
+# ------------------------------------------------------------------ the shipped models
+
+SHIPPED = sorted(p.parent for p in (Path(__file__).parents[1] / "models" / "onnx").glob("smm-*/card.json"))
+
+
+def test_the_3r_and_4r_models_are_shipped():
+    assert {"smm-planar3r", "smm-arm3r", "smm-spatial4r"} <= {p.name for p in SHIPPED}
+
+
+@pytest.mark.parametrize("folder", SHIPPED, ids=lambda p: p.name)
+def test_shipped_model_meets_its_card_on_fresh_locations(folder):
+    """A quality gate: fresh random locations (not grid cells), against the nullspace ground truth."""
+    from armbridge.smm import nullspace
+    from armbridge.smm.dataset import random_locations
+
+    model = LearnedSmm.load(folder)  # checks every file's sha256
+    held = model.card["accuracy"]["held_out"]
+    x = random_locations(model.arm, 150, seed=4321)
+    truth = nullspace.compute(model.arm, x)
+    before = model.compute(x)
+    after = model.compute(x, correct_iters=3)
+    mismatch = np.mean(before.count != truth.count) * 100
+    # 150 locations: allow the card's held-out mismatch plus 5 points (a binomial SE of ~2 at 5 %)
+    assert mismatch <= held["branch_count_mismatch_pct"] + 5
+    same = (before.count == truth.count) & (truth.count > 0)
+    err_before = tr.fk_errors(model.arm, _subset(before, same), x[same]) * 100
+    err_after = tr.fk_errors(model.arm, _subset(after, same), x[same]) * 100
+    assert err_before.mean() <= held["fk_error_pct_before"]["mean"] * 1.5 + 0.05
+    assert err_after.mean() < err_before.mean() and err_after.mean() <= max(
+        held["fk_error_pct_after"]["mean"] * 10, 1e-3)
+
+
+def _subset(s, rows):
+    from armbridge.smm.manifold import SmmSet
+
+    return SmmSet(s.points[rows], s.count[rows], s.singular[rows])
