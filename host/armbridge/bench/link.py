@@ -69,7 +69,7 @@ def percentiles(samples_s: list[float]) -> dict:
             "max_ms": float(a.max())}
 
 
-def _session(url: str, **client_kw) -> tuple[object, BoardClient]:
+def _session(url: str, **client_kw) -> tuple[CountingPort, BoardClient]:
     port = CountingPort(open_port(url))
     client = BoardClient(port, get_robot(ROBOT), **client_kw)
     client.connect()

@@ -309,8 +309,9 @@ class EmulatedBoard:
         self.hal.reset_line_tap()
         self._boot_at = None
         self.boots.append(self.clock.t)
-        self.board = self.modules[self.spec.board_module].Board(self.hal, cfg)
-        self.board.on_done = self._on_done
+        board = self.modules[self.spec.board_module].Board(self.hal, cfg)
+        board.on_done = self._on_done
+        self.board = board
 
     def _begin_reset(self) -> None:
         self.hal.outputs_off()

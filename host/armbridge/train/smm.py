@@ -194,6 +194,17 @@ def _jobs(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, device: torch.d
     return jobs
 
 
+def _progress_bar(label: str, after: str | None = None) -> Any:
+    """A started rich progress bar: label, bar, done/total, [after], elapsed, remaining."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    extra = [TextColumn(after)] if after else []
+    bar = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), *extra, TimeElapsedColumn(),
+                   TimeRemainingColumn())
+    bar.start()
+    return bar
+
+
 def _save(obj: Any, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -275,18 +286,7 @@ def _train(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, checkpoint: Pa
     done = sum(states[j.key].get("step", 0) for j in jobs)
     bar, task = None, None
     if progress:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        bar = Progress(TextColumn("[bold]SMM[/] {task.fields[net]}"), BarColumn(), MofNCompleteColumn(),
-                       TextColumn("loss {task.fields[loss]:.4g}"), TimeElapsedColumn(), TimeRemainingColumn())
-        bar.start()
+        bar = _progress_bar("[bold]SMM[/] {task.fields[net]}", "loss {task.fields[loss]:.4g}")
         task = bar.add_task("train", total=total, completed=done, net="", loss=float("nan"))
     try:
         for j in jobs:
@@ -426,18 +426,7 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     t0 = time.perf_counter()
     bar = None
     if progress:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        bar = Progress(TextColumn("[bold]SMM data[/] nullspace"), BarColumn(), MofNCompleteColumn(),
-                       TimeElapsedColumn(), TimeRemainingColumn())
-        bar.start()
+        bar = _progress_bar("[bold]SMM data[/] nullspace")
         task = bar.add_task("data", total=g.size)
     try:
         build = build_dataset(arm, g, K=K, N=N, seed=seed,
