@@ -31,8 +31,11 @@ def test_location_fk_error_averages_each_locations_points():
 
 def test_bench_smm_quick_cli_writes_json(tmp_path):
     out = tmp_path / "smm.json"
-    result = CliRunner().invoke(build_app(), ["bench", "smm", "--quick", "--robots", "planar3r", "--json", str(out)])
+    png = tmp_path / "fig3.png"
+    result = CliRunner().invoke(build_app(), ["bench", "smm", "--quick", "--robots", "planar3r", "--json", str(out),
+                                              "--png", str(png)])
     assert result.exit_code == 0, result.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     data = json.loads(out.read_text())
     (t3,) = data["table3"]
     rows = {r["method"]: r for r in t3["rows"]}

@@ -112,6 +112,8 @@ def masr_ik_cmd(
         console.print(sub)
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
+    if png is not None:
+        console.print(f"wrote {smm.fig3_png(result, png)}")
 
 
 @bench_app.command("masr-plan")
@@ -206,6 +208,7 @@ def smm_cmd(
     locations: int = typer.Option(None, "--locations", help="Table III locations for the 3R and 4R (full run: 10000)."),
     robots: str = typer.Option("planar3r,spatial4r,spatial7r", "--robots", help="Comma-separated SMM arms."),
     json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
+    png: Path = typer.Option(None, "--png", help="Also plot Fig. 3 (error against K) to this PNG."),
 ) -> None:
     """Table III of the SMM paper (time per location, FK error before/after
     correction, branch-count mismatch; ours, learned, realtime-smm), Fig. 3, and
@@ -265,3 +268,5 @@ def smm_cmd(
         console.print(table)
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
+    if png is not None:
+        console.print(f"wrote {smm.fig3_png(result, png)}")

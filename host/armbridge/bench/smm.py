@@ -239,3 +239,26 @@ def run(size: SmmBenchSize, robots: tuple[str, ...] = ("planar3r", "spatial4r", 
     result["targets"] = targets(result)
     result["wall_s"] = time.perf_counter() - t0
     return result
+
+
+def fig3_png(result: dict[str, Any], path: Path) -> Path:
+    """Fig. 3: mean absolute joint error against K, one line per arm (log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f3 = result["fig3"]
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for name, errs in f3["mean_abs_error_rad"].items():
+        ax.semilogy(f3["K"], errs, marker="o", label=name)
+    ax.set_xlabel("K (Fourier components kept of N = 128)")
+    ax.set_ylabel("mean |joint error| (rad)")
+    ax.set_title("Fig. 3: low-pass error of the SMMs")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
