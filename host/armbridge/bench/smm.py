@@ -44,16 +44,17 @@ TARGET_BATCHED_MS = 0.5
 class SmmBenchSize:
     locations: int  # Table III locations for the 3R and 4R
     locations_7r: int  # the 7R's (its nullspace SMMs take ~0.15 s each)
-    peer_locations: int  # of them, how many realtime-smm computes
+    peer_locations: int  # of them, how many realtime-smm computes (3R, 4R)
+    peer_locations_7r: int
     single: int  # single-location timing calls per method
     repeats: int  # batched timing repeats (best of)
     fig3_locations: int
     sim_trials: int
 
 
-FULL = SmmBenchSize(locations=10000, locations_7r=200, peer_locations=100, single=50, repeats=3,
-                    fig3_locations=100, sim_trials=1000)
-QUICK = SmmBenchSize(locations=40, locations_7r=4, peer_locations=2, single=3, repeats=1,
+FULL = SmmBenchSize(locations=10000, locations_7r=200, peer_locations=100, peer_locations_7r=10, single=50,
+                    repeats=3, fig3_locations=100, sim_trials=1000)
+QUICK = SmmBenchSize(locations=40, locations_7r=4, peer_locations=2, peer_locations_7r=0, single=3, repeats=1,
                      fig3_locations=5, sim_trials=20)
 
 
@@ -160,8 +161,8 @@ def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None]) -
             rows.append(_row(label, arm, x, smm, ours.count, ms, _time_single(fn, x, size.single)))
     else:
         rows.append({"method": "learned", "missing": f"no model at {model}"})
-    if size.peer_locations and arm_name != "spatial7r":
-        k = min(size.peer_locations, count)
+    k = min(size.peer_locations_7r if arm_name == "spatial7r" else size.peer_locations, count)
+    if k:
         progress(f"{arm_name}: realtime-smm on {k} locations")
         t0 = time.perf_counter()
         peer, statuses = peer_compute(arm, q_goal[:k])
