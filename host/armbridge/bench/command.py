@@ -112,8 +112,6 @@ def masr_ik_cmd(
         console.print(sub)
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
-    if png is not None:
-        console.print(f"wrote {smm.fig3_png(result, png)}")
 
 
 @bench_app.command("masr-plan")

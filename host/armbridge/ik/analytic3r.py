@@ -11,12 +11,15 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.planar import PlanarChain
+from armbridge.robots.planar import PlanarChain, wrap_angle
 
 # Rounding slack: a wrist exactly at full reach or a joint exactly on a limit
-# must still count, though floating point may land a hair outside.
+# must still count, though floating point may land a hair outside. Near a
+# straight elbow arccos loses q2 to ~1.5e-8 rad (c2 rounds to 1), and q1 and q3
+# inherit that error, so the joint slack must cover it (the answer is then
+# clipped onto the limit: a tip error under 1e-8 m).
 _REACH_TOL = 1e-12
-_LIMIT_TOL = 1e-9
+_LIMIT_TOL = 2e-8
 # arccos near +-1 turns a 1e-16 rounding error into ~1e-8 rad: an elbow that
 # lands that close to its limit is snapped onto it before q1 and q3 are
 # derived, so the three joints stay consistent.
@@ -62,6 +65,8 @@ def _branches(chain: PlanarChain, pose: np.ndarray, ref: np.ndarray) -> tuple[np
     q3 = phi[..., None] - q1 - q2
     q = np.stack([q1, q2, q3], axis=-1)
     q = _into_limits(q, chain.q_min, chain.q_max, np.broadcast_to(ref[..., None, :], q.shape))
+    # a joint clipped onto its limit moved phi by up to the slack: the wrist takes it back
+    q[..., 2] = np.clip(q[..., 2] + wrap_angle(phi[..., None] - q.sum(axis=-1)), chain.q_min[2], chain.q_max[2])
     q[~reach] = np.nan
     return q, reach
 
