@@ -38,6 +38,7 @@ CORRECT_ITERS = 3  # the paper's "three inverse kinematics iterations"
 # Table III of the paper: (FK error % before, after correction, branch-count mismatch %).
 PAPER = {"planar3r": (0.29, 7.3e-5, 0.70), "spatial4r": (0.66, 0.0011, 2.16), "spatial7r": (2.07, 0.016, 6.02)}
 TARGET_BATCHED_MS = 0.5
+PAPER_FIG16_LATENCY_S = 4.3
 
 
 @dataclass(frozen=True)
@@ -214,6 +215,8 @@ def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callabl
     peer = [r for r in rows if r["method"].startswith("realtime-smm")]
     if peer:  # its SMMs are the same loops: only its latency differs
         out["realtime-smm latency, our SMMs"] = simulate(arm, ours, trials, peer[0]["single_ms"] / 1e3).to_dict()
+    # the paper's nullspace latency in its Fig. 16 (7R, 4.3 s): where a slow method leaves the arm
+    out["paper's Fig. 16 latency (4.3 s), our SMMs"] = simulate(arm, ours, trials, PAPER_FIG16_LATENCY_S).to_dict()
     return out
 
 

@@ -159,7 +159,7 @@ def compute_smms(
     arm: SmmArm,
     canon: np.ndarray,
     n_points: int = 128,
-    batch: int = 512,
+    batch: int = 2048,  # locations per nullspace call: larger batches amortise the per-step overhead
     progress: Progress | None = None,
     **nullspace_options: Any,
 ) -> SmmSet:
@@ -248,7 +248,7 @@ def build_dataset(
     grid: GridSpec | None = None,
     K: int = 40,
     N: int = 128,
-    batch: int = 512,
+    batch: int = 2048,  # locations per nullspace call: larger batches amortise the per-step overhead
     progress: Progress | None = None,
     exact_phase: bool = True,
     min_cells: int = 4,
