@@ -257,13 +257,18 @@ def test_link_faults_over_pty_are_counted():
     assert emu.state != "ESTOP"
 
 
-def _run_cli(*args, timeout=10):
+def _run_cli(*args):
     import subprocess
     import sys
 
+    import signal
+
     code = "import typer; from armbridge.emulator.command import emulate_cmd; typer.run(emulate_cmd)"
+    # Ctrl-C as at a terminal: a run started in the background (`make test &`)
+    # would hand the child an ignored SIGINT, which Python then keeps.
     return subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def test_cli_serves_a_board_until_ctrl_c(tmp_path):
