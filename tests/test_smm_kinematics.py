@@ -4,7 +4,12 @@ import math
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from require import missing
+
+try:
+    import torch
+except ImportError:
+    missing("torch is not installed (`make setup` installs the [train] extra)")
 
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.catalog import ARM3R

@@ -4,7 +4,12 @@ import math
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from require import missing
+
+try:
+    import torch
+except ImportError:
+    missing("torch is not installed (`make setup` installs the [train] extra)")
 
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import nullspace
@@ -237,7 +242,7 @@ def test_smm_command_out_of_reach() -> None:
 def test_smm_command_learned_method_is_wired(monkeypatch) -> None:
     from typer.testing import CliRunner
 
-    learned = pytest.importorskip("armbridge.smm.learned")
+    from armbridge.smm import learned
     calls: dict = {}
 
     class Fake:
