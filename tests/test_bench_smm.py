@@ -60,3 +60,33 @@ def test_bench_smm_quick_cli_writes_json(tmp_path):
 def test_bench_smm_rejects_unknown_robot(tmp_path):
     result = CliRunner().invoke(build_app(), ["bench", "smm", "--robots", "planar9r", "--json", str(tmp_path / "x")])
     assert result.exit_code != 0 and "unknown SMM robot" in str(result.exception)
+
+
+def test_peer_targets_are_the_fk_of_the_locations():
+    q = np.random.default_rng(0).uniform(-np.pi, np.pi, (5, 7))
+    arm = get_smm_arm("spatial7r")
+    np.testing.assert_allclose(bench.target_matrix(arm, np.asarray(arm.task(q))), arm.fk(q), atol=1e-12)
+    arm = get_smm_arm("spatial4r")
+    t = bench.target_matrix(arm, np.asarray(arm.task(q[:, :4])))
+    np.testing.assert_allclose(t[:, :3, 3], arm.fk(q[:, :4])[:, :3, 3], atol=1e-12)
+    np.testing.assert_array_equal(t[:, :3, :3], np.tile(np.eye(3), (5, 1, 1)))
+
+
+def test_7r_locations_lie_in_the_models_region(tmp_path):
+    from armbridge.smm.learned import CARD_NAME, CARD_VERSION, KIND
+
+    arm = get_smm_arm("spatial7r")
+    lo, hi = (2.9, -0.4, 0.0, -np.pi), (3.1, -0.2, np.pi, np.pi)
+    card = {"kind": KIND, "card_version": CARD_VERSION, "robot": arm.name, "fourier": {"K": 40},
+            "clusters": {"branches": [0]}, "files": {"classifier": {}, "regressors": {}},
+            "dataset": {"grid_lo": lo, "grid_hi": hi, "grid_shape": [3, 3, 16, 32]}}
+    (tmp_path / CARD_NAME).write_text(json.dumps(card))
+    x, where = bench.bench_locations(arm, 400, tmp_path)
+    c, shift = arm.canonical(x)
+    assert x.shape == (400, 6) and "region" in where
+    assert (c[:, 0] >= lo[0] - 1e-9).all() and (c[:, 0] <= hi[0] + 1e-9).all()
+    assert (c[:, 1] >= lo[1] - 1e-9).all() and (c[:, 1] <= hi[1] + 1e-9).all()
+    # tool directions uniform on the sphere: the axis's z component has mean ~0 and spread ~1/sqrt(3)
+    assert abs(np.cos(c[:, 2]).mean()) < 0.1 and abs(np.cos(c[:, 2]).std() - 3**-0.5) < 0.05
+    x4, where4 = bench.bench_locations(get_smm_arm("spatial4r"), 10, tmp_path / "none")
+    assert x4.shape == (10, 3) and "random configurations" in where4

@@ -41,6 +41,24 @@ def test_1d_radial_grid_with_out_of_reach_cells():
     assert cl.branches.tolist() == [2, 1, 0]
 
 
+def test_cells_outside_the_clusters_take_the_nearest_cluster_of_their_count():
+    # 1-D: clusters [2 2 2] [1 1] [0 0]; cells 3 and 6 singular, traced with counts 1 and 0
+    count = np.array([2, 2, 2, 1, 1, 1, 0, 0, 0])
+    singular = np.zeros(9, bool)
+    singular[[3, 6]] = True
+    cl = automaton.cluster(count, singular)
+    cells = np.arange(9.0)[:, None]
+    label = automaton.nearest_cluster(cl, cells, count, reach=3)
+    assert label.tolist() == [0, 0, 0, 1, 1, 1, 2, 2, 2]  # clustered cells keep theirs
+    # points between cells, and a count no cluster within reach has (3), or one beyond reach
+    pts = np.array([[2.6], [2.4], [5.5], [0.0], [8.0]])
+    assert automaton.nearest_cluster(cl, pts, np.array([1, 2, 0, 3, 2]), reach=3).tolist() == [1, 0, 2, -1, -1]
+    with pytest.raises(ArmbridgeError, match="reach"):
+        automaton.nearest_cluster(cl, cells, count, reach=-1)
+    with pytest.raises(ArmbridgeError, match=r"\(P, 1\)"):
+        automaton.nearest_cluster(cl, np.zeros((2, 2)), np.zeros(2), reach=1)
+
+
 def test_large_grid_converges_vectorised():
     count = np.ones((250, 400), dtype=np.int64)
     count[:, 200:] = 2

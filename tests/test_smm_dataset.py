@@ -5,6 +5,7 @@ import torch
 
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import dataset, fourier
+from armbridge.robots.dh import DHChain
 from armbridge.smm.arms import get_smm_arm
 
 torch.set_num_threads(1)
@@ -23,8 +24,38 @@ def build():
 
 
 def test_progress_is_reported_per_batch(build):
-    _, calls = build
-    assert calls == [(16, 40), (32, 40), (40, 40)]
+    b, calls = build
+    assert calls[:3] == [(16, 40), (32, 40), (40, 40)]  # the grid, then the boundary points
+    points = b.dataset.boundary_canon.shape[0]
+    assert points and calls[3:] == [(min(s + 16, points), points) for s in range(0, points, 16)]
+
+
+def planar3r_branch_count(r: np.ndarray) -> np.ndarray:
+    """Links of 1 m: two SMM branches inside r = 1, one out to r = 3, none beyond."""
+    return np.select([r < 1, r < 3], [2, 1], 0)
+
+
+def test_labels_follow_the_nullspace_branch_count(build):
+    """Every labelled cell and boundary point gets a cluster with its own branch count;
+    clustered cells keep their cluster (cells outside: test_smm_automaton)."""
+    b, _ = build
+    ds = b.dataset
+    assert np.array_equal(ds.label[ds.cluster >= 0], ds.cluster[ds.cluster >= 0])
+    ok = ds.label >= 0
+    assert np.array_equal(ds.cluster_branches[ds.label[ok]], b.smms.count[ok])
+    # boundary points: 4 per boundary cell, inside it, labelled by the analytic count
+    cells = dataset.boundary_cells(b.clusters, b.smms.count)
+    assert ds.boundary_canon.shape == (4 * cells.size, 1)
+    width = 3.3 / 40
+    home = np.floor(ds.boundary_canon[:, 0] / width).astype(int)
+    assert np.array_equal(home, np.repeat(cells, 4))
+    r = ds.boundary_canon[:, 0]
+    near_fold = np.min(np.abs(r[:, None] - np.array([1.0, 3.0])), axis=1) < 2e-3  # traced count unsure there
+    lab = (ds.boundary_label >= 0) & ~near_fold
+    assert lab.sum() > 0.8 * r.size
+    assert np.array_equal(ds.cluster_branches[ds.boundary_label[lab]], planar3r_branch_count(r[lab]))
+    canon, label = ds.classifier_data(np.flatnonzero(ok))
+    assert canon.shape[0] == ok.sum() + (ds.boundary_label >= 0).sum() and (label >= 0).all()
 
 
 def test_clusters_are_contiguous_radial_bands(build):
@@ -97,7 +128,7 @@ def test_save_load_round_trip(build, tmp_path):
     ds.save(tmp_path / "smm.npz")
     back = dataset.SmmDataset.load(tmp_path / "smm.npz")
     assert back.robot == "planar3r" and back.K == K and back.N == N
-    for f in ("canon", "cluster", "coeffs", "cluster_branches"):
+    for f in ("canon", "cluster", "label", "coeffs", "cluster_branches", "boundary_canon", "boundary_label"):
         assert np.array_equal(getattr(back, f), getattr(ds, f), equal_nan=True)
         assert getattr(back, f).dtype == getattr(ds, f).dtype
     with np.load(tmp_path / "smm.npz") as z:
@@ -112,14 +143,28 @@ def test_bad_input_is_an_armbridge_error(tmp_path):
         dataset.build_dataset(arm, dataset.GridSpec((0.0, 0.0), (1.0, 1.0), (2, 2)))
     with pytest.raises(ArmbridgeError, match="K"):
         dataset.build_dataset(arm, dataset.GridSpec((0.0,), (1.0,), (2,)), K=0)
+    s7 = get_smm_arm("spatial7r")
+    rolled = DHChain(name="pose7", a=np.r_[s7.a[:-1], 0.1], alpha=s7.alpha, d=s7.d, theta=s7.theta, space="pose")
     with pytest.raises(ArmbridgeError, match="explicit GridSpec"):
-        dataset.default_grid(get_smm_arm("spatial7r"))
+        dataset.default_grid(rolled)  # its last joint moves the tip: 5 canonical numbers
+    with pytest.raises(ArmbridgeError, match="4 cell counts"):
+        dataset.default_grid(s7, shape=(3, 3))
     (tmp_path / "x.npz").write_bytes(b"not a zip")
     with pytest.raises(ArmbridgeError, match="cannot read"):
         dataset.SmmDataset.load(tmp_path / "x.npz")
     np.savez(tmp_path / "y.npz", robot="planar3r")
     with pytest.raises(ArmbridgeError, match="missing"):
         dataset.SmmDataset.load(tmp_path / "y.npz")
+
+
+def test_the_7r_grid_is_one_region_times_every_tool_direction():
+    arm = get_smm_arm("spatial7r")
+    g = dataset.default_grid(arm)
+    assert g.shape == dataset.REGION_SHAPE
+    assert g.lo[2:] == (0.0, -np.pi) and g.hi[2:] == (np.pi, np.pi)
+    assert g.hi[0] - g.lo[0] == pytest.approx(0.2) and g.hi[1] - g.lo[1] == pytest.approx(0.2)
+    c = dataset.region_locations(g, 1000, seed=3)
+    assert (c >= np.array(g.lo)).all() and (c <= np.array(g.hi)).all()
 
 
 def test_default_grids_cover_the_workspace_with_a_margin():

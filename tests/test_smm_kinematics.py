@@ -132,26 +132,47 @@ def test_rotation_vector_round_trip_including_near_pi() -> None:
     torch.testing.assert_close(rot_from_vec(vec_from_rot(r)), r, atol=1e-12, rtol=0)
 
 
+def assert_turning_moves_only_the_shift(arm, q: torch.Tensor, joint: int, angle: float, atol: float) -> None:
+    """Turning `joint` by `angle` leaves the canonical location and moves shift[joint] by `angle`."""
+    c, shift = arm.canonical(arm.task(q))
+    turned = q.clone()
+    turned[:, joint] += angle
+    c2, shift2 = arm.canonical(arm.task(turned))
+    torch.testing.assert_close(c2, c, atol=atol, rtol=0)
+    moved = torch.remainder(shift2[:, joint] - shift[:, joint] - angle + math.pi, 2 * math.pi) - math.pi
+    torch.testing.assert_close(moved, torch.zeros_like(moved), atol=atol, rtol=0)
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_joint1_rotation_is_canonical_symmetry(name: str) -> None:
     """Turning theta_1 by phi turns the location by phi about base z (section V-B)."""
     arm = get_smm_arm(name)
     q = _q(arm, 10, seed=2)
     x = arm.task(q)
-    c, phi = arm.canonical(x)
-    assert c.shape == (10, arm.c_dim)
-    torch.testing.assert_close(arm.task_error(q, arm.uncanonical(c, phi)), torch.zeros_like(x), atol=1e-12, rtol=0)
-    turned = q.clone()
-    turned[:, 0] += 0.9
-    c2, phi2 = arm.canonical(arm.task(turned))
-    torch.testing.assert_close(c2, c, atol=1e-12, rtol=0)
-    torch.testing.assert_close(torch.remainder(phi2 - phi - 0.9 + math.pi, 2 * math.pi) - math.pi,
-                               torch.zeros(10, dtype=torch.float64), atol=1e-12, rtol=0)
-    # The canonical location lies in the x-z half-plane: reachable with theta_1 -= phi.
-    back = q.clone()
-    back[:, 0] -= phi
-    torch.testing.assert_close(arm.task_error(back, arm.uncanonical(c, torch.zeros(10, dtype=torch.float64))),
-                               torch.zeros_like(x), atol=1e-12, rtol=0)
+    c, shift = arm.canonical(x)
+    assert c.shape == (10, arm.c_dim) and shift.shape == (10, arm.n)
+    torch.testing.assert_close(arm.task_error(q, arm.uncanonical(c, shift)), torch.zeros_like(x), atol=1e-12, rtol=0)
+    assert_turning_moves_only_the_shift(arm, q, 0, 0.9, atol=1e-12)
+    # The canonical location is reached by moving the joints back by the shift.
+    back = q - shift
+    torch.testing.assert_close(arm.task_error(back, arm.uncanonical(c)), torch.zeros_like(x), atol=1e-12, rtol=0)
+
+
+def test_spatial7r_canonical_drops_the_tool_roll() -> None:
+    """The 7R's joint 7 only rolls the tool: turning it leaves c alone and moves shift[6];
+    c = (rho, z, polar, azimuth) of the tool axis."""
+    arm = get_smm_arm("spatial7r")
+    assert arm.tool_roll and arm.c_dim == 4
+    assert not get_smm_arm("spatial4r").tool_roll
+    q = _q(arm, 10, seed=4)
+    c, shift = arm.canonical(arm.task(q))
+    assert_turning_moves_only_the_shift(arm, q, 6, 1.3, atol=1e-10)
+    axis = arm.fk(q - shift)[:, :3, 2]  # the tool axis at the canonical location
+    polar, azimuth = c[:, 2], c[:, 3]
+    torch.testing.assert_close(axis, torch.stack([polar.sin() * azimuth.cos(), polar.sin() * azimuth.sin(),
+                                                  polar.cos()], -1), atol=1e-10, rtol=0)
+    with pytest.raises(ArmbridgeError, match="one offset per joint"):
+        arm.uncanonical(c, shift[:, :3])
 
 
 def test_spatial7r_last_joint_turns_the_tool_about_its_z() -> None:

@@ -20,17 +20,13 @@ except ImportError as exc:
     missing(f"{exc.name} is not installed (`make setup` installs the [train] extra)")
 
 from armbridge.errors import ArmbridgeError
+from armbridge.robots.dh import DHChain
 from armbridge.smm import fourier
 from armbridge.smm import networks as nets
 from armbridge.smm.arms import get_smm_arm
 from armbridge.smm.dataset import SmmDataset
-from armbridge.smm.learned import (
-    CARD_NAME,
-    LearnedSmm,
-    correct,
-    damped_pinv_step,
-    error_and_step,
-)
+from armbridge.smm.correction import correct, damped_pinv_step, error_and_step
+from armbridge.smm.learned import CARD_NAME, LearnedSmm
 from armbridge.train import smm as tr
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::UserWarning")  # torch.onnx internals
@@ -79,9 +75,10 @@ def synthetic_dataset() -> SmmDataset:
     coeffs = fourier.lowpass(fourier.encode(fourier.orient(pts, null_vectors(pts))), K)
     all_coeffs = np.full((80, 2, 3, K), np.nan + 0j)
     all_coeffs[:60] = coeffs
+    cluster = np.r_[np.zeros(60, np.int64), np.ones(20, np.int64)]
     return SmmDataset(robot="planar3r", canon=np.concatenate([r_in, r_out])[:, None],
-                      cluster=np.r_[np.zeros(60, np.int64), np.ones(20, np.int64)], coeffs=all_coeffs,
-                      cluster_branches=np.array([2, 0]), K=K, N=N)
+                      cluster=cluster, label=cluster, coeffs=all_coeffs, cluster_branches=np.array([2, 0]),
+                      boundary_canon=np.zeros((0, 1)), boundary_label=np.zeros(0, np.int64), K=K, N=N)
 
 
 @pytest.fixture(scope="module")
@@ -318,9 +315,12 @@ def test_missing_corrupt_or_foreign_models_are_user_errors(model_dir, tmp_path):
         smm.compute(np.array([[np.nan, 0.0]]))
 
 
-def test_no_grid_for_pose_arms_from_the_cli():
+def test_cli_grids_the_7r_region_and_rejects_other_pose_arms():
+    s7 = get_smm_arm("spatial7r")
+    assert tr.grid_for(s7, "").shape == (3, 3, 16, 32) and tr.grid_for(s7, "2x2x8x16").shape == (2, 2, 8, 16)
+    rolled = DHChain(name="pose7", a=np.r_[s7.a[:-1], 0.1], alpha=s7.alpha, d=s7.d, theta=s7.theta, space="pose")
     with pytest.raises(ArmbridgeError, match="--dataset"):
-        tr.grid_for(get_smm_arm("spatial7r"), "")
+        tr.grid_for(rolled, "")
     with pytest.raises(ArmbridgeError, match="--grid"):
         tr.grid_for(ARM, "2x")
 
@@ -351,6 +351,30 @@ def test_cli_trains_a_tiny_3r_model_from_nullspace_data_and_resumes(tmp_path):
     assert json.loads((out / CARD_NAME).read_text())["files"] == card["files"]  # same networks, same bytes
     bad = CliRunner().invoke(build_app(), ["train", "smm-3r", "--robot", "spatial4r", "--work-dir", str(work)])
     assert bad.exit_code != 0 and "3-joint" in str(bad.exception or bad.output)
+
+
+def test_cli_trains_a_tiny_7r_region_model_whose_smms_follow_both_symmetries(tmp_path):
+    """The 7R's SMM at a location is the canonical one moved by the shift: theta_1 += phi, theta_7 += psi."""
+    from armbridge.cli import build_app
+
+    out, work = tmp_path / "smm-spatial7r", tmp_path / "work"
+    args = ["train", "smm-7r", "--grid", "1x1x4x8", "--sing-tol", "0.005", "--boundary-points", "0", "--epochs", "2",
+            "--min-steps", "20", "--batch", "16", "--cls-hidden", "8", "--reg-hidden", "16", "--no-progress",
+            "--work-dir", str(work), "--out", str(out)]
+    res = CliRunner().invoke(build_app(), args)
+    assert res.exit_code == 0, res.output
+    smm = LearnedSmm.load(out, robot="spatial7r")
+    arm = smm.arm
+    data = SmmDataset.load(work / "dataset.npz")
+    c = data.canon[data.cluster >= 0][:6]
+    shift = np.zeros((len(c), 7))
+    shift[:, 0], shift[:, 6] = np.random.default_rng(1).uniform(-np.pi, np.pi, (2, len(c)))
+    base = smm.compute(arm.uncanonical(c), n_points=32)
+    moved = smm.compute(arm.uncanonical(c, shift), n_points=32)
+    assert np.array_equal(base.count, moved.count) and base.count.min() > 0
+    ok = np.isfinite(base.points)
+    diff = moved.points[ok] - (base.points + shift[:, None, None, :])[ok]
+    assert np.abs(np.angle(np.exp(1j * diff))).max() < 1e-5  # float32 networks, wrapped angles
 
 
 def fourier_free_locations(smm: LearnedSmm, count: int) -> np.ndarray:

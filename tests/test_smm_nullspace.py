@@ -133,9 +133,10 @@ def test_other_seeds_give_the_same_branches() -> None:
 def test_smm_of_a_rotated_location_is_the_canonical_one_shifted_in_theta1() -> None:
     arm = get_smm_arm("spatial4r")
     x = np.array([[1.0, 2.0, 0.5]])
-    c, phi = arm.canonical(x)
+    c, shift = arm.canonical(x)
+    phi = shift[:, 0]
     rotated = nullspace.compute(arm, x, device="cpu")
-    canon = nullspace.compute(arm, arm.uncanonical(c, np.zeros(1)), device="cpu", seed=3)
+    canon = nullspace.compute(arm, arm.uncanonical(c), device="cpu", seed=3)
     assert rotated.count[0] == canon.count[0] >= 1
     for br in canon.branches(0):
         shifted = br.copy()

@@ -207,6 +207,7 @@ def smm_cmd(
     robots: str = typer.Option("planar3r,spatial4r,spatial7r", "--robots", help="Comma-separated SMM arms."),
     json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
     png: Path = typer.Option(None, "--png", help="Also plot Fig. 3 (error against K) to this PNG."),
+    models: Path = typer.Option(None, "--models", help="Folder holding the learned models, smm-ROBOT each (default: models/onnx; the 7R's is not shipped, see docs/smm.md)."),
 ) -> None:
     """Table III of the SMM paper (time per location, FK error before/after
     correction, branch-count mismatch; ours, learned, realtime-smm), Fig. 3, and
@@ -226,14 +227,15 @@ def smm_cmd(
     for name in names:
         get_smm_arm(name)  # a clear error before any work
     console = Console()
-    result = smm.run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"))
+    result = smm.run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"),
+                     models=models or smm.MODELS)
     write_json(result, json_out)
 
     def num(v: float | None, fmt: str) -> str:
         return "-" if v is None else format(v, fmt)
 
     for t in result["table3"]:
-        table = Table(title=f"Table III protocol, {t['robot']}: {t['locations']} random locations "
+        table = Table(title=f"Table III protocol, {t['robot']}: {t['locations']} random locations {t['where']} "
                             f"(paper: {t['paper']['fk_before_pct']} % / {t['paper']['fk_after_pct']} %, "
                             f"mismatch {t['paper']['mismatch_pct']} %)")
         for col in ("method", "ms/location batched", "ms single", "FK error % mean +- std", "branch mismatch %"):

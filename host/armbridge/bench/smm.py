@@ -1,7 +1,8 @@
 """`armbridge bench smm`: Table III, Fig. 3 and the Figs. 15-16 simulation of the SMM paper.
 
 Table III protocol (section VI-A): random workspace locations (the tips of
-uniform random configurations, so all reachable; one seed for every method).
+uniform random configurations, so all reachable; one seed for every method;
+for the 7R with a model, uniform over the model's region: `bench_locations`).
 Per method: time per location (batched: every location in one call, best of
 `repeats`; single: one location per call, median), the FK error of eq. (19)
 in % (per location the mean over every point of its branches, then mean and
@@ -44,7 +45,7 @@ PAPER_FIG16_LATENCY_S = 4.3
 @dataclass(frozen=True)
 class SmmBenchSize:
     locations: int  # Table III locations for the 3R and 4R
-    locations_7r: int  # the 7R's (its nullspace SMMs take ~0.15 s each)
+    locations_7r: int  # the 7R's (its nullspace SMMs take ~0.1 s each batched, so 2,000 is 3-4 minutes)
     peer_locations: int  # of them, how many realtime-smm computes (3R, 4R)
     peer_locations_7r: int
     single: int  # single-location timing calls per method
@@ -53,7 +54,7 @@ class SmmBenchSize:
     sim_trials: int
 
 
-FULL = SmmBenchSize(locations=10000, locations_7r=200, peer_locations=100, peer_locations_7r=10, single=50,
+FULL = SmmBenchSize(locations=10000, locations_7r=2000, peer_locations=100, peer_locations_7r=10, single=50,
                     repeats=3, fig3_locations=100, sim_trials=1000)
 QUICK = SmmBenchSize(locations=40, locations_7r=4, peer_locations=2, peer_locations_7r=0, single=3, repeats=1,
                      fig3_locations=5, sim_trials=20)
@@ -108,8 +109,21 @@ def _row(name: str, arm: Any, x: np.ndarray, smm: Any, reference: np.ndarray | N
     return row
 
 
-def peer_compute(arm: Any, q_goal: np.ndarray) -> tuple[Any, list[str]]:
-    """realtime-smm's nullspace SMMs at the tips of q_goal (L, n), as an SmmSet, and its status per location."""
+def target_matrix(arm: Any, x: np.ndarray) -> np.ndarray:
+    """(L, 4, 4) homogeneous targets of locations x (L, m): 'xy' at z = 0, positions with the identity rotation."""
+    import torch
+
+    from armbridge.robots.dh import rot_from_vec
+
+    t = np.tile(np.eye(4), (len(x), 1, 1))
+    t[:, : min(arm.m, 3), 3] = x[:, :3]
+    if arm.space == "pose":
+        t[:, :3, :3] = rot_from_vec(torch.as_tensor(x[:, 3:], dtype=torch.float64)).numpy()
+    return t
+
+
+def peer_compute(arm: Any, x: np.ndarray) -> tuple[Any, list[str]]:
+    """realtime-smm's nullspace SMMs at locations x (L, m), as an SmmSet, and its status per location."""
     from realtime_smm.helpers.robot import Robot  # type: ignore[import-untyped]
     from realtime_smm.helpers.types import DHLink, SMMStatus, TaskSpace  # type: ignore[import-untyped]
 
@@ -121,8 +135,8 @@ def peer_compute(arm: Any, q_goal: np.ndarray) -> tuple[Any, list[str]]:
                    for a, al, d, t in zip(arm.a, arm.alpha, arm.d, arm.theta)], taskspace=space)
     np.random.seed(0)  # it draws IK starts from numpy's global generator
     found, statuses = [], []
-    for q in q_goal:
-        res = robot.workspace_smms(robot.forward_kinematics(q))
+    for target in target_matrix(arm, x):
+        res = robot.workspace_smms(target)
         statuses.append(SMMStatus(res.status).name)
         found.append([s.data for s in res.data if s.data is not None])
     bmax = max(1, max(len(f) for f in found))
@@ -134,20 +148,40 @@ def peer_compute(arm: Any, q_goal: np.ndarray) -> tuple[Any, list[str]]:
     return SmmSet(points, count, np.array([s == "SINGULAR" for s in statuses])), statuses
 
 
-def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None]) -> dict[str, Any]:
+def bench_locations(arm: Any, count: int, model: Path) -> tuple[np.ndarray, str]:
+    """Table III's locations (seed 1) and where they lie: the tips of random configurations; for a
+    tool-roll arm with a model, uniform over the model's region (its positions, every tool direction and
+    roll, any turn about the base), as the paper samples its 7R within its grid."""
+    from armbridge.smm.dataset import GridSpec, region_locations
+    from armbridge.smm.learned import read_card
+
+    if arm.tool_roll and (model / "card.json").is_file():
+        info = read_card(model, arm.name)["dataset"]
+        grid = GridSpec(tuple(info["grid_lo"]), tuple(info["grid_hi"]), tuple(info["grid_shape"]))
+        rng = np.random.default_rng(2)
+        shift = np.zeros((count, arm.n))
+        shift[:, 0], shift[:, -1] = rng.uniform(-np.pi, np.pi, (2, count))
+        lo, hi = grid.lo, grid.hi
+        where = (f"in the model's region (rho {lo[0]:.2f} to {hi[0]:.2f} m, z {lo[1]:.2f} to {hi[1]:.2f} m, "
+                 "every tool direction)")
+        return np.asarray(arm.uncanonical(region_locations(grid, count, seed=1), shift)), where
+    q = np.random.default_rng(1).uniform(-np.pi, np.pi, (count, arm.n))
+    return np.asarray(arm.task(q)), "(tips of random configurations, all reachable)"
+
+
+def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None], models: Path = MODELS) -> dict[str, Any]:
     from armbridge.smm import nullspace
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.learned import LearnedSmm
 
     arm = get_smm_arm(arm_name)
     count = size.locations_7r if arm_name == "spatial7r" else size.locations
-    q_goal = np.random.default_rng(1).uniform(-np.pi, np.pi, (count, arm.n))
-    x = np.asarray(arm.task(q_goal))  # reachable by construction
-    progress(f"{arm_name}: nullspace on {count} locations")
+    model = models / f"smm-{arm_name}"
+    x, where = bench_locations(arm, count, model)
+    progress(f"{arm_name}: nullspace on {count} locations {where}")
     ours, ns_ms = _time_batched(lambda xx: nullspace.compute(arm, xx), x, 1)
     rows = [_row("nullspace (ours)", arm, x, ours, None, ns_ms,
                  _time_single(lambda xx: nullspace.compute(arm, xx), x, min(size.single, 10)))]
-    model = MODELS / f"smm-{arm_name}"
     if (model / "card.json").is_file():
         learned = LearnedSmm.load(model, threads=1)
         for label, iters in (("learned, before correction", 0), (f"learned, after correction ({CORRECT_ITERS})",
@@ -166,12 +200,12 @@ def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None]) -
     if k:
         progress(f"{arm_name}: realtime-smm on {k} locations")
         t0 = time.perf_counter()
-        peer, statuses = peer_compute(arm, q_goal[:k])
+        peer, statuses = peer_compute(arm, x[:k])
         ms = (time.perf_counter() - t0) / k * 1e3
         row = _row("realtime-smm 0.1.2 (paper's code, nullspace)", arm, x[:k], peer, ours.count, None, ms)
         row["statuses"] = {s: statuses.count(s) for s in sorted(set(statuses))}
         rows.append(row)
-    return {"robot": arm_name, "locations": count, "rows": rows, "paper": dict(zip(
+    return {"robot": arm_name, "locations": count, "where": where, "rows": rows, "paper": dict(zip(
         ("fk_before_pct", "fk_after_pct", "mismatch_pct"), PAPER[arm_name]))}
 
 
@@ -194,7 +228,8 @@ def targets(result: dict[str, Any]) -> dict[str, bool]:
     return out
 
 
-def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callable[[str], None]) -> dict[str, Any]:
+def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callable[[str], None],
+               models: Path = MODELS) -> dict[str, Any]:
     """Figs. 15-16 on the planar 3R: each method plans with its own SMMs after its measured latency."""
     from armbridge.smm import nullspace
     from armbridge.smm.arms import get_smm_arm
@@ -210,7 +245,7 @@ def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callabl
     out["nullspace (ours)"] = simulate(arm, ours, trials, by["nullspace (ours)"]["single_ms"] / 1e3).to_dict()
     label = f"learned, after correction ({CORRECT_ITERS})"
     if label in by:
-        learned = LearnedSmm.load(MODELS / "smm-planar3r").compute(trials.x, correct_iters=CORRECT_ITERS)
+        learned = LearnedSmm.load(models / "smm-planar3r").compute(trials.x, correct_iters=CORRECT_ITERS)
         out["learned"] = simulate(arm, learned, trials, by[label]["single_ms"] / 1e3).to_dict()
     peer = [r for r in rows if r["method"].startswith("realtime-smm")]
     if peer:  # its SMMs are the same loops: only its latency differs
@@ -221,7 +256,7 @@ def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callabl
 
 
 def run(size: SmmBenchSize, robots: tuple[str, ...] = ("planar3r", "spatial4r", "spatial7r"),
-        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+        progress: Callable[[str], None] = lambda s: None, models: Path = MODELS) -> dict[str, Any]:
     import torch
 
     from armbridge.smm.arms import get_smm_arm
@@ -232,14 +267,14 @@ def run(size: SmmBenchSize, robots: tuple[str, ...] = ("planar3r", "spatial4r", 
     result: dict[str, Any] = {"benchmark": "smm (Table III, Fig. 3, Figs. 15-16)", "size": asdict(size),
                               "machine": {"python": platform.python_version(),
                                           "cpu": platform.processor() or platform.machine(), "threads": 1}}
-    result["table3"] = [table3(name, size, progress) for name in robots]
+    result["table3"] = [table3(name, size, progress, models) for name in robots]
     Ks = (10, 20, 40, 90)
     progress("fig3")
     result["fig3"] = {"K": list(Ks), "mean_abs_error_rad": {
         name: [float(e) for e in fig3(get_smm_arm(name), Ks, locations=size.fig3_locations)] for name in robots}}
     if "planar3r" in robots:
         rows = next(t["rows"] for t in result["table3"] if t["robot"] == "planar3r")
-        result["simulation"] = simulation(size, rows, progress)
+        result["simulation"] = simulation(size, rows, progress, models)
     result["targets"] = targets(result)
     result["wall_s"] = time.perf_counter() - t0
     return result

@@ -9,7 +9,11 @@ Tx(a_i) Rx(alpha_i); joint i turns about z_{i-1}, so joint 1 turns about the
 base z axis. That is what makes the joint-1 symmetry of section V-B hold for
 every chain: T(theta_1 + phi) = Rz(phi) T(theta_1), i.e. the SMM of a
 location rotated by phi about base z is the SMM of the location with
-theta_1 += phi (canonical / uncanonical).
+theta_1 += phi (canonical / uncanonical). A 'pose' chain whose last joint
+only rolls the tool about its own axis (a_n = 0, alpha_n = 0: `tool_roll`)
+has a second symmetry: the SMM at (p, R Rz(psi)) is the SMM at (p, R) with
+theta_n += psi, so only the tool axis matters (section V-B's reduction of
+the orienting grid).
 
 Task spaces: 'xy' (planar arms: position in the base x-y plane), 'xyz'
 (position) and 'pose' (position and rotation vector, 6 numbers).
@@ -33,7 +37,7 @@ A = TypeVar("A", torch.Tensor, np.ndarray)
 SPACES = {"xy": 2, "xyz": 3, "pose": 6}
 _DH_FIELDS = ("a", "alpha", "d", "theta")
 _FIELDS = ("name", *_DH_FIELDS, "space")
-_CANON_DIM = {"xy": 1, "xyz": 2, "pose": 5}
+_CANON_DIM = {"xy": 1, "xyz": 2, "pose": 5}  # a tool-roll 'pose' chain: 4
 _SMALL_BATCH = 128  # configurations up to which batched 4x4 products beat the batch-last chain
 
 
@@ -88,9 +92,14 @@ class DHChain:
         return SPACES[self.space]
 
     @property
+    def tool_roll(self) -> bool:
+        """A 'pose' chain whose last joint turns the tool about its own z without moving the tip."""
+        return self.space == "pose" and self.a[-1] == 0 and self.alpha[-1] == 0
+
+    @property
     def c_dim(self) -> int:
         """Size of a canonical location (see canonical)."""
-        return _CANON_DIM[self.space]
+        return 4 if self.tool_roll else _CANON_DIM[self.space]
 
     @property
     def reach(self) -> float:
@@ -188,7 +197,7 @@ class DHChain:
         'pose': position error and the rotation vector of R_target R^T, the
         world-frame rotation that the geometric Jacobian's angular rows move.
         """
-        return _io(lambda t, xt: self._task_error(*self.tip(t), xt), q, x)
+        return _io(lambda t, xt: self.tip_error(*self.tip(t), xt), q, x)
 
     def jacobian(self, q: A) -> A:
         """Geometric Jacobian d(location)/dq, shape (..., m, n)."""
@@ -199,7 +208,7 @@ class DHChain:
         the mean of that and the orientation angle / pi."""
 
         def err(t: torch.Tensor, xt: torch.Tensor) -> torch.Tensor:
-            e = self._task_error(*self.tip(t), xt)
+            e = self.tip_error(*self.tip(t), xt)
             ep = torch.linalg.vector_norm(e[..., :3] if self.space == "pose" else e, dim=-1) / self.reach
             if self.space != "pose":
                 return ep
@@ -207,50 +216,69 @@ class DHChain:
 
         return _io(err, q, x)
 
-    # -- joint-1 symmetry (section V-B) ------------------------------------
+    # -- symmetries (section V-B) -------------------------------------------
     def canonical(self, x: A) -> tuple[A, A]:
-        """(c, phi): x rotated by -phi about base z into the x-z half-plane (x >= 0).
+        """(c, shift): the canonical location c of x and joint offsets shift (..., n) such that
+        the SMM at x is the SMM at uncanonical(c) with every configuration moved by shift.
 
-        'xy': c = (r,); 'xyz': c = (rho, z); 'pose': c = (rho, z, rotation
-        vector of Rz(-phi) R), 5 numbers. The SMM at x is the SMM at
-        uncanonical(c, 0) with theta_1 += phi.
+        x is rotated by -phi about base z into the x-z half-plane (x >= 0),
+        shift[..., 0] = phi. 'xy': c = (r,); 'xyz': c = (rho, z); 'pose':
+        c = (rho, z, rotation vector of Rz(-phi) R), 5 numbers, or for a
+        tool_roll chain c = (rho, z, polar, azimuth) of the tool axis of
+        R' = Rz(-phi) R, with R' = Rz(azimuth) Ry(polar) Rz(psi) and
+        shift[..., n-1] = psi.
         """
 
         def canon(xt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             xt = self._x(xt)
             phi = torch.atan2(xt[..., 1], xt[..., 0])
             rho = torch.hypot(xt[..., 0], xt[..., 1])
+            shift = torch.zeros(*xt.shape[:-1], self.n, dtype=xt.dtype, device=xt.device)
+            shift[..., 0] = phi
             if self.space == "xy":
-                return rho[..., None], phi
+                return rho[..., None], shift
             if self.space == "xyz":
-                return torch.stack([rho, xt[..., 2]], -1), phi
-            r = rot_from_vec(xt[..., 3:])
-            rc = rot_z(-phi) @ r
-            return torch.cat([torch.stack([rho, xt[..., 2]], -1), vec_from_rot(rc)], -1), phi
+                return torch.stack([rho, xt[..., 2]], -1), shift
+            rc = rot_z(-phi) @ rot_from_vec(xt[..., 3:])
+            if not self.tool_roll:
+                return torch.cat([torch.stack([rho, xt[..., 2]], -1), vec_from_rot(rc)], -1), shift
+            axis = rc[..., :, 2]
+            polar = torch.acos(axis[..., 2].clamp(-1.0, 1.0))
+            azimuth = torch.atan2(axis[..., 1], axis[..., 0])
+            roll = (rot_z(azimuth) @ rot_y(polar)).transpose(-1, -2) @ rc  # Rz(psi)
+            shift[..., -1] = torch.atan2(roll[..., 1, 0], roll[..., 0, 0])
+            return torch.stack([rho, xt[..., 2], polar, azimuth], -1), shift
 
         if isinstance(x, np.ndarray):
             c, p = canon(torch.as_tensor(x, dtype=torch.float64))
             return c.numpy(), p.numpy()
         return canon(x)
 
-    def uncanonical(self, c: A, phi: A) -> A:
-        """The location whose canonical form is (c, phi)."""
+    def uncanonical(self, c: A, shift: A | None = None) -> A:
+        """The location whose canonical form is (c, shift); shift None: all zeros."""
 
-        def unc(ct: torch.Tensor, pt: torch.Tensor) -> torch.Tensor:
+        def unc(ct: torch.Tensor, *sh: torch.Tensor) -> torch.Tensor:
             if ct.shape[-1] != self.c_dim:
                 raise ArmbridgeError(
                     f"robot {self.name!r}: canonical locations have {self.c_dim} numbers, got shape {tuple(ct.shape)}"
                 )
-            rho = ct[..., 0]
+            st = sh[0] if sh else torch.zeros(*ct.shape[:-1], self.n, dtype=ct.dtype, device=ct.device)
+            if st.shape[-1] != self.n:
+                raise ArmbridgeError(f"robot {self.name!r}: shift needs one offset per joint ({self.n}), "
+                                     f"got shape {tuple(st.shape)}")
+            rho, pt = ct[..., 0], st[..., 0]
             xy = torch.stack([rho * torch.cos(pt), rho * torch.sin(pt)], -1)
             if self.space == "xy":
                 return xy
             if self.space == "xyz":
                 return torch.cat([xy, ct[..., 1:2]], -1)
-            r = rot_z(pt) @ rot_from_vec(ct[..., 2:])
-            return torch.cat([xy, ct[..., 1:2], vec_from_rot(r)], -1)
+            if self.tool_roll:
+                r = rot_z(ct[..., 3]) @ rot_y(ct[..., 2]) @ rot_z(st[..., -1])
+            else:
+                r = rot_from_vec(ct[..., 2:])
+            return torch.cat([xy, ct[..., 1:2], vec_from_rot(rot_z(pt) @ r)], -1)
 
-        return _io(unc, c, phi)
+        return _io(unc, c) if shift is None else _io(unc, c, shift)
 
     # -- description -------------------------------------------------------
     @classmethod
@@ -309,7 +337,9 @@ class DHChain:
             return torch.cat([tip, vec_from_rot(rot)], -1)
         return tip[..., : self.m]
 
-    def _task_error(self, rot: torch.Tensor, tip: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    def tip_error(self, rot: torch.Tensor, tip: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Delta x_e from a tip (rotation, position) to x: position difference, then ('pose') the
+        rotation vector of R_x R^T (world frame)."""
         x = self._x(x)
         if self.space != "pose":
             return x - tip[..., : self.m]
@@ -322,6 +352,13 @@ def rot_z(phi: torch.Tensor) -> torch.Tensor:
     c, s = torch.cos(phi), torch.sin(phi)
     z, o = torch.zeros_like(c), torch.ones_like(c)
     return torch.stack([torch.stack([c, -s, z], -1), torch.stack([s, c, z], -1), torch.stack([z, z, o], -1)], -2)
+
+
+def rot_y(angle: torch.Tensor) -> torch.Tensor:
+    """Rotations about y by angle, shape (..., 3, 3)."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    return torch.stack([torch.stack([c, z, s], -1), torch.stack([z, o, z], -1), torch.stack([-s, z, c], -1)], -2)
 
 
 def rot_from_vec(v: torch.Tensor) -> torch.Tensor:

@@ -21,9 +21,8 @@ jacobian, canonical, uncanonical, fk_error.
   Table II. Its joint 7 has a_7 = 0 and alpha_7 = 0, so it turns the tool
   about its own z axis without moving the tip: the SMM at (p, R Rz(psi)) is
   the SMM at (p, R) with theta_7 += psi (a second symmetry, checked in the
-  tests). canonical() reduces only the joint-1 symmetry (c has 5 numbers:
-  rho, z, rotation vector); the theta_7 reduction is left to whoever builds a
-  7R grid.
+  tests). canonical() reduces both (`DHChain.tool_roll`): c has 4 numbers,
+  rho, z and the tool axis's polar and azimuth angles.
 - arm3r: the bridge's planar arm (armbridge.robots.catalog.ARM3R) as a DH
   chain; its joint limits are ignored by SMMs.
 """

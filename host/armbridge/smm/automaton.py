@@ -255,3 +255,38 @@ def _pair_cells(
                 perm, total = pair(D[i])
                 order[cell, :B] = perm
                 cost[cell] = total / B
+
+
+def nearest_cluster(clusters: Clusters, cells: np.ndarray, count: np.ndarray, reach: float) -> np.ndarray:
+    """Classifier labels for points of the grid by their nullspace branch counts.
+
+    cells (P, d): positions in cell units (cell i's centre at i, so a grid
+    cell is its own index and a point inside one is fractional); count (P,).
+    Each point takes the nearest cell of a cluster with its own branch count,
+    within `reach` cells (Euclidean), and -1 if there is none. A clustered
+    cell so keeps its cluster. Why: singular cells separate clusters but are
+    left out of them, and in a 4R's singular band the count flips between 1,
+    2 and 3 within a cell (9.5 % of random 4R locations fall in the band).
+    Labelled with the neighbouring cluster of the same count, those cells
+    teach the classifier where the count changes instead of leaving it to
+    guess across the band.
+    """
+    from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+
+    pts, cnt = np.asarray(cells, dtype=np.float64), np.asarray(count)
+    if pts.ndim != 2 or pts.shape[1] != len(clusters.shape) or cnt.shape != pts.shape[:1]:
+        raise ArmbridgeError(f"cells {pts.shape} and count {cnt.shape} must be (P, {len(clusters.shape)}) and (P,)")
+    if not reach >= 0:
+        raise ArmbridgeError(f"reach must be >= 0 cells, got {reach!r}")
+    grid = np.indices(clusters.shape).reshape(len(clusters.shape), -1).T
+    cell_count = np.where(clusters.label >= 0, clusters.branches[np.maximum(clusters.label, 0)], -1)
+    out = np.full(cnt.shape, -1, dtype=np.int64)
+    for b in np.unique(cnt):
+        src = np.flatnonzero(cell_count == b)
+        if src.size == 0:
+            continue
+        sel = np.flatnonzero(cnt == b)
+        dist, i = cKDTree(grid[src]).query(pts[sel], distance_upper_bound=reach)
+        ok = np.isfinite(dist)
+        out[sel[ok]] = clusters.label[src[i[ok]]]
+    return out

@@ -13,12 +13,22 @@ Default grids (`default_grid`, every size settable):
 r_max, z_min, z_max are the extent of 20,000 random configurations grown by
 `margin` (5 %) of the span, so the border cells are out of reach: those have
 branch count 0 and form their own cluster(s) with cluster_branches 0, which
-teaches the classifier "out of reach". Pose arms (7R) need an explicit grid.
+teaches the classifier "out of reach". Tool-roll pose arms (7R): one
+region, `region_grid`. Other pose arms need an explicit GridSpec.
+
+The classifier learns from more than the clusters: every cell, singular ones
+included, is labelled by `automaton.nearest_cluster` from its own branch
+count, and `per_cell` extra random points inside every boundary cell (one
+within a cell of a cell outside the clusters or of a count change:
+`boundary_cells`) are traced for their branch count and labelled the same way. On the 4R the count flips
+within a cell across the singular band, and the nearest grid cell's count
+differs from a random location's 2.1 % of the time (Table III's 2.16 %); the
+boundary points halve the cell size where the count changes.
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +37,16 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import automaton, fourier
 from armbridge.smm.arms import SmmArm
-from armbridge.smm.manifold import SmmSet
+from armbridge.smm.manifold import SmmSet, concat
 
 Progress = Callable[[int, int], None]
 DEFAULT_SHAPES = {1: (200,), 2: (250, 400)}
-FIELDS = ("robot", "canon", "cluster", "coeffs", "cluster_branches", "K", "N")
+REGION_SHAPE = (3, 3, 16, 32)  # region_grid: (rho, z, polar, azimuth) cells of the 7R
+# Cells a label may reach across (automaton.nearest_cluster): a singular band is a few cells wide,
+# and 10 finds the cluster beyond it (3 left 1.4 % of the 4R's grid-cell labels at -1, 10 left 0.7 %).
+LABEL_REACH = 10.0
+FIELDS = ("robot", "canon", "cluster", "label", "coeffs", "cluster_branches", "boundary_canon", "boundary_label",
+          "K", "N")
 
 
 @dataclass(frozen=True)
@@ -67,7 +82,9 @@ class GridSpec:
 
 
 def default_grid(arm: SmmArm, shape: Sequence[int] | None = None, margin: float = 0.05, seed: int = 0) -> GridSpec:
-    """The grid of the module docstring for a planar ('xy') or positioning ('xyz') arm."""
+    """The grid of the module docstring for a planar ('xy'), positioning ('xyz') or tool-roll pose arm."""
+    if arm.c_dim == 4:
+        return region_grid(arm, shape, seed=seed)
     if arm.c_dim not in DEFAULT_SHAPES:
         raise ArmbridgeError(f"robot {arm.name!r} has {arm.c_dim} canonical coordinates; pass an explicit GridSpec")
     if not 0 <= margin < 1:
@@ -84,37 +101,88 @@ def default_grid(arm: SmmArm, shape: Sequence[int] | None = None, margin: float 
     return GridSpec(tuple(float(v) for v in lo), tuple(float(v) for v in hi), cells)
 
 
+def region_grid(arm: SmmArm, shape: Sequence[int] | None = None, half: float = 0.1, seed: int = 0) -> GridSpec:
+    """A tool-roll pose arm's (7R) grid: a (rho, z) square of side 2 half around the median
+    position of 20,000 random configurations, times every tool direction (polar [0, pi],
+    azimuth [-pi, pi]); REGION_SHAPE cells by default.
+
+    The paper grids about 10 % of the 7R's positions (80 x 160) times 12,000
+    orientations, 1.5e8 SMMs; at about 90 ms per 7R location on one CPU
+    thread that is beyond this machine, so the default is one small region.
+    """
+    if not arm.tool_roll:
+        raise ArmbridgeError(f"robot {arm.name!r} is not a tool-roll pose arm; region_grid is for those (the 7R)")
+    if not half > 0:
+        raise ArmbridgeError(f"region half-size must be > 0 m, got {half!r}")
+    cells = tuple(int(s) for s in (shape or REGION_SHAPE))
+    if len(cells) != 4:
+        raise ArmbridgeError(f"grid shape for {arm.name!r} needs 4 cell counts (rho, z, polar, azimuth), got {shape!r}")
+    q = np.random.default_rng(seed).uniform(-np.pi, np.pi, (20000, arm.n))
+    c, _ = arm.canonical(arm.task(q))
+    rho, z = np.median(c[:, 0]), np.median(c[:, 1])
+    return GridSpec((float(rho - half), float(z - half), 0.0, -np.pi), (float(rho + half), float(z + half), np.pi, np.pi),
+                    cells)
+
+
+def region_locations(grid: GridSpec, count: int, seed: int = 0) -> np.ndarray:
+    """Canonical locations uniform over a region_grid's positions and over tool directions (the sphere)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(grid.lo), np.asarray(grid.hi)
+    pos = lo[:2] + rng.uniform(0, 1, (count, 2)) * (hi[:2] - lo[:2])
+    return np.column_stack([pos, np.arccos(rng.uniform(-1, 1, count)), rng.uniform(-np.pi, np.pi, count)])
+
+
 @dataclass(frozen=True)
 class SmmDataset:
     """The data set of the contract, saved as one .npz.
 
     canon (L, c_dim) cell centres; cluster (L,) id, -1 = singular boundary
-    (excluded); coeffs (L, Bmax, n, K) complex128, slot b = homotopy class b
-    of the cell's cluster, NaN past its count and for singular cells;
-    cluster_branches (C,) (0 = out of reach); K kept components of N samples.
+    (no regression targets); label (L,) the classifier's target (the
+    cluster, or automaton.nearest_cluster for cells outside them; -1 = none);
+    coeffs (L, Bmax, n, K) complex128, slot b = homotopy class b of the
+    cell's cluster, NaN past its count and for singular cells;
+    cluster_branches (C,) (0 = out of reach); boundary_canon (E, c_dim) and
+    boundary_label (E,): classifier-only points inside boundary cells; K kept
+    components of N samples.
     """
 
     robot: str
     canon: np.ndarray
     cluster: np.ndarray
+    label: np.ndarray
     coeffs: np.ndarray
     cluster_branches: np.ndarray
+    boundary_canon: np.ndarray
+    boundary_label: np.ndarray
     K: int
     N: int
 
     def __post_init__(self) -> None:
         L = self.canon.shape[0]
-        if self.canon.ndim != 2 or self.cluster.shape != (L,) or self.coeffs.ndim != 4 or self.coeffs.shape[0] != L:
+        if (self.canon.ndim != 2 or self.cluster.shape != (L,) or self.label.shape != (L,) or self.coeffs.ndim != 4
+                or self.coeffs.shape[0] != L):
             raise ArmbridgeError(
-                f"SmmDataset: canon {self.canon.shape}, cluster {self.cluster.shape} and coeffs "
-                f"{self.coeffs.shape} must be (L, c_dim), (L,), (L, Bmax, n, K)"
+                f"SmmDataset: canon {self.canon.shape}, cluster {self.cluster.shape}, label {self.label.shape} and "
+                f"coeffs {self.coeffs.shape} must be (L, c_dim), (L,), (L,), (L, Bmax, n, K)"
             )
+        E = self.boundary_canon.shape[0]
+        if self.boundary_canon.shape != (E, self.canon.shape[1]) or self.boundary_label.shape != (E,):
+            raise ArmbridgeError(f"SmmDataset: boundary_canon {self.boundary_canon.shape} and boundary_label "
+                                 f"{self.boundary_label.shape} must be (E, {self.canon.shape[1]}) and (E,)")
         if self.coeffs.shape[-1] != self.K or not 1 <= self.K <= self.N:
             raise ArmbridgeError(
                 f"SmmDataset: coeffs have {self.coeffs.shape[-1]} components, K = {self.K}, N = {self.N}"
             )
-        if self.cluster.max(initial=-1) >= self.cluster_branches.size:
-            raise ArmbridgeError(f"SmmDataset: cluster ids reach {self.cluster.max()} of {self.cluster_branches.size}")
+        for name in ("cluster", "label", "boundary_label"):
+            ids = getattr(self, name)
+            if ids.max(initial=-1) >= self.cluster_branches.size:
+                raise ArmbridgeError(f"SmmDataset: {name} ids reach {ids.max()} of {self.cluster_branches.size}")
+
+    def classifier_data(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(canon, label) the classifier trains on: the grid rows `rows` and every boundary point, labelled ones only."""
+        canon = np.concatenate([self.canon[rows], self.boundary_canon])
+        label = np.concatenate([self.label[rows], self.boundary_label])
+        return canon[label >= 0], label[label >= 0]
 
     def save(self, path: str | Path) -> None:
         """Write the fields of FIELDS to a compressed .npz (no pickles): NaN slots shrink to little."""
@@ -133,8 +201,11 @@ class SmmDataset:
                     robot=str(z["robot"]),
                     canon=z["canon"].astype(np.float64),
                     cluster=z["cluster"].astype(np.int64),
+                    label=z["label"].astype(np.int64),
                     coeffs=z["coeffs"].astype(np.complex128),
                     cluster_branches=z["cluster_branches"].astype(np.int64),
+                    boundary_canon=z["boundary_canon"].astype(np.float64),
+                    boundary_label=z["boundary_label"].astype(np.int64),
                     K=int(z["K"]),
                     N=int(z["N"]),
                 )
@@ -163,26 +234,16 @@ def compute_smms(
     progress: Progress | None = None,
     **nullspace_options: Any,
 ) -> SmmSet:
-    """Nullspace SMMs at canonical locations (phi = 0), `batch` locations per call."""
+    """Nullspace SMMs at canonical locations (no shift), `batch` locations per call."""
     from armbridge.smm import nullspace
 
-    x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64), np.zeros(len(canon))))
+    x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64)))
     parts: list[SmmSet] = []
     for s in range(0, len(x), batch):
         parts.append(nullspace.compute(arm, x[s : s + batch], n_points=n_points, **nullspace_options))
         if progress is not None:
             progress(min(s + batch, len(x)), len(x))
-    return concat(parts)
-
-
-def concat(parts: Sequence[SmmSet]) -> SmmSet:
-    """One SmmSet from several, padding branch slots with NaN."""
-    bmax = max(p.points.shape[1] for p in parts)
-    pad = [((0, 0), (0, bmax - p.points.shape[1]), (0, 0), (0, 0)) for p in parts]
-    pts = [np.pad(p.points, w, constant_values=np.nan) for p, w in zip(parts, pad)]
-    return SmmSet(
-        np.concatenate(pts), np.concatenate([p.count for p in parts]), np.concatenate([p.singular for p in parts])
-    )
+    return concat(parts, n_points, arm.n)
 
 
 def harmonics(smms: SmmSet, label: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -252,18 +313,64 @@ def build_dataset(
     progress: Progress | None = None,
     exact_phase: bool = True,
     min_cells: int = 4,
+    per_cell: int = 4,
     **nullspace_options: Any,
 ) -> Build:
     """Section V pipeline for `arm` over `grid` (default_grid if None).
 
     nullspace_options go to armbridge.smm.nullspace.compute (seeds, step,
-    device, seed). progress(done, total) is called after every batch of SMMs.
-    The rest is `assemble`.
+    device, seed). progress(done, total) is called after every batch of SMMs,
+    first of the grid, then of the boundary points. The rest is `assemble`
+    and `add_boundary` (per_cell points in each boundary cell; 0 adds none).
     """
     g = grid or default_grid(arm)
     _check(arm, g, K, N)
     smms = compute_smms(arm, g.centres(), N, batch, progress, **nullspace_options)
-    return assemble(arm, g, smms, K, exact_phase, min_cells)
+    build = assemble(arm, g, smms, K, exact_phase, min_cells)
+    return add_boundary(arm, build, per_cell, batch, progress, **nullspace_options)
+
+
+def boundary_cells(clusters: automaton.Clusters, count: np.ndarray) -> np.ndarray:
+    """Flat indices of the cells within one cell (3^d block) of a cell outside every cluster or of a count change.
+
+    Both sides of a boundary, so the points sample it evenly: with only the
+    cells next to the change, the 3R's fold at r = 1 got 6 points of count 2
+    for 2 of count 1, and the 2 x 5 classifier moved its boundary past r = 1.
+    """
+    from scipy import ndimage  # type: ignore[import-untyped]
+
+    c = np.asarray(count).reshape(clusters.shape)
+    edge = ndimage.maximum_filter(c, size=3, mode="nearest") != ndimage.minimum_filter(c, size=3, mode="nearest")
+    edge |= clusters.label.reshape(clusters.shape) < 0
+    return np.flatnonzero(ndimage.binary_dilation(edge, np.ones((3,) * c.ndim, bool)).ravel())
+
+
+def add_boundary(
+    arm: SmmArm,
+    build: Build,
+    per_cell: int = 4,
+    batch: int = 2048,
+    progress: Progress | None = None,
+    seed: int = 0,
+    **nullspace_options: Any,
+) -> Build:
+    """`build` with per_cell uniform random points in every boundary cell as classifier-only samples.
+
+    Each point's branch count comes from the nullspace method (its branches
+    are not kept) and its label from automaton.nearest_cluster.
+    """
+    if not isinstance(per_cell, (int, np.integer)) or per_cell < 0:
+        raise ArmbridgeError(f"per_cell (boundary points per cell) must be an integer >= 0, got {per_cell!r}")
+    g = build.grid
+    cells = boundary_cells(build.clusters, build.smms.count)
+    size = (np.asarray(g.hi) - np.asarray(g.lo)) / np.asarray(g.shape)
+    offset = np.random.default_rng([seed, 1]).uniform(-0.5, 0.5, (cells.size * per_cell, len(g.shape)))
+    at = np.repeat(np.indices(g.shape).reshape(len(g.shape), -1).T[cells], per_cell, axis=0) + offset
+    canon = np.asarray(g.lo) + (at + 0.5) * size
+    count = compute_smms(arm, canon, 16, batch, progress, seed=seed, **nullspace_options).count if len(canon) else \
+        np.zeros(0, dtype=np.int64)
+    label = automaton.nearest_cluster(build.clusters, at, count, LABEL_REACH)
+    return replace(build, dataset=replace(build.dataset, boundary_canon=canon, boundary_label=label))
 
 
 def assemble(
@@ -288,12 +395,16 @@ def assemble(
     hom = automaton.homotopy(cl, smms.points, smms.count)
     reference, margin = reference_components(harmonics(smms, cl.label, hom.order), cl.label, len(cl.seed))
     coeffs = coefficients(smms, cl.label, hom.order, int(K), reference, exact_phase)
+    cells = np.indices(grid.shape).reshape(len(grid.shape), -1).T
     ds = SmmDataset(
         robot=arm.name,
         canon=grid.centres(),
         cluster=cl.label,
+        label=automaton.nearest_cluster(cl, cells, smms.count, LABEL_REACH),
         coeffs=coeffs[:, : max(int(cl.branches.max(initial=0)), 1)],  # Bmax of the kept clusters
         cluster_branches=cl.branches,
+        boundary_canon=np.zeros((0, len(grid.shape))),
+        boundary_label=np.zeros(0, dtype=np.int64),
         K=int(K),
         N=int(N),
     )

@@ -5,8 +5,8 @@
 
 Per batch of locations: canonical coordinates (joint-1 symmetry removed) ->
 classifier argmax -> cluster -> that cluster's regressor on its locations only
--> Fourier coefficients -> theta_1 += phi (a phase factor on joint 1's
-series) -> inverse transform (eq. 10).
+-> Fourier coefficients -> q += shift (theta_1 += phi, and theta_7 += psi for
+the 7R: a phase factor on those joints' series) -> inverse transform (eq. 10).
 Clusters with no branches (out of reach) give count 0. Then, optionally, a few
 steps of q += J^+ Delta x_e (eq. 18) on every point of every branch at once.
 
@@ -26,15 +26,13 @@ import numpy as np
 import torch
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.dh import rot_from_vec, vec_from_rot
 from armbridge.smm.arms import SmmArm, get_smm_arm
+from armbridge.smm.correction import correct
 from armbridge.smm.manifold import SmmSet
 
 CARD_NAME = "card.json"
 KIND = "smm-learned"
 CARD_VERSION = 1
-DAMPING = 1e-10  # lambda^2 of the damped pseudoinverse in eq. (18): keeps J J^T invertible at singular points
-CHUNK = 16384  # points per chunk of the correction (keeps the intermediates in the CPU cache)
 
 
 def read_card(folder: Path, robot: str | None = None) -> dict[str, Any]:
@@ -83,82 +81,6 @@ def _session(folder: Path, entry: dict[str, Any], threads: int, verify: bool) ->
 def _run(session: Any, canon: np.ndarray) -> np.ndarray:
     name = session.get_inputs()[0].name
     return session.run(None, {name: np.ascontiguousarray(canon, dtype=np.float32)})[0]
-
-
-def task_error(arm: SmmArm, rot: torch.Tensor, tip: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """Delta x_e of eq. (18) from the tip (rotation, position) to x, as DHChain.task_error."""
-    if arm.space != "pose":
-        return x - tip[..., : arm.m]
-    return torch.cat([x[..., :3] - tip, vec_from_rot(rot_from_vec(x[..., 3:]) @ rot.transpose(-1, -2))], -1)
-
-
-def damped_pinv_step(jac: torch.Tensor, err: torch.Tensor, damping: float = DAMPING) -> torch.Tensor:
-    """J^+ e as J^T y with (J J^T + damping I) y = e, batched (eq. 18); J (P, m, n), e (P, m).
-
-    For m = 2 and 3 by Cramer's rule on (P,) tensors: about twice as fast on
-    the CPU as a batched solve of millions of tiny systems.
-    """
-    m = jac.shape[-2]
-    if m > 3:
-        eye = torch.eye(m, dtype=jac.dtype, device=jac.device)
-        y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + damping * eye, err.unsqueeze(-1))
-        return (jac.transpose(-1, -2) @ y).squeeze(-1)
-    rows = [jac[:, r] for r in range(m)]
-    a = [[(rows[r] * rows[c]).sum(-1) + (damping if r == c else 0.0) for c in range(m)] for r in range(m)]
-    e = [err[:, r] for r in range(m)]
-    if m == 2:
-        det = a[0][0] * a[1][1] - a[0][1] * a[1][0]
-        y = [a[1][1] * e[0] - a[0][1] * e[1], a[0][0] * e[1] - a[1][0] * e[0]]
-    else:  # cofactors by cyclic indices; a is symmetric, so its adjugate is the cofactor matrix
-        cof = [[a[(r + 1) % 3][(c + 1) % 3] * a[(r + 2) % 3][(c + 2) % 3]
-                - a[(r + 1) % 3][(c + 2) % 3] * a[(r + 2) % 3][(c + 1) % 3] for c in range(3)] for r in range(3)]
-        det = a[0][0] * cof[0][0] + a[0][1] * cof[0][1] + a[0][2] * cof[0][2]
-        y = [cof[r][0] * e[0] + cof[r][1] * e[1] + cof[r][2] * e[2] for r in range(3)]
-    inv = torch.reciprocal(det)
-    dq = rows[0] * (y[0] * inv).unsqueeze(-1)
-    for r in range(1, m):
-        dq = dq + rows[r] * (y[r] * inv).unsqueeze(-1)
-    return dq
-
-
-def error_and_step(arm: SmmArm, q: torch.Tensor, x: torch.Tensor, damping: float = DAMPING, step: bool = True
-                   ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Squared task error of q (P,) (position rows in units of the reach, as eq. 19) and the
-    eq. (18) step J^+ Delta x_e (P, n), or None for step=False; q (P, n), x (P, m)."""
-    rot, tip, jac = arm.kinematics(q) if step else (*arm.tip(q), None)
-    err = task_error(arm, rot, tip, x)
-    npos = min(arm.m, 3)
-    score = (err[:, :npos] ** 2).sum(-1) / arm.reach**2 + (err[:, npos:] ** 2).sum(-1)
-    return score, damped_pinv_step(jac, err, damping) if jac is not None else None
-
-
-def wrap(q: torch.Tensor) -> torch.Tensor:
-    """Angles to (-pi, pi]."""
-    return math.pi - torch.remainder(math.pi - q, 2 * math.pi)
-
-
-def correct(arm: SmmArm, q: torch.Tensor, x: torch.Tensor, iters: int, damping: float = DAMPING,
-            chunk: int = CHUNK) -> torch.Tensor:
-    """`iters` steps of q += J^+ Delta x_e (eq. 18) for configurations q (P, n) at targets x (P, m).
-
-    Each point keeps its best iterate (least task error, the start included),
-    so a step that overshoots near a singular configuration never makes a
-    point worse than the network's; that costs one evaluation without a
-    Jacobian after the last step. Chunks of `chunk` points take all their
-    steps in turn, so their intermediates stay in the CPU cache.
-    """
-    out = []
-    for start in range(0, q.shape[0], chunk):
-        qc, xc = q[start : start + chunk], x[start : start + chunk]
-        best, best_score = qc, torch.full_like(qc[:, 0], math.inf)
-        for i in range(iters + 1):
-            score, dq = error_and_step(arm, qc, xc, damping, step=i < iters)
-            better = score < best_score
-            best, best_score = torch.where(better[:, None], qc, best), torch.where(better, score, best_score)
-            if dq is not None:
-                qc = wrap(qc + dq)
-        out.append(best)
-    return torch.cat(out) if out else q
 
 
 def scatter(parts: list[tuple[np.ndarray, np.ndarray]], count: np.ndarray, bmax: int, n_points: int, n: int) -> np.ndarray:
@@ -237,17 +159,17 @@ class LearnedSmm:
         if n_points < 2 or correct_iters < 0:
             raise ArmbridgeError(f"n_points must be >= 2 and correct_iters >= 0, got {n_points} and {correct_iters}")
         xt = torch.as_tensor(x)
-        canon_t, phi_t = arm.canonical(xt)
-        canon, phi = canon_t.numpy(), phi_t.numpy()
+        canon_t, shift_t = arm.canonical(xt)
+        canon, shift = canon_t.numpy(), shift_t.numpy()
         cluster = self.classify(canon)
         count = self.branches[cluster]
         parts = []
         for c in np.unique(cluster[count > 0]):
             rows = np.flatnonzero(cluster == c)
             coeffs = self.coefficients(int(c), canon[rows])
-            # theta_1 += phi (uncanonical) as the factor exp(j phi) on joint 1's series: T of eq. (7) is
+            # q += shift (uncanonical) as the factor exp(j shift_i) on joint i's series: T of eq. (7) is
             # multiplicative, so decode's atan2 returns the wrapped sum
-            coeffs[:, :, 0] *= np.exp(1j * phi[rows]).astype(coeffs.dtype)[:, None, None]
+            coeffs *= np.exp(1j * shift[rows]).astype(coeffs.dtype)[:, None, :, None]
             parts.append((rows, decode(coeffs, n_points=n_points)))
         points = scatter(parts, count, int(self.branches.max(initial=0)), n_points, arm.n)
         if correct_iters > 0 and count.any():

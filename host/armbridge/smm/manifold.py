@@ -1,6 +1,7 @@
 """The SMMs of a batch of task locations, whichever method computed them."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,3 +35,17 @@ class SmmSet:
     def branches(self, l: int) -> list[np.ndarray]:
         """The branches of location l, each (N, n)."""
         return [self.points[l, b] for b in range(int(self.count[l]))]
+
+
+def concat(parts: Sequence[SmmSet], n_points: int, n: int) -> SmmSet:
+    """One SmmSet from several (in order), padding branch slots with NaN to the largest count."""
+    if len(parts) == 1:
+        return parts[0]
+    bmax = max([1] + [p.points.shape[1] for p in parts])
+    pts = np.full((sum(len(p) for p in parts), bmax, n_points, n), np.nan)
+    row = 0
+    for p in parts:
+        pts[row : row + len(p), : p.points.shape[1]] = p.points
+        row += len(p)
+    return SmmSet(points=pts, count=np.concatenate([p.count for p in parts] or [np.zeros(0, dtype=np.int64)]),
+                  singular=np.concatenate([p.singular for p in parts] or [np.zeros(0, dtype=bool)]))

@@ -59,9 +59,9 @@ import torch
 
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.dh import DHChain, rot_from_vec
-from armbridge.smm.manifold import SmmSet
+from armbridge.smm.correction import correct, wrap
+from armbridge.smm.manifold import SmmSet, concat
 
-_TWO_PI = 2 * math.pi
 _SING_EVERY = 4
 _STUCK = 50
 
@@ -79,11 +79,6 @@ def null_vector(jac: torch.Tensor) -> torch.Tensor:
     minors = jac[..., :, idx].movedim(-2, -3)  # (..., n, m, m): minor i drops column i
     sign = torch.tensor([(-1.0) ** (i + 1) for i in range(n)], dtype=jac.dtype, device=jac.device)
     return sign * torch.linalg.det(minors)
-
-
-def wrap(a: torch.Tensor) -> torch.Tensor:
-    """Angles wrapped to (-pi, pi]."""
-    return math.pi - torch.remainder(math.pi - a, _TWO_PI)
 
 
 @dataclass(frozen=True)
@@ -104,7 +99,7 @@ class _Ctx:
         rot, tip, jac = self.arm.kinematics(q)
         jac = jac * self.w[:, None]
         if rt is None:
-            err = self.arm._task_error(rot, tip, x)
+            err = self.arm.tip_error(rot, tip, x)
         else:
             re = rt @ rot.transpose(-1, -2)
             vee = torch.stack([re[..., 2, 1] - re[..., 1, 2], re[..., 0, 2] - re[..., 2, 0],
@@ -170,7 +165,7 @@ def compute(
         q0 = (torch.rand(xc.shape[0], seeds, arm.n, generator=gen, dtype=torch.float64) * 2 - 1) * math.pi
         q, conv = ik_seeds(ctx, xc.to(dev), q0.to(dev))
         parts.append(_branches(ctx, xc.to(dev), q, conv, n_points, step, sing_tol, max_steps, correct_iters))
-    return _merge(parts, n_points, arm.n)
+    return concat(parts, n_points, arm.n)
 
 
 def ik_seeds(ctx: _Ctx, x: torch.Tensor, q: torch.Tensor, iters: int = 150, tol: float = 1e-10
@@ -376,17 +371,6 @@ def resample(points: torch.Tensor, length: torch.Tensor, closed: torch.Tensor, n
     return p0 + u[..., None] * (p1 - p0)
 
 
-def correct(ctx: _Ctx, q: torch.Tensor, x: torch.Tensor, iters: int) -> torch.Tensor:
-    """Eq. (18) applied iters times: q (..., n) onto targets x (..., m)."""
-    rt = ctx.target_rotations(x)
-    for _ in range(iters):
-        jac, err = ctx.eval(q, x, rt)
-        jjt = jac @ jac.transpose(-1, -2)
-        eye = torch.eye(jac.shape[-2], dtype=q.dtype, device=q.device)
-        q = q + (jac.transpose(-1, -2) @ torch.linalg.solve(jjt + 1e-14 * eye, err[..., None]))[..., 0]
-    return q
-
-
 def _branches(ctx: _Ctx, x: torch.Tensor, seeds: torch.Tensor, conv: torch.Tensor, n_points: int, step: float,
               sing_tol: float, max_steps: int, correct_iters: int, first_wave: int = 4) -> SmmSet:
     """The SmmSet of locations x (L, m) from IK seeds (L, S, n) with converged mask.
@@ -416,7 +400,8 @@ def _branches(ctx: _Ctx, x: torch.Tensor, seeds: torch.Tensor, conv: torch.Tenso
     slot = torch.zeros(n_loc, dtype=torch.long, device=dev)
     for w in waves:
         branch = resample(w.points, w.length, w.closed, n_points)
-        branch = wrap(correct(ctx, branch, x[w.loc][:, None, :].expand(-1, n_points, -1), correct_iters))
+        target = x[w.loc][:, None, :].expand(-1, n_points, -1).reshape(-1, x.shape[-1])
+        branch = wrap(correct(ctx.arm, branch.reshape(-1, n), target, correct_iters).reshape(branch.shape))
         singular[w.loc[w.singular]] = True
         # Slot within the location: traces of one wave are in seed order per location.
         order = torch.argsort(w.loc, stable=True)
@@ -426,20 +411,3 @@ def _branches(ctx: _Ctx, x: torch.Tensor, seeds: torch.Tensor, conv: torch.Tenso
         out[w.loc, slot[w.loc] + rank] = branch
         slot += per
     return SmmSet(points=out.cpu().numpy(), count=count.cpu().numpy(), singular=singular.cpu().numpy())
-
-
-def _merge(parts: list[SmmSet], n_points: int, n: int) -> SmmSet:
-    """One SmmSet from the chunks', padding branches with NaN to the largest count."""
-    if len(parts) == 1:
-        return parts[0]
-    if not parts:
-        return SmmSet(points=np.full((0, 1, n_points, n), np.nan), count=np.zeros(0, dtype=np.int64),
-                      singular=np.zeros(0, dtype=bool))
-    bmax = max([1] + [p.points.shape[1] for p in parts])
-    pts = np.full((sum(len(p) for p in parts), bmax, n_points, n), np.nan)
-    row = 0
-    for p in parts:
-        pts[row : row + len(p), : p.points.shape[1]] = p.points
-        row += len(p)
-    return SmmSet(points=pts, count=np.concatenate([p.count for p in parts]),
-                  singular=np.concatenate([p.singular for p in parts]))

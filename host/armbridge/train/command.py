@@ -101,8 +101,10 @@ def smm_cmd(
     ctx: typer.Context,
     robot: str = typer.Option("", "--robot", help="SMM arm (default: planar3r, spatial4r, spatial7r); smm-3r also takes arm3r."),
     dataset: Optional[Path] = typer.Option(None, "--dataset", help="SMM data set .npz; built over --grid and saved there if absent (default: WORK_DIR/dataset.npz)."),
-    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R) or 250x400 (4R) (default: the paper's)."),
+    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R), 250x400 (4R) or 3x3x16x32 (7R: rho, z, tool polar, azimuth over one region) (default: the paper's; the 7R: 3x3x16x32)."),
     k: int = typer.Option(40, "--k", help="Fourier components kept when building the data set."),
+    sing_tol: float = typer.Option(0.02, "--sing-tol", help="Singular flag of the nullspace tracer when building the data set (smallest singular value of the weighted Jacobian; flagged cells separate clusters)."),
+    boundary_points: int = typer.Option(4, "--boundary-points", help="Random points traced per cluster-boundary cell when building the data set, classifier-only (0: none)."),
     cls_hidden: str = typer.Option("", "--cls-hidden", help="Classifier hidden layers, e.g. 5,5 or 3x50 (default: section VI-A)."),
     reg_hidden: str = typer.Option("", "--reg-hidden", help="Regressor hidden layers, e.g. 4x150 (default: section VI-A)."),
     epochs: int = typer.Option(200, "--epochs", help="Epochs over each network's training locations."),
@@ -143,7 +145,7 @@ def smm_cmd(
 
     argv = sys.argv[sys.argv.index(kind) + 1 :] if kind in sys.argv else []
     command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
-    ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log)
+    ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol)
     pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=out or Path("models/onnx") / f"smm-{arm.name}",
                              work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
     card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)

@@ -110,7 +110,7 @@ def parse_sizes(text: str, option: str) -> tuple[int, ...]:
 def split(cluster: np.ndarray, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(train, test) row indices: `holdout` of each cluster's locations held out, >= 1 kept for training.
 
-    Rows with cluster -1 (singular boundary) are in neither.
+    Split by the classifier's label (SmmDataset.label); rows labelled -1 are in neither.
     """
     rng = np.random.default_rng([seed, 7])
     train, test = [], []
@@ -173,15 +173,15 @@ class _Job:
 
 def _jobs(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, device: torch.device) -> list[_Job]:
     """The classifier and a regressor per cluster with branches, initialised from the seed."""
-    canon = np.asarray(ds.canon[rows], dtype=np.float64)
-    labels = np.asarray(ds.cluster[rows])
+    canon, labels = ds.classifier_data(rows)
     lo, hi = nets.input_box(np.asarray(ds.canon[ds.cluster >= 0]))
-    x_all = torch.as_tensor(canon, dtype=torch.float32, device=device)
     torch.manual_seed(cfg.seed)
     clf = nets.SmmClassifier(lo, hi, cfg.cls_hidden, int(ds.cluster_branches.size)).to(device)
-    jobs = [_Job("classifier", 0, clf, x_all, torch.as_tensor(labels, device=device), nets.classifier_loss, cfg.cls_lr)]
+    jobs = [_Job("classifier", 0, clf, torch.as_tensor(canon, dtype=torch.float32, device=device),
+                 torch.as_tensor(labels, device=device), nets.classifier_loss, cfg.cls_lr)]
+    x_all = torch.as_tensor(np.asarray(ds.canon[rows], dtype=np.float64), dtype=torch.float32, device=device)
     for c in np.flatnonzero(ds.cluster_branches > 0):
-        mine = labels == c
+        mine = ds.cluster[rows] == c  # regression targets exist in the cluster's own cells only
         if not mine.any():
             continue
         y = cluster_targets(ds, int(c), rows[mine])
@@ -265,7 +265,9 @@ def _train(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, checkpoint: Pa
            log: Log | None, device: torch.device) -> Trained:
     jobs = _jobs(ds, rows, cfg, device)
     states: dict[str, dict[str, Any]] = {j.key: {} for j in jobs}
-    data = hashlib.sha256(np.ascontiguousarray(ds.canon[rows]).tobytes() + np.ascontiguousarray(ds.cluster[rows]).tobytes())
+    data = hashlib.sha256()
+    for a in (ds.canon[rows], ds.cluster[rows], ds.label[rows], ds.boundary_canon, ds.boundary_label):
+        data.update(np.ascontiguousarray(a).tobytes())
     fingerprint = {"config": asdict(cfg), "data": data.hexdigest(), "networks": [j.key for j in jobs]}
     if resume and checkpoint is not None and checkpoint.exists():
         ck = torch.load(checkpoint, weights_only=False, map_location=device)
@@ -361,21 +363,21 @@ def measure(smm: LearnedSmm, ds: SmmDataset, rows: np.ndarray, n_points: int, co
     """Table III metrics of a LearnedSmm on data-set rows: classifier accuracy, branch-count
     mismatch, and FK error % (eq. 19) before and after `correct_iters` eq. (18) steps.
 
-    The FK error is taken over the rows that are reachable (their cluster has
+    The FK error is taken over the rows that are reachable (their label has
     branches), as Table III samples reachable locations: branches predicted at
     an unreachable location have no FK error to speak of, they count as
     branch-count mismatches.
     """
     arm = smm.arm
     canon = np.asarray(ds.canon[rows], dtype=np.float64)
-    true_cluster = np.asarray(ds.cluster[rows])
+    true_label = np.asarray(ds.label[rows])
     pred = smm.classify(canon)
-    reachable = ds.cluster_branches[true_cluster] > 0
-    x = arm.uncanonical(canon[reachable], np.zeros(int(reachable.sum())))
+    reachable = ds.cluster_branches[true_label] > 0
+    x = arm.uncanonical(canon[reachable])
     acc: dict[str, Any] = {
         "locations": int(rows.size),
-        "classifier_accuracy_pct": float(np.mean(pred == true_cluster) * 100),
-        "branch_count_mismatch_pct": float(np.mean(ds.cluster_branches[pred] != ds.cluster_branches[true_cluster]) * 100),
+        "classifier_accuracy_pct": float(np.mean(pred == true_label) * 100),
+        "branch_count_mismatch_pct": float(np.mean(ds.cluster_branches[pred] != ds.cluster_branches[true_label]) * 100),
         "fk_locations": int(reachable.sum()),
     }
     for label, iters in (("before", 0), ("after", correct_iters)):
@@ -401,7 +403,7 @@ def grid_for(arm: SmmArm, text: str) -> GridSpec:
     """dataset.GridSpec for --grid: '' (the data-set module's default), '200' or '250x400' cells."""
     from armbridge.smm.dataset import default_grid
 
-    if arm.c_dim > 2:
+    if arm.c_dim > 2 and not arm.tool_roll:
         raise ArmbridgeError(f"robot {arm.name!r}: the CLI cannot build its grid ({arm.c_dim} canonical coordinates); "
                              "pass --dataset with an existing .npz")
     if not text:
@@ -414,7 +416,7 @@ def grid_for(arm: SmmArm, text: str) -> GridSpec:
 
 
 def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int, progress: bool,
-                  log: Log | None) -> tuple[SmmDataset, dict[str, Any]]:
+                  log: Log | None, per_cell: int = 4, sing_tol: float = 0.02) -> tuple[SmmDataset, dict[str, Any]]:
     """The data set at `path`, or a new one built over --grid and saved there; and its card entry."""
     from armbridge.smm.dataset import build_dataset
 
@@ -428,10 +430,13 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     if progress:
         bar = _progress_bar("[bold]SMM data[/] nullspace")
         task = bar.add_task("data", total=g.size)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the tracer's ops are small: a second thread only adds hand-offs (nullspace doc)
     try:
-        build = build_dataset(arm, g, K=K, N=N, seed=seed,
-                              progress=(lambda done, total: bar.update(task, completed=done)) if bar else None)
+        build = build_dataset(arm, g, K=K, N=N, seed=seed, per_cell=per_cell, sing_tol=sing_tol,
+                              progress=(lambda done, total: bar.update(task, completed=done, total=total)) if bar else None)
     finally:
+        torch.set_num_threads(threads)
         if bar is not None:
             bar.stop()
     seconds = time.perf_counter() - t0
@@ -440,7 +445,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     if log:
         log(f"data set: {g.size} cells in {seconds:.1f} s -> {path}")
     return build.dataset, {"built": "armbridge.smm.dataset.build_dataset", "grid_lo": list(g.lo), "grid_hi": list(g.hi),
-                           "grid_shape": list(g.shape), "seconds": round(seconds, 1), "seed": seed}
+                           "grid_shape": list(g.shape), "boundary_points_per_cell": per_cell, "sing_tol": sing_tol,
+                           "seconds": round(seconds, 1), "seed": seed}
 
 
 # ------------------------------------------------------------------ pipeline
@@ -471,7 +477,7 @@ def run(cfg: PipelineConfig, ds: SmmDataset, resume: bool = False, progress: boo
 
     arm = get_smm_arm(cfg.robot)
     check_dataset(ds, arm)
-    train_rows, test_rows = split(np.asarray(ds.cluster), cfg.train.holdout, cfg.train.seed)
+    train_rows, test_rows = split(np.asarray(ds.label), cfg.train.holdout, cfg.train.seed)
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     trained = train(ds, train_rows, cfg.train, cfg.work_dir / "checkpoint.pt", resume, progress, log, device)
     out = Path(cfg.out)
@@ -523,7 +529,9 @@ def run(cfg: PipelineConfig, ds: SmmDataset, resume: bool = False, progress: boo
             "machine": f"{platform.machine()} {platform.processor() or 'CPU'}",
         },
         "dataset": {**cfg.dataset_info, "path": str(cfg.dataset), "sha256": sha256(cfg.dataset) if cfg.dataset.exists() else None,
-                    "locations": int(ds.canon.shape[0]), "labelled": int(np.sum(ds.cluster >= 0)),
+                    "locations": int(ds.canon.shape[0]), "clustered": int(np.sum(ds.cluster >= 0)),
+                    "labelled": int(np.sum(ds.label >= 0)), "boundary_points": int(ds.boundary_label.size),
+                    "boundary_labelled": int(np.sum(ds.boundary_label >= 0)),
                     "train": int(train_rows.size), "held_out": int(test_rows.size)},
         "files": files,
     }
