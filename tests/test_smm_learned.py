@@ -317,7 +317,7 @@ def test_missing_corrupt_or_foreign_models_are_user_errors(model_dir, tmp_path):
 
 def test_cli_grids_the_7r_region_and_rejects_other_pose_arms():
     s7 = get_smm_arm("spatial7r")
-    assert tr.grid_for(s7, "").shape == (3, 3, 16, 32) and tr.grid_for(s7, "2x2x8x16").shape == (2, 2, 8, 16)
+    assert tr.grid_for(s7, "").shape == (3, 3, 24, 48) and tr.grid_for(s7, "2x2x8x16").shape == (2, 2, 8, 16)
     rolled = DHChain(name="pose7", a=np.r_[s7.a[:-1], 0.1], alpha=s7.alpha, d=s7.d, theta=s7.theta, space="pose")
     with pytest.raises(ArmbridgeError, match="--dataset"):
         tr.grid_for(rolled, "")

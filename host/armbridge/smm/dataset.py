@@ -41,7 +41,7 @@ from armbridge.smm.manifold import SmmSet, concat
 
 Progress = Callable[[int, int], None]
 DEFAULT_SHAPES = {1: (200,), 2: (250, 400)}
-REGION_SHAPE = (3, 3, 16, 32)  # region_grid: (rho, z, polar, azimuth) cells of the 7R
+REGION_SHAPE = (3, 3, 24, 48)  # region_grid: (rho, z, polar, azimuth) cells of the 7R
 # Cells a label may reach across (automaton.nearest_cluster): a singular band is a few cells wide,
 # and 10 finds the cluster beyond it (3 left 1.4 % of the 4R's grid-cell labels at -1, 10 left 0.7 %).
 LABEL_REACH = 10.0

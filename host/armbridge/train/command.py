@@ -101,7 +101,7 @@ def smm_cmd(
     ctx: typer.Context,
     robot: str = typer.Option("", "--robot", help="SMM arm (default: planar3r, spatial4r, spatial7r); smm-3r also takes arm3r."),
     dataset: Optional[Path] = typer.Option(None, "--dataset", help="SMM data set .npz; built over --grid and saved there if absent (default: WORK_DIR/dataset.npz)."),
-    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R), 250x400 (4R) or 3x3x16x32 (7R: rho, z, tool polar, azimuth over one region) (default: the paper's; the 7R: 3x3x16x32)."),
+    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R), 250x400 (4R) or 3x3x24x48 (7R: rho, z, tool polar, azimuth over one region) (default: the paper's; the 7R: 3x3x24x48)."),
     k: int = typer.Option(40, "--k", help="Fourier components kept when building the data set."),
     sing_tol: float = typer.Option(0.02, "--sing-tol", help="Singular flag of the nullspace tracer when building the data set (smallest singular value of the weighted Jacobian; flagged cells separate clusters)."),
     boundary_points: int = typer.Option(4, "--boundary-points", help="Random points traced per cluster-boundary cell when building the data set, classifier-only (0: none)."),
