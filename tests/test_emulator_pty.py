@@ -258,10 +258,9 @@ def test_link_faults_over_pty_are_counted():
 
 
 def _run_cli(*args):
+    import signal
     import subprocess
     import sys
-
-    import signal
 
     code = "import typer; from armbridge.emulator.command import emulate_cmd; typer.run(emulate_cmd)"
     # Ctrl-C as at a terminal: a run started in the background (`make test &`)

@@ -257,6 +257,11 @@ def _pair_cells(
                 cost[cell] = total / B
 
 
+def cell_indices(shape: tuple[int, ...]) -> np.ndarray:
+    """(L, d) index of every cell of a grid of `shape`, in flat (C) order."""
+    return np.indices(shape).reshape(len(shape), -1).T
+
+
 def nearest_cluster(clusters: Clusters, cells: np.ndarray, count: np.ndarray, reach: float) -> np.ndarray:
     """Classifier labels for points of the grid by their nullspace branch counts.
 
@@ -278,7 +283,7 @@ def nearest_cluster(clusters: Clusters, cells: np.ndarray, count: np.ndarray, re
         raise ArmbridgeError(f"cells {pts.shape} and count {cnt.shape} must be (P, {len(clusters.shape)}) and (P,)")
     if not reach >= 0:
         raise ArmbridgeError(f"reach must be >= 0 cells, got {reach!r}")
-    grid = np.indices(clusters.shape).reshape(len(clusters.shape), -1).T
+    grid = cell_indices(clusters.shape)
     cell_count = np.where(clusters.label >= 0, clusters.branches[np.maximum(clusters.label, 0)], -1)
     out = np.full(cnt.shape, -1, dtype=np.int64)
     for b in np.unique(cnt):

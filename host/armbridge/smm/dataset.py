@@ -20,10 +20,10 @@ The classifier learns from more than the clusters: every cell, singular ones
 included, is labelled by `automaton.nearest_cluster` from its own branch
 count, and `per_cell` extra random points inside every boundary cell (one
 within a cell of a cell outside the clusters or of a count change:
-`boundary_cells`) are traced for their branch count and labelled the same way. On the 4R the count flips
-within a cell across the singular band, and the nearest grid cell's count
-differs from a random location's 2.1 % of the time (Table III's 2.16 %); the
-boundary points halve the cell size where the count changes.
+`boundary_cells`) are traced for their branch count and labelled the same
+way. On the 4R the count flips within a cell across the singular band, and
+the nearest grid cell's count differs from a random location's 2.1 % of the
+time (Table III's 2.16 %); the boundary points sample it finer.
 """
 from __future__ import annotations
 
@@ -365,10 +365,9 @@ def add_boundary(
     cells = boundary_cells(build.clusters, build.smms.count)
     size = (np.asarray(g.hi) - np.asarray(g.lo)) / np.asarray(g.shape)
     offset = np.random.default_rng([seed, 1]).uniform(-0.5, 0.5, (cells.size * per_cell, len(g.shape)))
-    at = np.repeat(np.indices(g.shape).reshape(len(g.shape), -1).T[cells], per_cell, axis=0) + offset
+    at = np.repeat(automaton.cell_indices(g.shape)[cells], per_cell, axis=0) + offset
     canon = np.asarray(g.lo) + (at + 0.5) * size
-    count = compute_smms(arm, canon, 16, batch, progress, seed=seed, **nullspace_options).count if len(canon) else \
-        np.zeros(0, dtype=np.int64)
+    count = compute_smms(arm, canon, 16, batch, progress, seed=seed, **nullspace_options).count
     label = automaton.nearest_cluster(build.clusters, at, count, LABEL_REACH)
     return replace(build, dataset=replace(build.dataset, boundary_canon=canon, boundary_label=label))
 
@@ -395,12 +394,11 @@ def assemble(
     hom = automaton.homotopy(cl, smms.points, smms.count)
     reference, margin = reference_components(harmonics(smms, cl.label, hom.order), cl.label, len(cl.seed))
     coeffs = coefficients(smms, cl.label, hom.order, int(K), reference, exact_phase)
-    cells = np.indices(grid.shape).reshape(len(grid.shape), -1).T
     ds = SmmDataset(
         robot=arm.name,
         canon=grid.centres(),
         cluster=cl.label,
-        label=automaton.nearest_cluster(cl, cells, smms.count, LABEL_REACH),
+        label=automaton.nearest_cluster(cl, automaton.cell_indices(grid.shape), smms.count, LABEL_REACH),
         coeffs=coeffs[:, : max(int(cl.branches.max(initial=0)), 1)],  # Bmax of the kept clusters
         cluster_branches=cl.branches,
         boundary_canon=np.zeros((0, len(grid.shape))),

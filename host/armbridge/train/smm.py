@@ -107,20 +107,20 @@ def parse_sizes(text: str, option: str) -> tuple[int, ...]:
     return sizes
 
 
-def split(cluster: np.ndarray, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def split(label: np.ndarray, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(train, test) row indices: `holdout` of each cluster's locations held out, >= 1 kept for training.
 
-    Split by the classifier's label (SmmDataset.label); rows labelled -1 are in neither.
+    By the classifier's label (SmmDataset.label); rows labelled -1 are in neither.
     """
     rng = np.random.default_rng([seed, 7])
     train, test = [], []
-    for c in np.unique(cluster[cluster >= 0]):
-        rows = rng.permutation(np.flatnonzero(cluster == c))
+    for c in np.unique(label[label >= 0]):
+        rows = rng.permutation(np.flatnonzero(label == c))
         k = min(round(holdout * rows.size), rows.size - 1)
         test.append(rows[:k])
         train.append(rows[k:])
     if not train:
-        raise ArmbridgeError("the data set has no labelled locations (every cluster is -1)")
+        raise ArmbridgeError("the data set has no labelled locations (every label is -1)")
     return np.sort(np.concatenate(train)), np.sort(np.concatenate(test))
 
 
