@@ -200,7 +200,8 @@ class BoardClient:
         self.now = clock
         self.connect_timeout = connect_timeout
         baud = baud or int(getattr(port, "baudrate", 0) or getattr(port, "baud", 0) or 115200)
-        self.speed = _link_speed(port)
+        # A clock passed in already runs at the link's speed (open_session passes port.clock).
+        self.speed = _link_speed(port) if clock is time.monotonic else 1.0
         self.byte_time = 10.0 / baud / self.speed  # wall seconds per byte (8N1)
         # Retransmission timeout, counted from when a line should have reached
         # the board: 4 x the time of a command line and its answer + 50 ms to
@@ -226,6 +227,7 @@ class BoardClient:
         self.connected = False
         self.state: str | None = None  # last state seen in telemetry or STAT
         self.last_event: str | None = None
+        self.fault_reason: str | None = None  # from EV FAULT: joint and following error
 
         self._splitter = P.LineSplitter(P.MAX_BOARD_LINE)
         self._n = 1  # next command number (seq = n mod 65536)
@@ -448,6 +450,18 @@ class BoardClient:
             self.stats.slow_events += 1
         elif ev.kind in LATCHED_STATES:
             self.state = ev.kind
+            if ev.kind == "FAULT":
+                self.fault_reason = self._fault_text(ev.args)
+
+    def _fault_text(self, args) -> str:
+        """EV FAULT j err -> 'joint 2 (elbow): following error 412 mrad'."""
+        try:
+            j, err = int(args[0]), int(args[1])
+        except (IndexError, ValueError):
+            return "FAULT " + " ".join(args)
+        names = list(self.robot.joint_names) if self.robot is not None else []
+        name = f" ({names[j - 1]})" if 1 <= j <= len(names) else ""
+        return f"joint {j}{name}: following error {err} mrad"
 
     def _index_of(self, wid: int, lo: int, hi: int) -> int | None:
         """The plan index in [lo, hi] whose id is wid, if any."""
@@ -702,6 +716,19 @@ class BoardClient:
                 f"the board speaks protocol {info.proto}, this armbridge speaks {P.PROTOCOL_VERSION} "
                 f"(firmware {info.fw} {info.version})"
             )
+        if robot is None:  # no plan (the board console): learn the limits, check nothing
+            self.connected = True
+            self.info = info
+            self.keepalive = min(0.25, info.wdog_ms / 4000.0) / self.speed
+            for j in range(info.n):
+                ans = self.command("LIM", j + 1)
+                try:
+                    lo, hi, vmax = (int(x) for x in ans.payload[1:4])
+                except ValueError:
+                    raise ArmbridgeError(f"the board's LIM {j + 1} reply is malformed: {' '.join(ans.payload)}") from None
+                info.limits_milli.append((lo, hi, vmax))
+            self.state = "IDLE" if self.state is None else self.state
+            return info
         if info.fw != robot.name:
             raise ArmbridgeError(f"the board runs firmware {info.fw!r} {info.version}, the plan is for robot "
                                  f"{robot.name!r}")
@@ -797,6 +824,8 @@ class BoardClient:
         first plan's waypoint i is id i, the next plan's ids follow on (mod 65536)."""
         if not self.connected:
             raise ArmbridgeError("not connected: call connect() first")
+        if self.robot is None:
+            raise ArmbridgeError("this session has no robot: a plan needs one (open the session with the plan's robot)")
         k = len(durations_ms)
         self._k = k
         self._next_wp = 0
@@ -838,7 +867,7 @@ class BoardClient:
             why = {
                 "ESTOP": "an e-stop latched",
                 "WDOG": "its watchdog fired (no valid line in time)",
-                "FAULT": "a following error latched FAULT",
+                "FAULT": f"FAULT latched, {self.fault_reason or 'a following error'}",
             }[kind]
             raise ArmbridgeError(f"the board stopped: {why}; {self._done + 1} of {self._k} waypoints done")
 
