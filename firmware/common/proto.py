@@ -1,8 +1,21 @@
-"""Line protocol codec, version 1 (docs/protocol.md), for MicroPython and CPython.
+"""Line protocol codec, version 2 (docs/protocol.md), for MicroPython and CPython.
 
-crc16, encode, decode, LineReader (framing and the out-of-band e-stop byte) and
-parse_command (argument checks of the host -> board commands). Pure: no I/O.
+encode, decode (length, framing, CRC-32 seeded by the link epoch, grammar),
+LineReader (framing and the out-of-band e-stop byte) and parse_command (argument
+checks of the host -> board commands). Verbs, ranges, codes and constants come
+from the one table, `protodef` (generated from host/armbridge/link/protodef.py).
+Pure: no I/O. The work per line stays in C builtins (binascii.crc32, min/max,
+bytes.find/split, int); Python loops run only over the 8 hex digits and the
+arguments.
 """
+
+import binascii
+
+import protodef
+from protodef import (  # noqa: F401  (re-exported: the names the session layer uses)
+    ARGS, CRC, ERROR_NAMES, ESTOP_BYTE, FULL, LATCHED, LONG, MAX_BOARD_LINE, MAX_HOST_LINE,
+    NOSESSION, PARSE, PROTO, PROTOCOL_VERSION, RANGE, READ_ONLY, SEQ, STALE, VERB,
+)
 
 try:
     from micropython import const
@@ -10,36 +23,16 @@ except ImportError:  # CPython (emulator, tests)
     def const(x):  # type: ignore[no-redef,misc]
         return x
 
-PROTO_VERSION = const(1)
-MAX_HOST_LINE = const(96)   # bytes, LF included, host -> board
-MAX_BOARD_LINE = const(192)  # bytes, LF included, board -> host
-ESTOP_BYTE = const(0x98)
-JOINT_ABS_MAX = const(1000000)  # joint values are within +-1e6 milli-units
-
-# Error codes (docs/protocol.md section 5)
-PARSE = const(1)
-CRC = const(2)
-LONG = const(3)
-VERB = const(4)
-ARGS = const(5)
-RANGE = const(6)
-SEQ = const(7)
-FULL = const(8)
-LATCHED = const(9)
-NOSESSION = const(10)
-
-ERROR_NAMES = {
-    1: "PARSE", 2: "CRC", 3: "LONG", 4: "VERB", 5: "ARGS",
-    6: "RANGE", 7: "SEQ", 8: "FULL", 9: "LATCHED", 10: "NOSESSION",
-}
-
+COMMANDS = protodef.COMMANDS
+_HELLO_EPOCH = const(0)
 _LF = const(0x0A)
 _CR = const(0x0D)
-_SP = const(0x20)
 _STAR = const(0x2A)
+_HEX = "0123456789ABCDEF"
+_MAX_DIGITS = const(10)  # len("1073741823"): no range in the table needs more
 
 
-class ProtoError(Exception):
+class ProtocolError(Exception):
     """A refused line or command: `code` (int), `name` (str), optional `detail`."""
 
     def __init__(self, code: int, name: str = "", detail: str = "") -> None:
@@ -51,50 +44,47 @@ class ProtoError(Exception):
         self.detail = detail
 
 
-# ---------------------------------------------------------------- CRC-16/CCITT-FALSE
-
-def _make_table() -> list:
-    table = []
-    for i in range(256):
-        crc = i << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return table
+ProtoError = ProtocolError  # the v1 name, until every firmware file says ProtocolError
 
 
-_TABLE = _make_table()
+def crc32(data, epoch: int = 0) -> int:
+    """CRC-32/ISO-HDLC of bytes/bytearray, started from the link epoch."""
+    return binascii.crc32(data, epoch)
 
 
-def crc16(data, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE of bytes/bytearray (poly 0x1021, init 0xFFFF)."""
-    table = _TABLE
-    for b in data:
-        crc = ((crc << 8) & 0xFFFF) ^ table[((crc >> 8) ^ b) & 0xFF]
-    return crc
+def is_hello(body) -> bool:
+    """True when the body's second field is HELLO: its CRC uses epoch 0."""
+    sp = body.find(b" ")
+    return sp >= 0 and body[sp + 1:sp + 7] in (b"HELLO", b"HELLO ")
 
 
 # ---------------------------------------------------------------- encode / decode
 
-def encode(seq, verb: str, args=()) -> bytes:
-    """One line `seq verb args*CRC\\n`; args may be ints or strings."""
+def encode(seq, verb: str, args=(), epoch: int = 0) -> bytes:
+    """One line `seq verb args*CRC\\n`; args may be ints or strings. The CRC
+    starts from `epoch`, except for HELLO (always epoch 0)."""
     parts = [str(seq), verb]
     for a in args:
         parts.append(str(a))
     body = " ".join(parts).encode()
-    return body + ("*%04X\n" % crc16(body)).encode()
+    if verb == "HELLO":
+        epoch = _HELLO_EPOCH
+    return body + ("*%08X\n" % binascii.crc32(body, epoch)).encode()
 
 
-def _hexval(b: int) -> int:
-    if 0x30 <= b <= 0x39:
-        return b - 0x30
-    if 0x41 <= b <= 0x46:
-        return b - 0x41 + 10
-    return -1
+def _parse_seq(s: str) -> int:
+    n = len(s)
+    if n == 0 or n > 5 or (n > 1 and s[0] == "0"):
+        return -1
+    for c in s:
+        if not "0" <= c <= "9":
+            return -1
+    v = int(s)
+    return v if v <= 0xFFFF else -1
 
 
-def _is_upper_word(s: str, max_len: int) -> bool:
-    if not 1 <= len(s) <= max_len:
+def _is_upper_word(s: str) -> bool:
+    if not 1 <= len(s) <= 8:
         return False
     for c in s:
         if not "A" <= c <= "Z":
@@ -102,24 +92,11 @@ def _is_upper_word(s: str, max_len: int) -> bool:
     return True
 
 
-def _parse_seq(s: str) -> int:
-    n = len(s)
-    if n == 0 or n > 5:
-        return -1
-    for c in s:
-        if not "0" <= c <= "9":
-            return -1
-    if n > 1 and s[0] == "0":
-        return -1
-    v = int(s)
-    return v if v <= 0xFFFF else -1
-
-
-def decode(line, max_len: int = MAX_HOST_LINE):
+def decode(line, max_len: int = MAX_HOST_LINE, epoch: int = 0):
     """Parse one line (bytes/bytearray/str, with or without LF) -> (seq, verb, args).
 
-    Checks in the order of protocol section 1: LONG, framing PARSE, CRC, body PARSE.
-    Raises ProtoError.
+    Checks in the order of protocol section 1: LONG, framing PARSE, CRC (from
+    `epoch`, or 0 for a HELLO body), body PARSE. Raises ProtocolError.
     """
     if isinstance(line, str):
         line = line.encode()
@@ -127,35 +104,34 @@ def decode(line, max_len: int = MAX_HOST_LINE):
     if n and line[n - 1] == _LF:
         n -= 1
     if n + 1 > max_len:
-        raise ProtoError(LONG)
+        raise ProtocolError(LONG)
     if n and line[n - 1] == _CR:
         n -= 1
-    # framing: printable bytes, "*" and four upper-case hex digits at the end
-    if n < 5 or line[n - 5] != _STAR:
-        raise ProtoError(PARSE)
-    for i in range(n):
-        b = line[i]
-        if b < 0x20 or b > 0x7E:
-            raise ProtoError(PARSE)
-    want = 0
-    for i in range(n - 4, n):
-        h = _hexval(line[i])
-        if h < 0:
-            raise ProtoError(PARSE)
-        want = (want << 4) | h
-    body = bytes(line[:n - 5])
-    if crc16(body) != want:
-        raise ProtoError(CRC)
+    # framing: printable bytes, "*" and eight upper-case hex digits at the end
+    if n < 9 or line[n - 9] != _STAR:
+        raise ProtocolError(PARSE)
+    data = bytes(line[:n])
+    if min(data) < 0x20 or max(data) > 0x7E:
+        raise ProtocolError(PARSE)
+    body = data[:n - 9]
+    field = data[n - 8:].decode()
+    for c in field:
+        if c not in _HEX:
+            raise ProtocolError(PARSE)
+    if is_hello(body):
+        epoch = _HELLO_EPOCH
+    if binascii.crc32(body, epoch) != int(field, 16):
+        raise ProtocolError(CRC)
     parts = body.decode().split(" ")
     if len(parts) < 2:
-        raise ProtoError(PARSE)
+        raise ProtocolError(PARSE)
     seq = _parse_seq(parts[0])
-    if seq < 0 or not _is_upper_word(parts[1], 8):
-        raise ProtoError(PARSE)
+    if seq < 0 or not _is_upper_word(parts[1]):
+        raise ProtocolError(PARSE)
     args = parts[2:]
     for a in args:
         if not a or "*" in a:
-            raise ProtoError(PARSE)
+            raise ProtocolError(PARSE)
     return seq, parts[1], args
 
 
@@ -164,6 +140,7 @@ def decode(line, max_len: int = MAX_HOST_LINE):
 _NORMAL = const(0)
 _DROP_LONG = const(1)    # overlong: discard to LF, then one LONG error
 _DROP_SILENT = const(2)  # e-stop arrived mid-line: discard to LF silently
+_ESTOP = bytes([ESTOP_BYTE])
 
 
 class LineReader:
@@ -173,6 +150,7 @@ class LineReader:
       ("line", bytes)       a complete line, LF stripped (a CR before it is kept)
       ("error", code, name) a framing error of the stream (LONG, empty line PARSE)
       ("estop",)            the e-stop byte; any partial line is dropped to its LF
+    The data is cut at LF and e-stop bytes with bytes.find, not byte by byte.
     """
 
     def __init__(self, max_len: int = MAX_HOST_LINE) -> None:
@@ -185,24 +163,37 @@ class LineReader:
         self.mode = _NORMAL
 
     def feed(self, data) -> list:
-        out = []
-        limit = self.max_len - 1  # room for the LF
-        for b in data:
-            if b == ESTOP_BYTE:
+        out: list = []
+        data = bytes(data)
+        i = 0
+        end = len(data)
+        stop = data.find(_ESTOP)
+        while i < end:
+            lf = data.find(b"\n", i)
+            if 0 <= stop < i:
+                stop = data.find(_ESTOP, i)
+            cut = lf if stop < 0 or (0 <= lf < stop) else stop
+            self._take(data[i:end if cut < 0 else cut])
+            if cut < 0:
+                break
+            if cut == stop:
                 out.append(("estop",))
                 if self.buf or self.mode != _NORMAL:
                     self.mode = _DROP_SILENT
                     self.buf = bytearray()
-            elif b == _LF:
-                self._end_line(out)
-            elif self.mode != _NORMAL:
-                pass
-            elif len(self.buf) >= limit:
-                self.mode = _DROP_LONG
-                self.buf = bytearray()
             else:
-                self.buf.append(b)
+                self._end_line(out)
+            i = cut + 1
         return out
+
+    def _take(self, piece) -> None:
+        if self.mode != _NORMAL or not piece:
+            return
+        if len(self.buf) + len(piece) > self.max_len - 1:  # no room left for the LF
+            self.mode = _DROP_LONG
+            self.buf = bytearray()
+        else:
+            self.buf.extend(piece)
 
     def _end_line(self, out: list) -> None:
         if self.mode == _DROP_LONG:
@@ -218,31 +209,6 @@ class LineReader:
 
 # ---------------------------------------------------------------- command arguments
 
-# Argument kinds: each a (lo, hi) range; "J" stands for a joint index 1..n,
-# "Q" for n joint values.
-_J = "J"
-_Q16 = (0, 0xFFFF)
-_GAIN = (0, 1000000)
-_JV = (-JOINT_ABS_MAX, JOINT_ABS_MAX)
-
-COMMANDS = {
-    "HELLO": ((1, 0xFFFF),),
-    "LIM": (_J,),
-    "W": (_Q16, (1, 60000), "Q"),
-    "HOLD": (),
-    "RESUME": (),
-    "CLR": (),
-    "RATE": ((0, 100),),
-    "GAIN": (_J, _GAIN, _GAIN, _GAIN),
-    "SETLIM": (_J, _JV, _JV, (1, JOINT_ABS_MAX)),
-    "WDOG": ((50, 10000),),
-    "STAT": (),
-    "PING": (),
-}
-
-READ_ONLY = ("STAT", "LIM", "PING")
-
-
 def _is_int_form(s: str) -> bool:
     """Decimal integer: optional "-", no "+", no leading zeros, no "-0"."""
     if s and s[0] == "-":
@@ -257,39 +223,64 @@ def _is_int_form(s: str) -> bool:
     return s == "0" or s[0] != "0"
 
 
-def _to_int(s: str) -> int:
-    # longer than 8 characters is beyond every range (|v| <= 1e6): avoid big ints
-    if len(s) > 8:
-        return 1 << 28 if s[0] != "-" else -(1 << 28)
-    return int(s)
+def _ranges(verb: str, n_joints: int) -> list:
+    """[(name, lo, hi)] of verb's arguments for an n-joint board: "q" expanded
+    to n joint values, "joint" bounded by n."""
+    out = []
+    for spec in COMMANDS[verb]:
+        name = spec[0]
+        if name == "q":
+            for _ in range(n_joints):
+                out.append(spec)
+        elif name == "joint":
+            out.append((name, 1, n_joints))
+        else:
+            out.append(spec)
+    return out
 
 
 def parse_command(verb: str, args, n_joints: int) -> list:
-    """Checks a command's arguments -> list of ints. Raises ProtoError VERB/ARGS/RANGE."""
-    spec = COMMANDS.get(verb)
-    if spec is None:
-        raise ProtoError(VERB)
-    ranges: list = []
-    for kind in spec:
-        if kind == "Q":
-            for _ in range(n_joints):
-                ranges.append(_JV)
-        elif kind == _J:
-            ranges.append((1, n_joints))
-        else:
-            ranges.append(kind)
+    """Checks a command's arguments -> list of ints, in the spec's order: verb
+    (VERB), count (ARGS), every argument's form (ARGS), each range in turn
+    (RANGE), the cross-argument rules (RANGE). Raises ProtocolError."""
+    if verb not in COMMANDS:
+        raise ProtocolError(VERB)
+    ranges = _ranges(verb, n_joints)
     if len(args) != len(ranges):
-        raise ProtoError(ARGS)
+        raise ProtocolError(ARGS)
     for a in args:
         if not _is_int_form(a):
-            raise ProtoError(ARGS)
+            raise ProtocolError(ARGS)
     values = []
     for i in range(len(args)):
-        v = _to_int(args[i])
-        lo, hi = ranges[i]
-        if v < lo or v > hi:
-            raise ProtoError(RANGE)
+        a = args[i]
+        spec = ranges[i]
+        # more digits than any range needs: out of range, without making a big int
+        v = int(a) if len(a) - (a[0] == "-") <= _MAX_DIGITS else spec[2] + 1
+        if v < spec[1] or v > spec[2]:
+            raise ProtocolError(RANGE, "", _arg_name(verb, i))
         values.append(v)
-    if verb == "SETLIM" and values[1] > values[2]:
-        raise ProtoError(RANGE)
+    rules = protodef.ORDERED.get(verb)
+    if rules:
+        for low, high in rules:
+            a = _index(ranges, low)
+            b = _index(ranges, high)
+            if values[a] > values[b]:
+                raise ProtocolError(RANGE, "", low)
     return values
+
+
+def _arg_name(verb: str, i: int) -> str:
+    """The detail of a RANGE error: the joint number of a joint value, else
+    the argument's name."""
+    spec = COMMANDS[verb]
+    if i >= len(spec) - 1 and spec[-1][0] == "q":
+        return str(i - len(spec) + 2)
+    return spec[i][0]
+
+
+def _index(ranges: list, name: str) -> int:
+    for i in range(len(ranges)):
+        if ranges[i][0] == name:
+            return i
+    return -1

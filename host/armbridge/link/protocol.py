@@ -1,51 +1,52 @@
-"""Host codec of the armbridge line protocol v1 (spec: docs/protocol.md).
+"""Host codec of the armbridge line protocol v2 (spec: docs/protocol.md).
 
-Pure functions over bytes. The board's codec (firmware/common/proto.py) is a
-separate MicroPython implementation; both are tested against tests/vectors/.
+Pure functions over bytes. Verbs, argument ranges, error codes and constants
+come from the one table, link/protodef.py; the board's codec
+(firmware/common/proto.py) reads the same table (rendered as
+firmware/common/protodef.py), and both are tested against tests/vectors/.
 """
 from __future__ import annotations
 
 import re
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
-PROTOCOL_VERSION = 1
-MAX_COMMAND_LINE = 96  # bytes, LF included: host -> board
-MAX_BOARD_LINE = 192  # bytes, LF included: board -> host
-ESTOP_BYTE = b"\x98"
-SEQ_MOD = 65536
+from armbridge.link import protodef as D
+from armbridge.link.protodef import (  # noqa: F401  (re-exported: the codes users name)
+    ARGS, CRC, FULL, LATCHED, LONG, NOSESSION, PARSE, PROTO, RANGE, SEQ, STALE, VERB,
+)
 
-PARSE, CRC, LONG, VERB, ARGS, RANGE, SEQ, FULL, LATCHED, NOSESSION = range(1, 11)
-ERROR_NAMES = {
-    PARSE: "PARSE", CRC: "CRC", LONG: "LONG", VERB: "VERB", ARGS: "ARGS", RANGE: "RANGE",
-    SEQ: "SEQ", FULL: "FULL", LATCHED: "LATCHED", NOSESSION: "NOSESSION",
-}
+PROTOCOL_VERSION = D.PROTOCOL_VERSION
+MAX_HOST_LINE = D.MAX_HOST_LINE
+MAX_COMMAND_LINE = MAX_HOST_LINE  # the v1 name, kept while callers move to MAX_HOST_LINE
+MAX_BOARD_LINE = D.MAX_BOARD_LINE
+ESTOP_BYTE = bytes([D.ESTOP_BYTE])
+SEQ_MOD = D.SEQ_MOD
+RING = D.RING
+EPOCH_MAX = D.EPOCH_MAX
+MAX_EPOCH_COMMANDS = D.MAX_EPOCH_COMMANDS
+ERROR_NAMES = D.ERROR_NAMES
+COMMANDS = D.COMMANDS
+READ_ONLY = D.READ_ONLY
+STATES = D.STATES
 
-_FRAME = re.compile(rb"([\x20-\x7e]*)\*([0-9A-F]{4})")
+_FRAME = re.compile(rb"([\x20-\x7e]*)\*([0-9A-F]{8})")
 _BODY = re.compile(r"(0|[1-9][0-9]{0,4}) ([A-Z]{1,8})((?: [!-)+-~]+)*)")
 _INT = re.compile(r"-?(0|[1-9][0-9]*)")
+_MAX_DIGITS = len(str(D.EPOCH_MAX))  # no range in the table needs more digits
 
 
-def _crc_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else crc << 1
-        table.append(crc & 0xFFFF)
-    return tuple(table)
+def crc32(data: bytes, epoch: int = 0) -> int:
+    """CRC-32/ISO-HDLC (zlib's) of `data`, started from the link epoch (§1)."""
+    return zlib.crc32(data, epoch)
 
 
-_TABLE = _crc_table()
-
-
-def crc16(data: bytes) -> int:
-    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, no reflection, no final XOR."""
-    crc = 0xFFFF
-    for byte in data:
-        crc = ((crc << 8) & 0xFFFF) ^ _TABLE[(crc >> 8) ^ byte]
-    return crc
+def is_hello(body: bytes) -> bool:
+    """True when the body's second field is HELLO: its CRC uses epoch 0 (§1)."""
+    space = body.find(b" ")
+    return space >= 0 and (body[space + 1:] == b"HELLO" or body.startswith(b"HELLO ", space + 1))
 
 
 class ProtocolError(Exception):
@@ -64,16 +65,18 @@ class Line:
     args: tuple[str, ...]
 
 
-def encode(seq: int, verb: str, *args: object) -> bytes:
-    """One protocol line, CRC and LF included."""
+def encode(seq: int, verb: str, *args: object, epoch: int = 0) -> bytes:
+    """One protocol line, CRC and LF included. The CRC starts from `epoch`,
+    except for HELLO, which is always framed with epoch 0 (§1)."""
     if not 0 <= seq < SEQ_MOD:
         raise ValueError(f"seq {seq} outside 0..65535")
     body = " ".join([str(seq), verb, *map(str, args)]).encode("ascii")
-    return b"%s*%04X\n" % (body, crc16(body))
+    return b"%s*%08X\n" % (body, crc32(body, D.HELLO_EPOCH if verb == "HELLO" else epoch))
 
 
-def decode(line: bytes, max_len: int = MAX_BOARD_LINE) -> Line:
-    """Checks length, framing, CRC and body grammar, in that order (§1)."""
+def decode(line: bytes, max_len: int = MAX_BOARD_LINE, epoch: int = 0) -> Line:
+    """Checks length, framing, CRC and body grammar, in that order (§1). The CRC
+    is checked from `epoch`, or from 0 when the body is a HELLO."""
     size = len(line) + (0 if line.endswith(b"\n") else 1)
     if size > max_len:
         raise ProtocolError(LONG, f"{size} bytes, the bound is {max_len}")
@@ -83,10 +86,11 @@ def decode(line: bytes, max_len: int = MAX_BOARD_LINE) -> Line:
         line = line[:-1]
     frame = _FRAME.fullmatch(line)
     if frame is None:
-        raise ProtocolError(PARSE, "not 'BODY*CRC' in printable ASCII")
+        raise ProtocolError(PARSE, "not 'BODY*CRC' (8 upper-case hex digits) in printable ASCII")
     body, crc_field = frame.groups()
-    if crc16(body) != int(crc_field, 16):
-        raise ProtocolError(CRC, f"got {crc_field.decode()}, computed {crc16(body):04X}")
+    want = crc32(body, D.HELLO_EPOCH if is_hello(body) else epoch)
+    if want != int(crc_field, 16):
+        raise ProtocolError(CRC, f"got {crc_field.decode()}, computed {want:08X}")
     match = _BODY.fullmatch(body.decode("ascii"))
     if match is None or int(match.group(1)) >= SEQ_MOD:
         raise ProtocolError(PARSE, "body is not 'SEQ VERB ARGS'")
@@ -122,47 +126,52 @@ class LineSplitter:
             start = end + 1
 
 
+def _is_int(text: str) -> bool:
+    return _INT.fullmatch(text) is not None and text != "-0"
+
+
 def parse_int(text: str, lo: int, hi: int, what: str) -> int:
     """A protocol integer (no '+', no leading zeros, no '-0') within [lo, hi]."""
-    if not _INT.fullmatch(text) or text == "-0":
+    if not _is_int(text):
         raise ProtocolError(ARGS, f"{what} {text!r} is not an integer")
+    if len(text.lstrip("-")) > _MAX_DIGITS:  # beyond every range; int() of it may not even parse
+        raise ProtocolError(RANGE, f"{what} {text[:12]}... outside [{lo}, {hi}]")
     value = int(text)
     if not lo <= value <= hi:
         raise ProtocolError(RANGE, f"{what} {value} outside [{lo}, {hi}]")
     return value
 
 
-# Host -> board commands: argument names and ranges (§3). `q` stands for n joint values.
-JOINT_LIMIT = 1_000_000
-COMMANDS: dict[str, tuple[tuple[str, int, int], ...]] = {
-    "HELLO": (("session", 1, 65535),),
-    "LIM": (("joint", 1, 0),),
-    "W": (("id", 0, 65535), ("dur", 1, 60000), ("q", -JOINT_LIMIT, JOINT_LIMIT)),
-    "HOLD": (),
-    "RESUME": (),
-    "CLR": (),
-    "RATE": (("hz", 0, 100),),
-    "GAIN": (("joint", 1, 0), ("kp", 0, 1_000_000), ("ki", 0, 1_000_000), ("kd", 0, 1_000_000)),
-    "SETLIM": (("joint", 1, 0), ("min", -JOINT_LIMIT, JOINT_LIMIT), ("max", -JOINT_LIMIT, JOINT_LIMIT),
-               ("vmax", 1, JOINT_LIMIT)),
-    "WDOG": (("ms", 50, 10000),),
-    "STAT": (),
-    "PING": (),
-}
+def command_args(verb: str, n_joints: int) -> list[tuple[str, int, int]]:
+    """The argument specs of `verb` for an n-joint board, `q` expanded to n
+    values (`q1`..`qn`) and `joint` bounded by n."""
+    specs: list[tuple[str, int, int]] = []
+    for name, lo, hi in COMMANDS[verb]:
+        if name == "q":
+            specs += [(f"q{j}", lo, hi) for j in range(1, n_joints + 1)]
+        else:
+            specs.append((name, lo, n_joints if name == "joint" else hi))
+    return specs
 
 
 def parse_command(verb: str, args: tuple[str, ...] | list[str], n_joints: int) -> list[int]:
-    """Checks a command's arguments as a board does; a 'joint' upper bound of 0 means n."""
+    """Checks a command's arguments as a board does (§3), in the spec's order:
+    verb (VERB), count (ARGS), the form of every argument (ARGS), each range in
+    turn (RANGE), then the cross-argument rules (RANGE)."""
     if verb not in COMMANDS:
         raise ProtocolError(VERB, f"unknown verb {verb}")
-    spec = COMMANDS[verb]
-    names = [name for name, _, _ in spec for _ in range(n_joints if name == "q" else 1)]
-    if len(args) != len(names):
-        raise ProtocolError(ARGS, f"{verb} takes {len(names)} arguments, got {len(args)}")
-    bounds = {name: (lo, hi or n_joints) for name, lo, hi in spec}
-    values = [parse_int(a, *bounds[name], name) for a, name in zip(args, names)]
-    if verb == "SETLIM" and values[1] >= values[2]:
-        raise ProtocolError(RANGE, f"min {values[1]} not below max {values[2]}")
+    specs = command_args(verb, n_joints)
+    if len(args) != len(specs):
+        raise ProtocolError(ARGS, f"{verb} takes {len(specs)} arguments, got {len(args)}")
+    for text, (name, _, _) in zip(args, specs):
+        if not _is_int(text):
+            raise ProtocolError(ARGS, f"{verb} {name} {text!r} is not an integer")
+    values = [parse_int(text, lo, hi, f"{verb} {name}") for text, (name, lo, hi) in zip(args, specs)]
+    names = [name for name, _, _ in specs]
+    for a, b in D.ORDERED.get(verb, ()):
+        low, high = values[names.index(a)], values[names.index(b)]
+        if low > high:
+            raise ProtocolError(RANGE, f"{verb} {a} {low} above {b} {high}")
     return values
 
 
@@ -219,6 +228,7 @@ class Boot:
     fw: str
     version: str
     proto: int
+    state: str  # IDLE after a power on; a latched state survives a reset
 
 
 BoardLine = Ok | Er | Telemetry | Event | Boot
@@ -247,7 +257,9 @@ def parse_board_line(line: Line) -> BoardLine:
         if line.verb == "EV":
             return Event(line.seq, int(a[0]), a[1], a[2:])
         if line.verb == "BOOT":
-            return Boot(line.seq, a[0], a[1], int(a[2]))
+            if len(a) != 4:
+                raise ValueError(f"{len(a)} fields, BOOT has 4 (fw fwver proto state)")
+            return Boot(line.seq, a[0], a[1], int(a[2]), a[3])
     except (IndexError, ValueError) as exc:
         raise ProtocolError(ARGS, f"{line.verb} line: {exc}") from None
     raise ProtocolError(VERB, f"unknown board line {line.verb}")

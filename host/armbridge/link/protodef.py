@@ -1,0 +1,108 @@
+"""The armbridge line protocol, version 2, declared once (spec: docs/protocol.md).
+
+Why this file exists: two hand-written command tables (host and firmware) drifted
+apart in names and in one rule, and a third board (the AVR pump, in C) is on its
+way. So the protocol's facts live here, as pure data, and nowhere else: Klipper
+declares each command once and the host learns the dictionary from it; MAVLink
+generates every language's codec from one message definition. The host codec
+(link/protocol.py) reads this module directly; `python -m armbridge.link.codegen`
+renders it as `firmware/common/protodef.py` (MicroPython, const()) and
+`firmware/arduino_pump/protodef.h` (C), and a test checks that the committed
+renderings are current. Change the protocol here, regenerate, and every codec
+follows; the shared vectors (tests/vectors/) then say whether they still agree.
+
+Only ints, strings and tuples/dicts of them: the generator writes them out as
+literals, so nothing here may be computed from code.
+"""
+
+PROTOCOL_VERSION = 2
+
+# Lengths in bytes, LF included.
+MAX_HOST_LINE = 96  # host -> board: fits the smallest board's line buffer
+MAX_BOARD_LINE = 192  # board -> host
+
+ESTOP_BYTE = 0x98  # out of band: latches ESTOP the moment it arrives
+CRC_DIGITS = 8  # CRC-32/ISO-HDLC as 8 upper-case hex digits
+HELLO_EPOCH = 0  # the CRC seed of every HELLO and of every board -> host line
+
+SEQ_MOD = 65536  # sequence numbers are 0..65535
+RING = 32  # replay window: answers kept for the last RING executed seqs
+MAX_EPOCH_COMMANDS = 32768  # a host opens a new epoch before issuing this many in one
+EPOCH_MAX = 1073741823  # 2**30 - 1: the largest MicroPython small int
+SESSION_MAX = 65535
+TICKS_PERIOD = 1073741824  # 2**30: board time MS wraps (MicroPython ticks_ms period)
+JOINT_ABS_MAX = 1000000  # every joint value, in milli-units, is within +-JOINT_ABS_MAX
+
+# Error codes (docs/protocol.md section 5). Codes 1..3 are framing errors,
+# answered with "-" as seq.
+PARSE = 1
+CRC = 2
+LONG = 3
+VERB = 4
+ARGS = 5
+RANGE = 6
+SEQ = 7
+FULL = 8
+LATCHED = 9
+NOSESSION = 10
+STALE = 11
+PROTO = 12
+
+ERROR_NAMES = {
+    1: "PARSE", 2: "CRC", 3: "LONG", 4: "VERB", 5: "ARGS", 6: "RANGE",
+    7: "SEQ", 8: "FULL", 9: "LATCHED", 10: "NOSESSION", 11: "STALE", 12: "PROTO",
+}
+
+# Host -> board commands: verb -> argument specs (name, lo, hi), in order.
+# Two names are kinds, not plain integers:
+#   "joint" is a joint index 1..n of the board (lo 1, hi written 0: "n");
+#   "q" stands for n joint values, each within [lo, hi]; it is always last.
+# Every other argument is a decimal integer within [lo, hi].
+COMMANDS = {
+    "HELLO": (("proto", 1, 65535), ("session", 1, 65535), ("epoch", 1, 1073741823)),
+    "LIM": (("joint", 1, 0),),
+    "W": (("id", 0, 65535), ("dur", 1, 60000), ("q", -1000000, 1000000)),
+    "HOLD": (),
+    "RESUME": (),
+    "CLR": (),
+    "RATE": (("hz", 0, 100),),
+    "GAIN": (("joint", 1, 0), ("kp", 0, 1000000), ("ki", 0, 1000000), ("kd", 0, 1000000)),
+    "SETLIM": (("joint", 1, 0), ("min", -1000000, 1000000), ("max", -1000000, 1000000),
+               ("vmax", 1, 1000000)),
+    "WDOG": (("ms", 50, 10000),),
+    "STAT": (),
+    "PING": (),
+}
+
+# Verbs that change nothing: a retransmitted copy is answered afresh, not replayed.
+READ_ONLY = ("STAT", "LIM", "PING")
+
+# Cross-argument rules, checked after every argument's own range: verb ->
+# ((a, b), ...) meaning value a <= value b, else RANGE. (min == max is allowed:
+# a locked joint.)
+ORDERED = {
+    "SETLIM": (("min", "max"),),
+}
+
+# OK payloads of the commands that have one (names, in order).
+REPLIES = {
+    "HELLO": ("fw", "fwver", "proto", "n", "qsize", "rate", "wdog_ms", "done", "queued", "state"),
+    "LIM": ("joint", "min", "max", "vmax"),
+    "STAT": ("state", "done", "queued", "ms"),
+    "PING": ("ms",),
+}
+
+# Board -> host line kinds: verb -> the fields after the board's seq ("..." = a
+# variable tail: payload, detail, joint columns or event args).
+BOARD_LINES = {
+    "OK": ("seq", "free", "..."),
+    "ER": ("seq", "code", "name", "..."),
+    "T": ("ms", "state", "done", "free", "..."),
+    "EV": ("ms", "kind", "..."),
+    "BOOT": ("fw", "fwver", "proto", "state"),
+}
+
+STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
+LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
+
+EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR")
