@@ -5,8 +5,8 @@
 //   node tests/mpy/run_tests.mjs [REPO_ROOT]
 //
 // The repo layout is mirrored in the interpreter's filesystem under /repo
-// (firmware/common/*.py, firmware/esp32/{config,arm}.py, tests/firmware/*.py,
-// tests/vectors/lines.json), so the tests find the vectors relative to their
+// (firmware/common/*.py, the generated protocol table protodef.py among them,
+// firmware/esp32/{config,arm}.py, tests/firmware/*.py, tests/vectors/lines.json), so the tests find the vectors relative to their
 // own files, as under CPython. `@micropython.native` / `@micropython.viper`
 // decorators are commented out (this port has no native emitter).
 // Prints one line per test, `PASS module::name` or `FAIL module::name: error`
@@ -57,7 +57,11 @@ async function main() {
     stderr: (line) => process.stderr.write(line + "\n"),
   });
   const FS = mp.FS;
-  copyPy(FS, "firmware/common", () => true);
+  const common = copyPy(FS, "firmware/common", () => true);
+  if (!common.includes("protodef.py")) {
+    console.error("firmware/common/protodef.py missing (python -m armbridge.link.codegen writes it)");
+    process.exit(2);
+  }
   copyPy(FS, "firmware/esp32", (n) => n === "config.py" || n === "arm.py");
   const tests = copyPy(FS, "tests/firmware", (n) => n !== "conftest.py");
   mkdirs(FS, "/repo/tests/vectors");
