@@ -35,7 +35,8 @@ def _mpy_cross_binary() -> str:
 
 def test_firmware_files_exist():
     names = {p.relative_to(ROOT).as_posix() for p in _firmware_files()}
-    for want in ("firmware/common/proto.py", "firmware/common/session.py",
+    for want in ("firmware/common/proto.py", "firmware/common/protodef.py",
+                 "firmware/common/link.py", "firmware/common/session.py",
                  "firmware/common/pid.py", "firmware/common/traj.py",
                  "firmware/esp32/config.py", "firmware/esp32/arm.py",
                  "firmware/esp32/hal_esp32.py", "firmware/esp32/main.py"):

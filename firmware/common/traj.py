@@ -9,6 +9,13 @@ step(dt_ms) advances segment time by dt; a segment that ends mid-step hands the
 leftover time to the next one in the same step. A segment taken up from rest
 starts at the step that takes it up (its set point is its start there). While
 `hold` is set, time is frozen.
+
+Each joint has a range [lo, hi] (set_range). At rest, a set point outside its
+range moves into it at vmax, never in one jump (event LIMIT when that starts):
+so narrowing a range, or a stop at a measured position just outside it, moves
+the arm no faster than its speed limit. The caller keeps queued targets inside
+the ranges (excludes() tells whether a new range would leave one outside).
+DONE events carry the waypoint's targets as they were pushed.
 """
 
 
@@ -17,11 +24,15 @@ class Traj:
         self.n = n
         self.qsize = qsize
         self.vmax = list(vmax) if vmax is not None else [1000000] * n
+        self.lo = [-(1 << 30)] * n
+        self.hi = [1 << 30] * n
+        self._ramping = [False] * n
         self.sp = [0.0] * n      # set point
         self.vel = [0.0] * n     # set-point velocity (milli-units/s)
         self.hold = False
         self._queue: list = []   # waypoints not yet started: (id, dur, targets)
         self.active_id = -1      # id of the active segment, -1 when none
+        self._targets: list = []  # targets of the active segment, as pushed
         self._dur = 0
         self._t = 0
         self._start = [0.0] * n
@@ -45,6 +56,19 @@ class Traj:
         self._queue.append((wid, dur, list(targets)))
         return True
 
+    def set_range(self, j: int, lo: int, hi: int, vmax: int) -> None:
+        """Joint j's (0-based) range and speed limit."""
+        self.lo[j] = lo
+        self.hi[j] = hi
+        self.vmax[j] = vmax
+
+    def excludes(self, j: int, lo: int, hi: int) -> bool:
+        """True when a queued or active target of joint j lies outside [lo, hi]."""
+        for w in self._queue:
+            if not lo <= w[2][j] <= hi:
+                return True
+        return self.active_id >= 0 and not lo <= self._targets[j] <= hi
+
     def flush(self) -> None:
         """Drops the queue and the active segment; the set point stays."""
         self._queue = []
@@ -61,11 +85,15 @@ class Traj:
     # ------------------------------------------------------------ motion
 
     def step(self, dt_ms: int) -> list:
-        """Advances by dt_ms -> events [("START", id), ("SLOW", id, j), ("DONE", id)]."""
+        """Advances by dt_ms -> events [("START", id), ("SLOW", id, j),
+        ("DONE", id, targets), ("LIMIT", j)] (j 1-based)."""
         events: list = []
         if self.hold:
             for j in range(self.n):
                 self.vel[j] = 0.0
+            return events
+        if self.active_id < 0 and not self._queue:
+            self._ramp(dt_ms, events)
             return events
         # from rest, a segment starts at this step (set point = its start);
         # otherwise the step's time, and any leftover, goes to the segments
@@ -87,10 +115,35 @@ class Traj:
                 break
         return events
 
+    def _ramp(self, dt_ms: int, events: list) -> None:
+        """At rest: each set point outside its range moves toward it at vmax."""
+        if dt_ms <= 0:
+            return
+        for j in range(self.n):
+            x = self.sp[j]
+            lo = self.lo[j]
+            hi = self.hi[j]
+            if lo <= x <= hi:
+                self._ramping[j] = False
+                self.vel[j] = 0.0
+                continue
+            if not self._ramping[j]:
+                self._ramping[j] = True
+                events.append(("LIMIT", j + 1))
+            reach = self.vmax[j] * dt_ms / 1000.0
+            if x < lo:
+                y = float(lo) if lo - x <= reach else x + reach
+            else:
+                y = float(hi) if x - hi <= reach else x - reach
+            self.vel[j] = (y - x) * 1000.0 / dt_ms
+            self.sp[j] = y
+
     def _begin(self, events: list) -> None:
         wid, dur, targets = self._queue.pop(0)
+        self._targets = targets
         worst = -1
         for j in range(self.n):
+            self._ramping[j] = False
             self._start[j] = self.sp[j]
             self._end[j] = float(targets[j])
             need = abs(self._end[j] - self._start[j]) * 1000.0 / self.vmax[j]
@@ -120,5 +173,5 @@ class Traj:
         for j in range(self.n):
             self.sp[j] = self._end[j]
             self.vel[j] = 0.0
-        events.append(("DONE", self.active_id))
+        events.append(("DONE", self.active_id, self._targets))
         self.active_id = -1

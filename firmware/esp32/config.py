@@ -7,7 +7,6 @@ The HAL speaks SI units (rad) and efforts in [-1, 1].
 
 FW_NAME = "arm3r"
 FW_VERSION = "0.1.0"
-PROTO_VERSION = 1
 
 N_JOINTS = 3
 JOINT_NAMES = ("shoulder", "elbow", "wrist")

@@ -12,7 +12,7 @@ import sys
 
 _ROOT = pathlib.Path(__file__).resolve().parents[2]
 _PATHS = [str(_ROOT / sub) for sub in ("firmware/esp32", "firmware/common", "tests/firmware")]
-_FLAT = ("proto", "protodef", "session", "pid", "traj", "arm", "config", "fwutil")
+_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil")
 
 for _p in _PATHS:
     if _p not in sys.path:

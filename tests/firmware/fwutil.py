@@ -9,8 +9,9 @@ in both).
 import json
 
 import proto
+import protodef
 
-TICKS_PERIOD = 1 << 30
+TICKS_PERIOD = protodef.TICKS_PERIOD
 _HALF = TICKS_PERIOD // 2
 
 
@@ -35,10 +36,10 @@ def latin1(s: str) -> bytes:
 
 
 def raises(fn, *args):
-    """Calls fn(*args) -> the ProtoError it raised, or None."""
+    """Calls fn(*args) -> the ProtocolError it raised, or None."""
     try:
         fn(*args)
-    except proto.ProtoError as e:
+    except proto.ProtocolError as e:
         return e
     return None
 
@@ -146,3 +147,36 @@ def events(lines, kind=None) -> list:
         if ln[1] == "EV" and (kind is None or ln[2][1] == kind):
             out.append(ln[2][1:])
     return out
+
+
+class Host:
+    """A scripted host on a FakeHal: frames its lines with its link epoch (HELLO
+    always with epoch 0, as proto.encode does), answer() polls once and returns
+    the board's OK/ER line to it."""
+
+    def __init__(self, hal, board, epoch: int = 1) -> None:
+        self.hal = hal
+        self.board = board
+        self.epoch = epoch
+
+    def send(self, seq, verb, *args) -> None:
+        self.hal.send(proto.encode(seq, verb, args, self.epoch))
+
+    def answer(self, seq, verb, *args):
+        self.send(seq, verb, *args)
+        self.board.poll()
+        lines = replies(self.hal.take())
+        for ln in lines:
+            if ln[1] in ("OK", "ER"):
+                return ln
+        raise AssertionError("no answer: %r" % (lines,))
+
+    def hello(self, seq, sid, epoch=None):
+        """HELLO 2 sid epoch (default: this host's epoch) -> the answer; an OK
+        makes that epoch the host's."""
+        if epoch is None:
+            epoch = self.epoch
+        ans = self.answer(seq, "HELLO", protodef.PROTOCOL_VERSION, sid, epoch)
+        if ans[1] == "OK":
+            self.epoch = epoch
+        return ans

@@ -1,4 +1,5 @@
-"""Trajectory: no jumps, speed stretching, carry-over, hold, queue capacity."""
+"""Trajectory: no jumps, speed stretching, carry-over, hold, queue capacity,
+the ramp into a narrowed range."""
 
 from traj import Traj
 
@@ -34,7 +35,7 @@ def test_starts_from_current_set_point_without_jump():
         for j in range(3):
             assert abs(t.sp[j] - prev[j]) <= 10.0 + 1e-6   # 1000 mrad/s * 10 ms
         prev = list(t.sp)
-    assert done == [("DONE", 1)]
+    assert done == [("DONE", 1, [1500, -1500, 100])]
     assert t.sp == [1500.0, -1500.0, 100.0]
 
 
@@ -58,10 +59,10 @@ def test_segments_chain_from_previous_end_with_carry_over():
     evs = _run(t, 3)                                   # t = 0, 10, 20
     assert evs == [("START", 1)]
     evs = t.step(10)                                   # 30: seg 1 ends at 25, 5 ms into seg 2
-    assert evs == [("DONE", 1), ("START", 2)]
+    assert evs == [("DONE", 1, [250]), ("START", 2)]
     assert abs(t.sp[0] - 300.0) < 1e-9                 # 250 + 1000 * 5/100
     evs = _run(t, 10)
-    assert evs == [("DONE", 2)]
+    assert evs == [("DONE", 2, [1250])]
     assert t.sp[0] == 1250.0 and not t.busy()
 
 
@@ -112,7 +113,7 @@ def test_hold_freezes_segment_time():
     t.hold = False
     t.step(10)
     assert abs(t.sp[0] - (sp + 100.0)) < 1e-9
-    assert _run(t, 6) == [("DONE", 1)]
+    assert _run(t, 6) == [("DONE", 1, [1000])]
 
 
 def test_flush_keeps_set_point():
@@ -124,3 +125,53 @@ def test_flush_keeps_set_point():
     t.flush()
     assert not t.busy() and t.sp[0] == sp
     assert _run(t, 5) == [] and t.sp[0] == sp
+
+
+def test_set_point_outside_range_ramps_in_at_vmax_with_one_limit_event():
+    t = Traj(2, vmax=[1000, 1000])
+    t.set_point([500, 0])
+    t.set_range(0, 0, 200, 1000)                       # 300 mrad outside: 300 ms at 1000 mrad/s
+    evs = []
+    prev = t.sp[0]
+    for _ in range(40):
+        evs += t.step(10)
+        assert prev - t.sp[0] <= 10.0 + 1e-9           # never faster than vmax
+        prev = t.sp[0]
+    assert evs == [("LIMIT", 1)]
+    assert t.sp == [200.0, 0.0] and t.vel == [0.0, 0.0]
+    assert _run(t, 5) == []                            # inside: no more events
+    t.set_range(0, 300, 400, 500)                      # below the range now: up at 500 mrad/s
+    assert t.step(10) == [("LIMIT", 1)]
+    assert t.sp[0] == 205.0 and t.vel[0] == 500.0
+
+
+def test_ramp_waits_for_hold_and_a_segment_takes_over():
+    t = Traj(1, vmax=[1000])
+    t.set_point([500])
+    t.set_range(0, 0, 200, 1000)
+    t.hold = True
+    assert _run(t, 5) == [] and t.sp[0] == 500.0
+    t.hold = False
+    t.step(10)
+    t.push(3, 10, [100])                               # from 490 to 100: stretched to vmax
+    evs = t.step(10)
+    assert evs == [("START", 3), ("SLOW", 3, 1)]
+    prev = t.sp[0]
+    for _ in range(50):
+        t.step(10)
+        assert prev - t.sp[0] <= 10.0 + 1e-9
+        prev = t.sp[0]
+    assert t.sp[0] == 100.0
+
+
+def test_excludes_sees_queued_and_active_targets():
+    t = Traj(2, vmax=[100000, 100000])
+    t.set_point([0, 0])
+    t.push(1, 100, [100, 0])
+    t.push(2, 100, [300, 0])
+    assert t.excludes(0, 0, 200) and not t.excludes(0, 0, 300)
+    assert not t.excludes(1, 0, 0)
+    _run(t, 11)                                        # 1 done, 2 active
+    assert t.active_id == 2 and t.excludes(0, 0, 200)
+    _run(t, 20)
+    assert not t.busy() and not t.excludes(0, 0, 200)

@@ -1,0 +1,377 @@
+"""The common link layer of a MicroPython board: BoardLink(hal, cfg, board).
+
+Everything a board does for the protocol (docs/protocol.md), whatever it
+drives: the line reader and the e-stop byte, decode with the link epoch, the
+session rules (session.py), the common verbs (HELLO LIM HOLD RESUME CLR RATE
+WDOG STAT PING), the states and their latches, persisted across resets, the
+watchdog, telemetry pacing, events, and the control period's schedule. A board
+(firmware/esp32/arm.py; the MASR actuator next) adds its own verbs and its
+control tick through the small interface below, and reuses this file unchanged.
+
+The board object gives the link:
+  n, qsize                  joint count (argument checks, HELLO), queue slots
+  lim                       [[min, max, vmax], ...] per joint now in force (LIM)
+  verbs                     {verb: handler(values) -> payload list}: its own
+                            verbs, arguments already checked by
+                            proto.parse_command; a handler refuses by raising
+                            proto.ProtocolError
+  motion_verbs              those of its verbs refused LATCHED while latched
+  free() -> int             free queue slots (every OK carries it)
+  busy() -> bool            motion queued or under way (RUN vs IDLE)
+  halt()                    drop all motion (queue, active move, hold); the set
+                            point stays where it is
+  hold_here()               halt(), then set point := measured position and
+                            controllers reset: stops where the arm is, moves
+                            nothing
+  set_hold(on)              freeze / release motion (HOLD, RESUME)
+  control(mode)             one control period: OFF (read sensors, write no
+                            output), ZERO (write zero effort), DRIVE (advance the
+                            motion, run the loops, check faults)
+  telemetry() -> list       its fields of a T line, after `ms state done free`
+
+and calls back:
+  link.event(kind, args)    an event: sent after the reply of the command that
+                            caused it, at once otherwise
+  link.completed(wid)       a waypoint completed (the last one of a tick): the
+                            done id, persisted, and event `DONE wid free`
+  link.fault(args, reason)  latch FAULT: outputs off, event `FAULT args...`;
+                            `reason` (one token) is kept for STAT and persisted
+  link.queued               set by the board to the id of its last accepted move
+  link.ms()                 board time in ms
+
+Rules the link keeps for every board:
+  * after any boot the outputs stay off until a HELLO is accepted, and while a
+    latch that the board booted with holds, until CLR;
+  * ESTOP, WDOG and FAULT latch, survive a reset (persisted) and refuse motion;
+    only CLR releases them, never a HELLO;
+  * the watchdog (RUN/HOLD only) is fed only by lines answered OK;
+  * the persist record is `AB2 session epoch hello_seq done latch reason`;
+    anything else reads as power on.
+"""
+
+try:
+    from micropython import const
+except ImportError:
+    def const(x):  # type: ignore[no-redef,misc]
+        return x
+
+import proto
+import protodef as P
+import session as sess
+
+IDLE = "IDLE"
+RUN = "RUN"
+HOLD = "HOLD"
+ESTOP = "ESTOP"
+WDOG = "WDOG"
+FAULT = "FAULT"
+LATCHED_STATES = P.LATCHED_STATES
+
+# control(mode)
+OFF = const(0)
+ZERO = const(1)
+DRIVE = const(2)
+
+TICKS_MASK = P.TICKS_PERIOD - 1   # ticks_ms wraps at 2**30, so do board times
+_PERSIST_TAG = "AB2"
+
+
+def wid(x: int):
+    """A waypoint id for a line: "-" when there is none (-1)."""
+    return "-" if x < 0 else x
+
+
+def _int_or_none(s: str) -> int:
+    return -1 if s == "-" else int(s)
+
+
+def parse_persist(data):
+    """The persist record -> (session, epoch, hello_seq, done, latch, reason),
+    or None when it is not a valid AB2 record (power on)."""
+    try:
+        parts = bytes(data).decode().split()
+        if len(parts) != 7 or parts[0] != _PERSIST_TAG:
+            return None
+        sid = int(parts[1])
+        epoch = int(parts[2])
+        hseq = _int_or_none(parts[3])
+        done = _int_or_none(parts[4])
+        latch = parts[5]
+    except Exception:
+        return None
+    if not (0 <= sid < P.SEQ_MOD and 0 <= epoch <= P.EPOCH_MAX
+            and -1 <= hseq < P.SEQ_MOD and -1 <= done < P.SEQ_MOD):
+        return None
+    if latch != "-" and latch not in LATCHED_STATES:
+        return None
+    return sid, epoch, hseq, done, latch, parts[6]
+
+
+class BoardLink:
+    def __init__(self, hal, cfg, board) -> None:
+        self.hal = hal
+        self.cfg = cfg
+        self.board = board
+        self.period_ms = cfg.PERIOD_MS
+        self.rate = cfg.TELEMETRY_HZ
+        self.wdog_ms = cfg.WDOG_MS
+        self.reader = proto.LineReader(P.MAX_HOST_LINE)
+        rec = parse_persist(hal.load_persist())
+        if rec is None:
+            rec = (0, 0, -1, -1, "-", "-")
+        self.session = sess.Session(rec[0], rec[1], rec[2])
+        self.done = rec[3]
+        self.state = IDLE if rec[4] == "-" else rec[4]
+        self.reason = rec[5]              # latch reason for STAT ("-": none given)
+        self.queued = -1                  # id of the last accepted move, -1: none
+        self.outputs_allowed = False      # a HELLO accepted since boot (and CLR if booted latched)
+        self._events: list = []
+        self._in_command = False
+        self._telem_acc = 0
+        self._verbs = {
+            "HELLO": None, "LIM": self._cmd_lim, "HOLD": self._cmd_hold,
+            "RESUME": self._cmd_resume, "CLR": self._cmd_clr, "RATE": self._cmd_rate,
+            "WDOG": self._cmd_wdog, "STAT": self._cmd_stat, "PING": self._cmd_ping,
+        }
+        for verb in board.verbs:
+            self._verbs[verb] = board.verbs[verb]
+        self._motion = ("HOLD", "RESUME") + tuple(board.motion_verbs)
+        now = hal.ticks_ms()
+        self.last_ok = now
+        self.next_tick = now
+        hal.outputs_off()
+        board.hold_here()
+        # The lone LF ends any line a reset cut short, so BOOT always decodes.
+        hal.uart_write(b"\n")
+        self._send(self.session.boot(cfg.FW_NAME, cfg.FW_VERSION, self.state))
+
+    # ------------------------------------------------------------ main loop
+
+    def poll(self) -> bool:
+        """UART bytes in, lines handled, control period if due. -> True if bytes came."""
+        data = self.hal.uart_read()
+        if data:
+            for item in self.reader.feed(data):
+                kind = item[0]
+                if kind == "estop":
+                    self.estop()
+                elif kind == "error":
+                    self._send(self.session.er("-", item[1]))
+                else:
+                    self._on_line(item[1])
+        now = self.hal.ticks_ms()
+        late = self.hal.ticks_diff(now, self.next_tick)
+        if late >= 0:
+            if late >= self.period_ms:   # too late: resync, no burst of ticks
+                self.next_tick = (now + self.period_ms) & TICKS_MASK
+            else:
+                self.next_tick = (self.next_tick + self.period_ms) & TICKS_MASK
+            self.tick()
+        return bool(data)
+
+    def tick(self) -> None:
+        """One control period: watchdog, the board's control, telemetry."""
+        now = self.hal.ticks_ms()
+        state = self.state
+        if state in (RUN, HOLD) and self.hal.ticks_diff(now, self.last_ok) >= self.wdog_ms:
+            self.board.halt()
+            self._latch(WDOG, "-")
+            self._send(self.session.ev(self.ms(), WDOG))
+            state = WDOG
+        if not self.outputs_allowed or state == ESTOP or state == FAULT:
+            self.board.control(OFF)
+        elif state == WDOG:
+            self.board.control(ZERO)
+        else:
+            self.board.control(DRIVE)
+            if self.state == RUN and not self.board.busy():
+                self.state = IDLE
+        self._telemetry(now)
+
+    def estop(self) -> None:
+        """E-stop byte: outputs off, motion dropped, ESTOP latched, at once."""
+        self.hal.outputs_off()
+        self.board.halt()
+        self._latch(ESTOP, "-")
+        self._send(self.session.ev(self.ms(), ESTOP))
+
+    # ------------------------------------------------------------ board callbacks
+
+    def ms(self) -> int:
+        return self.hal.ticks_ms() & TICKS_MASK
+
+    def event(self, kind: str, args=()) -> None:
+        if self._in_command:
+            self._events.append((kind, list(args)))
+        else:
+            self._send(self.session.ev(self.ms(), kind, args))
+
+    def completed(self, w: int) -> None:
+        self.done = w
+        self._save()
+        self._send(self.session.ev(self.ms(), "DONE", [w, self.board.free()]))
+
+    def fault(self, args, reason: str) -> None:
+        self.hal.outputs_off()
+        self.board.halt()
+        self._latch(FAULT, reason)
+        self._send(self.session.ev(self.ms(), FAULT, args))
+
+    # ------------------------------------------------------------ lines
+
+    def _on_line(self, raw) -> None:
+        s = self.session
+        try:
+            seq, verb, args = proto.decode(raw, P.MAX_HOST_LINE, s.epoch)
+        except proto.ProtocolError as e:
+            self._send(s.er("-", e.code))
+            return
+        self._in_command = True
+        if verb == "HELLO":
+            kind, fields = self._hello(seq, args)
+        else:
+            what = s.classify(seq, verb)
+            if what == sess.EXEC:
+                kind, fields = self._execute(seq, verb, args)
+                s.record(seq, kind, fields)
+            elif what == sess.REPLAY:
+                kind, fields = s.replay(seq)
+            elif what == sess.FRESH:
+                kind, fields = self._execute(seq, verb, args)
+            elif what == sess.NOSESSION:
+                kind, fields = "ER", [seq, P.NOSESSION, "NOSESSION"]
+            else:
+                kind, fields = "ER", [seq, P.SEQ, "SEQ", s.expect]
+        self._in_command = False
+        if kind == "OK":                  # only a line answered OK feeds the watchdog
+            self.last_ok = self.hal.ticks_ms()
+        self._send(s.line(kind, fields))
+        for ev in self._events:
+            self._send(s.ev(self.ms(), ev[0], ev[1]))
+        self._events = []
+
+    def _execute(self, seq: int, verb: str, args):
+        """Runs one command -> its answer (kind, fields) without the board seq."""
+        try:
+            values = proto.parse_command(verb, args, self.board.n)
+            handler = self._verbs.get(verb)
+            if handler is None:
+                raise proto.ProtocolError(P.VERB)
+            if verb in self._motion and self.state in LATCHED_STATES:
+                raise proto.ProtocolError(P.LATCHED)
+            payload = handler(values)
+        except proto.ProtocolError as e:
+            return "ER", _er_fields(seq, e)
+        if self.state == IDLE and self.board.busy():
+            self.state = RUN
+        return "OK", [seq, self.board.free()] + payload
+
+    def _hello(self, seq: int, args):
+        """HELLO proto session epoch: the session rules of session.py."""
+        s = self.session
+        try:
+            v = proto.parse_command("HELLO", args, self.board.n)
+        except proto.ProtocolError as e:
+            return "ER", _er_fields(seq, e)
+        what = s.classify(seq, "HELLO", v)
+        if what == sess.BADPROTO:
+            return "ER", [seq, P.PROTO, "PROTO", P.PROTOCOL_VERSION]
+        if what == sess.STALE:
+            return "ER", [seq, P.STALE, "STALE", s.epoch]
+        if what != sess.FRESH:            # NEW or RESYNC
+            if what == sess.NEW:
+                self.done = -1
+                self.queued = -1
+                self.board.hold_here()
+                if self.state in (RUN, HOLD):
+                    self.state = IDLE
+            s.accept(seq, v[1], v[2])
+            if not self.outputs_allowed and self.state not in LATCHED_STATES:
+                self.outputs_allowed = True
+                self.board.hold_here()
+            self._save()
+        c = self.cfg
+        b = self.board
+        return "OK", [seq, b.free(), c.FW_NAME, c.FW_VERSION, P.PROTOCOL_VERSION, b.n,
+                      b.qsize, self.rate, self.wdog_ms, wid(self.done), wid(self.queued),
+                      self.state]
+
+    # ------------------------------------------------------------ common verbs
+
+    def _cmd_lim(self, v: list) -> list:
+        return [v[0]] + self.board.lim[v[0] - 1]
+
+    def _cmd_hold(self, v: list) -> list:
+        if self.state != HOLD:
+            self.state = HOLD
+            self.board.set_hold(True)
+            self.event("HOLD")
+        return []
+
+    def _cmd_resume(self, v: list) -> list:
+        if self.state == HOLD:
+            self.board.set_hold(False)
+            self.state = RUN if self.board.busy() else IDLE
+            self.event("RESUME")
+        return []
+
+    def _cmd_clr(self, v: list) -> list:
+        if self.state in LATCHED_STATES:
+            self.board.hold_here()
+            self.outputs_allowed = True
+            self._latch(IDLE, "-")
+            self.event("CLEAR")
+        return []
+
+    def _cmd_rate(self, v: list) -> list:
+        self.rate = v[0]
+        self._telem_acc = 0
+        return []
+
+    def _cmd_wdog(self, v: list) -> list:
+        self.wdog_ms = v[0]
+        return []
+
+    def _cmd_stat(self, v: list) -> list:
+        return [self.state, wid(self.done), wid(self.queued), self.ms(),
+                self.reason if self.state in LATCHED_STATES else "-"]
+
+    def _cmd_ping(self, v: list) -> list:
+        return [self.ms()]
+
+    # ------------------------------------------------------------ state, output
+
+    def _latch(self, state: str, reason: str) -> None:
+        """Enters (or, with IDLE, leaves) a latched state and persists it."""
+        self.state = state
+        self.reason = reason
+        self._save()
+
+    def _telemetry(self, now: int) -> None:
+        if self.rate <= 0:
+            return
+        self._telem_acc += self.rate * self.period_ms
+        if self._telem_acc < 1000:
+            return
+        self._telem_acc -= 1000
+        if self._telem_acc >= 1000:
+            self._telem_acc = 0
+        fields = [now & TICKS_MASK, self.state, wid(self.done), self.board.free()]
+        self._send(self.session.line("T", fields + self.board.telemetry()))
+
+    def _send(self, data: bytes) -> None:
+        self.hal.uart_write(data)
+
+    def _save(self) -> None:
+        s = self.session
+        latch = self.state if self.state in LATCHED_STATES else "-"
+        text = "%s %d %d %s %s %s %s" % (_PERSIST_TAG, s.session, s.epoch, wid(s.hello_seq),
+                                         wid(self.done), latch, self.reason)
+        self.hal.save_persist(text.encode())
+
+
+def _er_fields(seq: int, e) -> list:
+    fields = [seq, e.code, e.name]
+    if e.detail:
+        fields.append(e.detail)
+    return fields
