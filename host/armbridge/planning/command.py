@@ -9,23 +9,21 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from armbridge import resources
 from armbridge.errors import ArmbridgeError
 
 plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
                        add_completion=False, pretty_exceptions_enable=False)
 
-#: Where shipped models live (repository root / models / onnx).
-MODELS_DIR = Path(__file__).resolve().parents[3] / "models" / "onnx"
-
 
 def shipped_ik_card(arm_name: str = "masr5", models_dir: Path | None = None) -> Optional[Path]:
-    """The shipped IK-NN model card for arm_name in models/onnx, or None.
+    """The shipped IK-NN model card for arm_name (in resources.models_dir()), or None.
 
     Prefers <arm>-iknn.json, then <arm>-iknn-card.json, then any
     <arm>-iknn*.json card trained with the action-time regulariser (12)
     (card training.reg == "action"), then any card.
     """
-    d = models_dir or MODELS_DIR
+    d = models_dir or resources.models_dir()
     for name in (f"{arm_name}-iknn.json", f"{arm_name}-iknn-card.json"):
         if (d / name).is_file():
             return d / name
@@ -54,7 +52,7 @@ def resolve_goal_ik(env: Any, ik: str = "auto") -> tuple[Callable, str]:
     card = shipped_ik_card(env.arm.name) if ik == "auto" else Path(ik)
     if card is None:
         return (dls_ik.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi),
-                f"dls (no shipped IK-NN model card {MODELS_DIR}/{env.arm.name}-iknn*.json)")
+                f"dls (no shipped IK-NN model card {resources.models_dir()}/{env.arm.name}-iknn*.json)")
     if not card.is_file():
         raise ArmbridgeError(f"{card}: no such IK-NN model card")
     from armbridge.ik.masr_ik import MasrIK
