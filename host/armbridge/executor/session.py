@@ -15,7 +15,8 @@ here, so they share one safety policy for a board that is latched from before
 The port is opened with `armbridge.link.transport.open_port` and always closed
 on the way out (which also stops an in-process emulator). Time: when the port
 has a `clock` attribute (a callable giving seconds, e.g. an emulator running K
-times faster than the wall clock), the client's timers run on it.
+times faster than the wall clock), the client's timers run on it (BoardClient
+takes it from the port).
 """
 from __future__ import annotations
 
@@ -64,12 +65,8 @@ def open_session(port: str, robot, *, latched: str = "refuse", rate_hz: int | No
 
     link = open_port(port)
     try:
-        kw = {}
-        clock = getattr(link, "clock", None)
-        if callable(clock):
-            kw["clock"] = clock
         client = BoardClient(link, robot, session, on_telemetry=on_telemetry, on_event=on_event,
-                             on_error=on_error, connect_timeout=connect_timeout, **kw)
+                             on_error=on_error, connect_timeout=connect_timeout)
         client.connect()
         apply_latch_policy(client, latched)
         if rate_hz is not None:

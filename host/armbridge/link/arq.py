@@ -1,0 +1,527 @@
+"""The host's session layer of protocol v2 (docs/protocol.md): reliable commands
+over a lossy byte link, with no knowledge of robots or plans.
+
+`Arq(port, clock=...)` numbers commands, keeps them until answered, retransmits,
+matches answers, counts credits and line statistics, and keeps the link alive.
+It is synchronous: `loop_once()` reads what has arrived (a short wait on the
+port), dispatches board lines, and sends what is due. OK and ER lines are its
+own; T, EV and BOOT lines go up to `on_line`. Every timer runs on `clock`
+(seconds): for an emulator running K times faster than the wall clock, a clock
+that does too; the port's read timeout (READ_WAIT_S, wall) only bounds a wait.
+
+Reliability:
+
+* Every command carries a seq = its command number mod 65536; an answer (OK
+  or ER) ends its life. Unanswered commands stay in a list in seq order and
+  are sent again when
+  (a) their retransmission timer runs out: go-back-N from it. The RTO starts
+      at 4 x (command line + answer) time + 50 ms and then follows the measured
+      answer times (Jacobson/Karels; Karn: no samples from retransmitted lines);
+  (b) the board answers `ER SEQ E`: go-back-N from E, unless a retransmission
+      of E is already on its way (answers to lines sent before it are stale);
+  (c) the board reports a framing error (CRC/PARSE/LONG with seq `-`): the
+      timers of the lines that have reached the board are cut to the time an
+      answer needs (fast retransmit);
+  (d) a later command is answered while an earlier one is not: its answer was
+      lost; it is sent again and the board replays the answer from its ring
+      without executing it a second time.
+* Window: at most `cwnd` commands unanswered, `cwnd` <= MAX_WINDOW (below the
+  board's 32-entry replay ring). A lost line halves it (not below MIN_WINDOW),
+  each answer grows it by 1/cwnd.
+* Credits: at most FREE waypoints (W lines) unacknowledged, FREE from the OK
+  with the newest seq; a T or EV DONE line refreshes it (`idle_credit`) only
+  when nothing is unanswered.
+* Epochs: the HELLO that opens a session or a resync carries a new epoch, and
+  every later line is framed with it (its CRC starts from the epoch), so a
+  copy of a line from an earlier epoch fails its CRC on the board, however
+  late it arrives. Within an epoch no seq may repeat: after
+  `max_epoch_commands` (32768) commands the layer issues nothing more, and once
+  everything is answered asks for a new epoch (`need_resync = RENEWAL`).
+* Keep-alive: PING when nothing was sent for `keepalive` s (the upper layer
+  sets it to a quarter of the board's watchdog, at most 250 ms).
+* Resync requests (`need_resync`, a reason): a BOOT line, a NOSESSION error,
+  silence, a board expecting a seq that is not in flight, a full epoch. The
+  handshake (executor/handshake.py) acts on them.
+"""
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from armbridge.errors import ArmbridgeError
+from armbridge.link import protocol as P
+
+READ_WAIT_S = 0.005  # the port's read timeout (wall clock): the longest one wait for a byte
+MAX_WINDOW = 24  # unanswered commands at most: the board's replay ring holds 32
+# Smallest window after losses. Losses on a serial line are noise, not
+# congestion: a few lines in flight keep loss detection fast (the next line's
+# ER SEQ or answer reveals a lost line or a lost answer) while a go-back resends
+# little. Measured on the emulator at 1% drop+corrupt+dup per byte: windows of
+# 1/2/4/8 ran a 200-waypoint plan in 10.2/7.5/4.7/5.1 s.
+MIN_WINDOW = 4
+RENEWAL = "a new epoch before seqs repeat"  # need_resync reason of a full epoch: routine, not a fault
+_V1_FRAME = re.compile(rb"[\x20-\x7e]*\*[0-9A-F]{4}\r?\n?")  # a protocol 1 line (CRC-16)
+
+
+@dataclass
+class LinkStats:
+    """What happened on the link during a session."""
+
+    lines_sent: int = 0  # every line written, retransmissions included
+    commands: int = 0  # distinct commands (seqs) issued
+    retransmissions: int = 0  # lines written again (any verb)
+    waypoints_sent: int = 0  # distinct waypoints sent at least once
+    waypoint_lines: int = 0  # W lines written, retransmissions and resends included
+    waypoints_acked: int = 0  # distinct waypoints answered OK
+    timeouts: int = 0  # retransmission timer expiries
+    seq_errors: int = 0  # ER SEQ answers
+    board_framing_errors: int = 0  # ER - CRC/PARSE/LONG from the board (our lines damaged)
+    host_line_errors: int = 0  # board lines the host could not decode (their lines damaged)
+    v1_lines: int = 0  # of those, lines framed as protocol 1 (CRC-16): an old firmware
+    board_lines_lost: int = 0  # gaps in the board's line counter
+    nosession: int = 0
+    resyncs: int = 0  # resyncs after a fault (BOOT, NOSESSION, silence, confusion)
+    epochs: int = 0  # epochs opened (HELLOs accepted), renewals included
+    epoch_renewals: int = 0  # routine new epochs before seqs would repeat
+    boots: int = 0
+    pings: int = 0
+    slow_events: int = 0
+    window_cuts: int = 0  # congestion window halvings (lines lost on the way to the board)
+
+    @property
+    def waypoints_retransmitted(self) -> int:
+        return self.waypoint_lines - self.waypoints_sent
+
+    @property
+    def line_errors(self) -> int:
+        return self.board_framing_errors + self.host_line_errors
+
+
+class Cmd:
+    """One command, from issue to answer."""
+
+    __slots__ = ("n", "seq", "verb", "args", "data", "wp", "tx", "last_tx", "arrive_at", "order", "deadline",
+                 "answer", "keep", "due")
+
+    def __init__(self, n: int, verb: str, args: tuple, epoch: int, wp: int | None = None, keep: bool = False):
+        self.n = n  # position in the host's own unbounded command count
+        self.seq = n % P.SEQ_MOD
+        self.verb = verb
+        self.args = args
+        self.data = P.encode(self.seq, verb, *args, epoch=epoch)  # HELLO: framed with epoch 0 by the codec
+        self.wp = wp  # W: the waypoint's key, unique in the session (counted once in LinkStats)
+        self.tx = 0
+        self.last_tx = 0.0
+        self.arrive_at = 0.0  # when the board should have the latest transmission
+        self.keep = keep  # keep the answer for the caller (answer_of)
+        self.due = True  # to be (re)transmitted when the window allows
+        self.order = 0  # transmission order of the latest transmission
+        self.deadline = math.inf
+        self.answer: P.Ok | P.Er | None = None
+
+
+class Arq:
+    """Reliable, numbered commands to one board over `port` (read(n), write(b), in_waiting)."""
+
+    def __init__(
+        self,
+        port,
+        *,
+        clock: Callable[[], float],
+        baud: int | None = None,
+        on_line: Callable[[object], None] | None = None,
+        on_note: Callable[[str], None] | None = None,
+        silence_timeout: float | None = None,
+        max_epoch_commands: int = P.MAX_EPOCH_COMMANDS,
+    ) -> None:
+        if not 2 <= max_epoch_commands <= P.MAX_EPOCH_COMMANDS:
+            raise ValueError(f"max_epoch_commands {max_epoch_commands} outside 2..{P.MAX_EPOCH_COMMANDS}")
+        self.port = port
+        if hasattr(port, "timeout"):
+            port.timeout = READ_WAIT_S
+        self.now = clock
+        self.on_line = on_line
+        self.on_note = on_note
+        self.max_epoch_commands = max_epoch_commands
+        baud = baud or int(getattr(port, "baudrate", 0) or getattr(port, "baud", 0) or 115200)
+        self.byte_time = 10.0 / baud  # clock seconds per byte (8N1)
+        # Retransmission timeout, counted from when a line should have reached
+        # the board: 4 x the time of a command line and its answer + 50 ms to
+        # start with, then adapted to the measured answer times, never below the
+        # time an answer needs when it queues behind a telemetry line.
+        line_pair = (P.MAX_HOST_LINE + 40) * self.byte_time
+        self.rto_initial = 4 * line_pair + 0.050
+        self.rto_min = (P.MAX_BOARD_LINE + P.MAX_HOST_LINE) * self.byte_time + 0.002
+        self.rto = self.rto_initial
+        self.rto_max = 0.5  # s: the longest back-off (a board that is rebooting)
+        self._backoff = 1.0  # doubles on a timeout while the board is silent, 1 again on any answer
+        self._srtt: float | None = None
+        self._rttvar = 0.0
+        # From a line reaching the board to its answer reaching us: the answer
+        # may queue behind a telemetry line, plus the board's poll.
+        self.answer_time = 2 * P.MAX_BOARD_LINE * self.byte_time + 0.010
+        self.silence_timeout = silence_timeout if silence_timeout is not None else max(1.0, 10 * self.rto_initial)
+        self.keepalive = 0.25
+        self.stats = LinkStats()
+        self.live = False  # a session is open: keep-alive and silence detection run
+        self.need_resync: str | None = None  # why the session must be resynchronised
+        self.epoch = 0  # the epoch every non-HELLO line is framed with
+        self.out: list[Cmd] = []  # unanswered commands, in seq order
+        self.refused: list[tuple[Cmd, P.Er]] = []  # ER answers of commands nobody waits for
+
+        self._splitter = P.LineSplitter(P.MAX_BOARD_LINE)
+        self._n = 1  # next command number
+        self._epoch_n = 1  # command number of the HELLO that opened the epoch
+        self._tx_order = 0
+        self._lane_free = 0.0  # when the bytes written so far have reached the board (estimate)
+        self.cwnd = float(MAX_WINDOW)
+        self._last_cut = -math.inf
+        self._last_send = -math.inf
+        self.last_rx = self.now()  # latest valid board line
+        self._last_bytes = self.last_rx  # latest byte of any kind from the board
+        self._bseq: int | None = None
+        self._credit_n = 0  # command number of the newest OK
+        self._credit = 0  # FREE of that OK
+        self._w_sent_n: list[int] = []  # command numbers of W lines after _credit_n
+        self._answers: dict[int, P.Ok | P.Er] = {}  # answers of keep commands
+        self._sent_wp: set[int] = set()  # waypoint keys sent / answered OK at least once
+        self._acked_wp: set[int] = set()
+
+    # ------------------------------------------------------------------ byte I/O
+    def write(self, data: bytes) -> None:
+        try:
+            self.port.write(data)
+        except OSError as exc:  # serial.SerialException is an OSError
+            raise ArmbridgeError(f"cannot write to the port: {exc}") from None
+
+    def _read_some(self, timeout: float) -> bytes:
+        """Whatever has arrived, waiting at most about `timeout` for the first byte
+        (the port's own short read timeout bounds the wait)."""
+        port = self.port
+        try:
+            n = port.in_waiting
+            if n:
+                return port.read(n)
+            if timeout <= 0:
+                return b""
+            data = port.read(1)
+            if data:
+                n = port.in_waiting
+                if n:
+                    data += port.read(n)
+            return data
+        except OSError as exc:  # serial.SerialException is an OSError
+            raise ArmbridgeError(f"cannot read from the port: {exc}") from None
+
+    def note(self, text: str) -> None:
+        if self.on_note is not None:
+            self.on_note(text)
+
+    # ------------------------------------------------------------------ epochs
+    def epoch_left(self) -> int:
+        """Commands that may still be issued in this epoch."""
+        return self._epoch_n + self.max_epoch_commands - self._n
+
+    def can_issue(self) -> bool:
+        return self.need_resync is None and self.epoch_left() > 0
+
+    def new_hello(self, proto: int, session: int, epoch: int) -> Cmd:
+        """A HELLO attempt (framed with epoch 0); everything unanswered is dropped:
+        after the HELLO the board's reply says where things stand."""
+        self.out.clear()
+        self._w_sent_n = []
+        cmd = Cmd(self._n, "HELLO", (proto, session, epoch), 0, keep=True)
+        self._n += 1
+        self.stats.commands += 1
+        self.out.append(cmd)
+        return cmd
+
+    def send_hello(self, cmd: Cmd) -> None:
+        """Transmit a HELLO; it is paced by the handshake, not by the RTO."""
+        self._transmit(cmd)
+        cmd.deadline = math.inf
+
+    def open_epoch(self, hello: Cmd, ok: P.Ok) -> None:
+        """The board accepted `hello`: its epoch frames every later line."""
+        self.epoch = int(hello.args[2])
+        self._epoch_n = hello.n
+        self.out.clear()
+        self._answers.clear()
+        self._credit_n = hello.n
+        self._credit = ok.free
+        self._w_sent_n = []
+        self.last_rx = self.now()
+        self.need_resync = None
+        self.stats.epochs += 1
+
+    def abandon(self) -> None:
+        """Forget every unanswered command (a HELLO that failed)."""
+        self.out.clear()
+
+    # ------------------------------------------------------------------ sending
+    def issue(self, verb: str, *args, wp: int | None = None, keep: bool = False) -> Cmd:
+        """A new command, sent as soon as the window allows."""
+        if self.epoch_left() <= 0:
+            raise RuntimeError("the epoch is full: open a new one (resync) before issuing")
+        cmd = Cmd(self._n, verb, args, self.epoch, wp, keep)
+        self._n += 1
+        self.stats.commands += 1
+        self.out.append(cmd)
+        if wp is not None:
+            self._w_sent_n.append(cmd.n)
+        self._send_due()
+        return cmd
+
+    def answer_of(self, cmd: Cmd) -> P.Ok | P.Er | None:
+        """The answer of a `keep` command, once (None while unanswered)."""
+        return self._answers.pop(cmd.n, None)
+
+    def _send_due(self) -> None:
+        """Transmit due commands, oldest first, while the window has room."""
+        window = max(1, int(self.cwnd))
+        inflight = sum(1 for c in self.out if not c.due)
+        for cmd in self.out:
+            if inflight >= window:
+                return
+            if cmd.due:
+                self._transmit(cmd)
+                inflight += 1
+
+    def _loss(self) -> None:
+        """A line was lost on the way to the board: halve the window (once per round trip)."""
+        now = self.now()
+        if now - self._last_cut > self.answer_time:
+            self._last_cut = now
+            self.cwnd = max(float(MIN_WINDOW), self.cwnd / 2)
+            self.stats.window_cuts += 1
+
+    def _transmit(self, cmd: Cmd) -> None:
+        now = self.now()
+        st = self.stats
+        if cmd.tx:
+            st.retransmissions += 1
+        cmd.tx += 1
+        cmd.due = False
+        self._tx_order += 1
+        cmd.order = self._tx_order
+        cmd.last_tx = now
+        self._lane_free = max(now, self._lane_free) + len(cmd.data) * self.byte_time
+        cmd.arrive_at = self._lane_free
+        cmd.deadline = cmd.arrive_at + min(self.rto_max, self.rto * self._backoff)
+        st.lines_sent += 1
+        if cmd.wp is not None:
+            st.waypoint_lines += 1
+            if cmd.wp not in self._sent_wp:  # a waypoint resent after a resync is a new command
+                self._sent_wp.add(cmd.wp)
+                st.waypoints_sent += 1
+        self._last_send = now
+        self.write(cmd.data)
+
+    def _retransmit_from(self, first: Cmd) -> None:
+        """Go-back-N: send `first` and every later unanswered command again, in order."""
+        go = False
+        for cmd in self.out:
+            go = go or cmd is first
+            if go:
+                cmd.due = True
+        self._loss()
+        self._send_due()
+
+    def _find(self, seq: int) -> Cmd | None:
+        for cmd in self.out:
+            if cmd.seq == seq:
+                return cmd
+        return None
+
+    # ------------------------------------------------------------------ credits
+    def credit_left(self) -> int:
+        """Waypoints the board's queue can still take."""
+        return self._credit - len(self._w_sent_n)
+
+    def idle_credit(self, free: int) -> None:
+        """FREE from a T or EV DONE line: trusted only when nothing is unanswered
+        (otherwise an OK in flight may already count a W this line does not)."""
+        if not self.out:
+            self._credit_n = self._n - 1
+            self._credit = free
+            self._w_sent_n = []
+
+    # ------------------------------------------------------------------ receiving
+    def pump(self, timeout: float) -> None:
+        """Read what arrives within `timeout` and dispatch every complete line."""
+        data = self._read_some(timeout)
+        if not data:
+            return
+        self._last_bytes = self.now()
+        st = self.stats
+        for item in self._splitter.feed(data):
+            if isinstance(item, P.ProtocolError):
+                st.host_line_errors += 1
+                self.note(f"board line dropped: {item}")
+                continue
+            if item in (b"\n", b"\r\n"):
+                continue  # an empty line (the board starts its BOOT with one): not an error
+            try:
+                line = P.decode(item)  # board lines: epoch 0
+                msg = P.parse_board_line(line)
+            except P.ProtocolError as exc:
+                st.host_line_errors += 1
+                if _V1_FRAME.fullmatch(item):
+                    st.v1_lines += 1
+                self.note(f"board line dropped: {exc}")
+                continue
+            self.last_rx = self.now()
+            if self._bseq is not None:
+                gap = (line.seq - self._bseq - 1) % P.SEQ_MOD
+                if 0 < gap < 1000 and not isinstance(msg, P.Boot):
+                    st.board_lines_lost += gap
+            self._bseq = line.seq
+            if isinstance(msg, P.Ok):
+                self._on_answer(msg)
+            elif isinstance(msg, P.Er):
+                self._on_er(msg)
+            else:
+                if isinstance(msg, P.Boot):
+                    st.boots += 1
+                    if self.live and self.need_resync is None:
+                        self.need_resync = "the board reset (BOOT)"
+                if self.on_line is not None:
+                    self.on_line(msg)
+
+    def _rtt_sample(self, cmd: Cmd) -> None:
+        if cmd.tx != 1:
+            return  # Karn: an answer to a retransmitted line cannot be timed
+        sample = max(0.0, self.now() - cmd.arrive_at)
+        if self._srtt is None:
+            self._srtt, self._rttvar = sample, sample / 2
+        else:
+            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - sample)
+            self._srtt = 0.875 * self._srtt + 0.125 * sample
+        self.rto = min(self.rto_initial, max(self.rto_min, self._srtt + 4 * self._rttvar))
+
+    def _on_answer(self, ok: P.Ok) -> None:
+        cmd = self._find(ok.seq)
+        if cmd is None:
+            return  # a late duplicate of an answer we already have
+        self._rtt_sample(cmd)
+        self._settle(cmd, ok)
+        if cmd.n > self._credit_n:
+            self._credit_n = cmd.n
+            self._credit = ok.free
+            self._w_sent_n = [n for n in self._w_sent_n if n > cmd.n]
+        if cmd.wp is not None and cmd.wp not in self._acked_wp:
+            self._acked_wp.add(cmd.wp)
+            self.stats.waypoints_acked += 1
+        if cmd.tx == 1 or cmd.verb != "W":
+            self.cwnd = min(float(MAX_WINDOW), self.cwnd + 1.0 / self.cwnd)
+        self._lost_answers_before(cmd)
+
+    def _settle(self, cmd: Cmd, answer) -> None:
+        self._backoff = 1.0  # the board answers
+        cmd.answer = answer
+        self.out.remove(cmd)
+        if cmd.keep:
+            self._answers[cmd.n] = answer
+        elif isinstance(answer, P.Er):
+            self.refused.append((cmd, answer))
+
+    def _lost_answers_before(self, cmd: Cmd) -> None:
+        """Commands before `cmd` that were sent before it and are still unanswered
+        were executed (the board answers in order): their answers were lost. Ask
+        again; the board replays them."""
+        again = False
+        for other in self.out:
+            if other.n >= cmd.n:
+                break
+            if other.order < cmd.order and not other.due:
+                other.due = True
+                again = True
+        if again:
+            self._send_due()
+
+    def _on_er(self, er: P.Er) -> None:
+        if er.seq is None:  # framing error of one of our lines: its seq is unknown
+            self.stats.board_framing_errors += 1
+            self.note(f"board: our line arrived damaged ({er.code} {er.name})")
+            now = self.now()
+            for c in self.out:
+                if c.arrive_at <= now:
+                    c.deadline = min(c.deadline, now + self.answer_time)
+            return
+        cmd = self._find(er.seq)
+        if er.code == P.SEQ:
+            self.stats.seq_errors += 1
+            if cmd is not None:
+                self._on_seq_error(er)
+            return
+        if er.code == P.NOSESSION:
+            self.stats.nosession += 1
+            if self.live and self.need_resync is None:
+                self.need_resync = "the board has no session (NOSESSION)"
+            if cmd is not None and not self.live:
+                self._settle(cmd, er)
+            return
+        if cmd is None:
+            return
+        self._settle(cmd, er)
+        self._lost_answers_before(cmd)
+
+    def _on_seq_error(self, er: P.Er) -> None:
+        try:
+            expect = int(er.detail[0])
+        except (IndexError, ValueError):
+            return
+        first = self._find(expect)
+        if first is None:
+            if expect == self._n % P.SEQ_MOD or not self.out:
+                return  # the board expects our next new command: nothing is missing
+            # The board expects a command we do not have in flight: confusion; resync.
+            if self.need_resync is None:
+                self.need_resync = f"the board expects seq {expect}, which is not in flight"
+            return
+        if self.now() < first.arrive_at + self.answer_time:
+            return  # stale: a retransmission of `first` is on its way already
+        # Commands before `first` are executed; ask for their answers again.
+        self._lost_answers_before(first)
+        self._retransmit_from(first)
+
+    # ------------------------------------------------------------------ service
+    def service(self) -> None:
+        """Retransmission timers, due commands, keep-alive, silence and epoch renewal."""
+        self._send_due()
+        now = self.now()
+        try:
+            waiting = self.port.in_waiting
+        except OSError:
+            waiting = 0
+        for cmd in self.out if not waiting else ():  # read what has arrived before timing out
+            if not cmd.due and cmd.deadline <= now:
+                self.stats.timeouts += 1
+                if now - self._last_bytes > self.rto_initial:
+                    # Not a byte from the board (rebooting, unplugged): back off.
+                    # A noisy link that still delivers bytes keeps the plain RTO.
+                    self._backoff = min(self._backoff * 2, 64.0)
+                self.note(f"no answer to seq {cmd.seq} ({cmd.verb}) in {now - cmd.last_tx:.3f} s: "
+                          "resending from it")
+                self._retransmit_from(cmd)
+                break
+        if not self.live:
+            return
+        if not self.out and now - self._last_send > self.keepalive and self.can_issue():
+            self.stats.pings += 1
+            self.issue("PING")
+        if now - self.last_rx > self.silence_timeout and self.need_resync is None:
+            self.need_resync = f"the board was silent for {now - self.last_rx:.1f} s"
+        if self.epoch_left() <= 0 and not self.out and self.need_resync is None:
+            self.need_resync = RENEWAL
+
+    def loop_once(self, timeout: float = READ_WAIT_S) -> None:
+        """Wait for board lines (no longer than the nearest retransmission deadline),
+        dispatch them, then service the timers."""
+        if self.out:
+            nearest = min((c.deadline for c in self.out if not c.due), default=math.inf) - self.now()
+            timeout = max(0.0, min(timeout, nearest))
+        self.pump(timeout)
+        self.service()

@@ -1,0 +1,276 @@
+"""The session layer (link/arq.py, executor/handshake.py, executor/stream.py)
+against a scripted board (tests/session_peer.py) on a fake clock: lost lines,
+lost and held answers, epochs, STALE, PROTO, FAULT. No sleeping, no threads."""
+from __future__ import annotations
+
+import pytest
+
+from armbridge.errors import ArmbridgeError
+from armbridge.executor.client import BoardClient
+from armbridge.executor.stream import Stream
+from armbridge.link import protocol as P
+from armbridge.link.arq import MIN_WINDOW, Arq, Cmd
+from armbridge.robots import ARM3R
+from session_peer import FakeClock, Peer
+
+MID = [1571, -1571, 0]
+
+
+def plan(k: int, base=MID):
+    q = [[base[0] + 3 * i, base[1] - 2 * i, base[2] + (i % 7)] for i in range(k)]
+    return [20] * k, q
+
+
+def client_for(peer: Peer, robot=ARM3R, **kw) -> BoardClient:
+    c = BoardClient(peer, robot, session=kw.pop("session", 42), clock=peer.clock, **kw)
+    c.connect()
+    return c
+
+
+def test_a_clean_plan_runs_once_in_order_with_its_values():
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer)
+    durs, q = plan(40)
+    c.execute(durs, q)
+    assert peer.executed == [(i, tuple(q[i])) for i in range(40)]
+    s = c.stats
+    assert (s.waypoints_sent, s.waypoints_acked, s.retransmissions, s.resyncs) == (40, 40, 0, 0)
+    assert c.done_index == 39 and sorted(c.done_times) == list(range(40))
+    assert peer.epoch == 1 and c.arq.epoch == 1  # a fresh board: the first epoch
+
+
+def test_seq_is_the_command_number_mod_65536():
+    assert [Cmd(n, "PING", (), 1).seq for n in (1, 65535, 65536, 65537)] == [1, 65535, 0, 1]
+
+
+def test_every_line_after_hello_is_framed_with_the_epoch():
+    clock = FakeClock()
+    peer = Peer(clock)
+    peer.epoch = 6  # a board that saw epochs up to 6 of another session
+    sent = []
+    real = peer.write
+    peer.write = lambda data: (sent.append(data), real(data))[1]
+    c = client_for(peer)
+    c.command("PING")
+    assert c.arq.epoch == 7
+    hellos = [x for x in sent if b" HELLO " in x]
+    others = [x for x in sent if b" HELLO " not in x]
+    assert hellos and others
+    for line in hellos:
+        P.decode(line, P.MAX_HOST_LINE, epoch=12345)  # HELLO: always epoch 0, whatever the board's
+    for line in others:
+        P.decode(line, P.MAX_HOST_LINE, epoch=7)
+        with pytest.raises(P.ProtocolError) as err:
+            P.decode(line, P.MAX_HOST_LINE, epoch=6)
+        assert err.value.code == P.CRC
+
+
+def test_lost_lines_are_resent_go_back_n_and_run_once():
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer)
+    first = peer.lines_in
+    peer.drop_in = {first + 3, first + 4, first + 11, first + 30}  # W lines lost on the way
+    durs, q = plan(40)
+    c.execute(durs, q)
+    assert peer.executed == [(i, tuple(q[i])) for i in range(40)]
+    s = c.stats
+    assert s.retransmissions > 0 and (s.seq_errors > 0 or s.timeouts > 0)
+    assert s.waypoints_sent == 40 and s.waypoints_acked == 40 and s.waypoints_retransmitted > 0
+    assert s.window_cuts >= 1 and c.arq.cwnd >= MIN_WINDOW
+
+
+def test_lost_answers_are_replayed_not_executed_again():
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer)
+    first = peer.answers_out
+    peer.drop_out = {first + 2, first + 5, first + 6}
+    durs, q = plan(20)
+    c.execute(durs, q)
+    assert [wid for wid, _ in peer.executed] == list(range(20))
+    assert c.stats.retransmissions >= 1 and c.stats.waypoints_acked == 20
+
+
+def test_timeout_backs_off_and_karn_takes_no_sample_from_a_retransmission():
+    clock = FakeClock()
+    peer = Peer(clock)
+    peer.answer_delay = 0.02
+    c = client_for(peer, robot=None)
+    for _ in range(40):
+        c.command("PING")
+    arq = c.arq
+    assert arq._srtt == pytest.approx(0.02, abs=0.006)
+    assert arq.rto_min <= arq.rto <= arq.rto_initial
+    srtt = arq._srtt
+    peer.drop_in = {peer.lines_in}  # the next PING is lost once: its answer comes to the resend
+    c.command("PING")
+    assert c.stats.timeouts == 1 and c.stats.retransmissions == 1
+    assert arq._srtt == srtt  # Karn: no sample from the retransmitted line
+
+
+def test_credits_hold_the_stream_at_the_boards_queue_size():
+    clock = FakeClock()
+    peer = Peer(clock, qsize=4)
+    peer.auto_complete = False
+    c = client_for(peer)
+    durs, q = plan(10)
+    stream = Stream(durs, q)
+    c._stream = stream
+    for _ in range(20):
+        stream.fill(c.arq)
+        c.arq.loop_once()
+    assert len(peer.queue) == 4 and stream.next_wp == 4  # no FULL: the credit stopped it
+    peer.step()
+    for _ in range(20):
+        c.arq.loop_once()
+        stream.fill(c.arq)
+    assert stream.next_wp == 5 and len(peer.queue) == 4
+
+
+def test_a_new_epoch_before_seqs_would_repeat_mid_plan():
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer, max_epoch_commands=16)
+    durs, q = plan(100)
+    c.execute(durs, q)
+    assert peer.executed == [(i, tuple(q[i])) for i in range(100)]
+    s = c.stats
+    assert s.resyncs == 0 and s.epoch_renewals >= 100 // 16 and s.epochs == s.epoch_renewals + 1
+    assert c.arq.epoch == peer.epoch == s.epochs
+    per_epoch: dict[int, list[int]] = {}
+    for epoch, seq, verb in peer.seen:
+        per_epoch.setdefault(epoch, []).append(seq)
+    for epoch, seqs in per_epoch.items():
+        assert len(seqs) <= 16 and len(set(seqs)) == len(seqs), epoch  # the HELLO included
+
+
+def test_stale_epoch_second_client_with_the_same_session():
+    clock = FakeClock()
+    peer = Peer(clock)
+    a = client_for(peer, session=9)
+    for _ in range(3):
+        a.arq.need_resync = "test"
+        a._resync()
+    assert peer.epoch == 4
+    b = client_for(peer, session=9)  # a second run, same session: starts at epoch 1
+    assert b.arq.epoch == 5 and peer.epoch == 5
+    durs, q = plan(5)
+    b.execute(durs, q)
+    assert [wid for wid, _ in peer.executed] == list(range(5))
+    # The first client's lines are now from an old epoch: they fail the board's CRC.
+    before = len(peer.executed)
+    peer.write(P.encode(50, "W", 99, 20, *MID, epoch=4))
+    assert len(peer.executed) == before and b"ER - 2 CRC" in bytes(peer.rx)
+
+
+def test_a_held_hello_answer_does_not_rewind_the_board():
+    """A copy of the HELLO that opened the epoch, arriving late, is answered afresh
+    and changes nothing; an older one is STALE."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    sent = []
+    real = peer.write
+    peer.write = lambda data: (sent.append(data), real(data))[1]
+    c = client_for(peer)
+    durs, q = plan(10)
+    c.execute(durs, q)
+    expect = peer.expect
+    opening = [x for x in sent if b" HELLO " in x][-1]
+    peer.write(opening)
+    assert peer.expect == expect and bytes(peer.rx).count(b" OK ") >= 1
+    c.arq.need_resync = "test"
+    c._resync()
+    peer.rx.clear()
+    peer.write(opening)  # the previous epoch's HELLO
+    assert b" 11 STALE 2" in bytes(peer.rx)
+
+
+def test_protocol_mismatch_names_both_versions():
+    peer = Peer(FakeClock(), proto=3)
+    c = BoardClient(peer, ARM3R, session=1, clock=peer.clock)
+    with pytest.raises(ArmbridgeError, match="the board speaks protocol 3, this armbridge speaks protocol 2"):
+        c.connect()
+
+
+def test_a_protocol_1_board_is_named():
+    class V1(Peer):
+        def _handle(self, raw):  # a v1 board cannot parse v2 frames: ER - PARSE, framed with CRC-16
+            self.rx += b"5 ER - 1 PARSE*1A2B\n"
+
+    peer = V1(FakeClock())
+    c = BoardClient(peer, ARM3R, session=1, clock=peer.clock, connect_timeout=1.0)
+    with pytest.raises(ArmbridgeError, match="the board speaks protocol 1, this armbridge speaks protocol 2"):
+        c.connect()
+
+
+def test_robot_none_learns_the_limits_and_refuses_a_plan():
+    peer = Peer(FakeClock(), fw="other", n=2, limits=((-10, 10, 5), (0, 0, 1)))
+    c = client_for(peer, robot=None)
+    assert c.info.fw == "other" and c.info.limits_milli == [(-10, 10, 5), (0, 0, 1)]
+    with pytest.raises(ArmbridgeError, match="no robot"):
+        c.execute([10], [[0, 0]])
+
+
+def test_fault_names_the_joint_and_the_reason():
+    clock = FakeClock()
+    peer = Peer(clock)
+    peer.auto_complete = False
+    c = client_for(peer)
+    durs, q = plan(10)
+    peer.send("EV", 1234, "FAULT", 2, 412)
+    peer.state = "FAULT"
+    with pytest.raises(ArmbridgeError, match=r"FAULT latched, joint 2 \(elbow\): following error 412 mrad"):
+        c.execute(durs, q)
+
+
+def test_keepalive_pings_on_the_clock():
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer, robot=None)
+    pings = c.stats.pings
+    c.drain(2.0)
+    assert 6 <= c.stats.pings - pings <= 9  # every 0.25 s of the clock (watchdog 1000 ms / 4)
+
+
+def test_a_boot_resyncs_and_resumes_after_done():
+    clock = FakeClock()
+    peer = Peer(clock)
+    peer.auto_complete = False
+    c = client_for(peer)
+    c.set_rate(10)
+    durs, q = plan(12)
+    stream_done = []
+
+    def on_progress(done):
+        stream_done.append(done)
+
+    orig_step = peer.step
+    calls = {"n": 0}
+
+    def step_and_reset():
+        orig_step()
+        calls["n"] += 1
+        if calls["n"] == 5:  # a reset: queue lost, session, epoch and done persist
+            peer.queue, peer.expect = [], -1
+            peer.ring.clear()
+            peer.send("BOOT", "arm3r", "0.1.0", 2, "IDLE")
+
+    peer.auto_complete = True
+    peer.step = step_and_reset
+    c.execute(durs, q, on_progress=on_progress)
+    assert [wid for wid, _ in peer.executed] == list(range(12))
+    assert c.stats.resyncs == 1 and c.stats.boots == 1 and stream_done[-1] == 12
+
+
+def test_arq_refuses_to_issue_past_a_full_epoch():
+    clock = FakeClock()
+    peer = Peer(clock)
+    arq = Arq(peer, clock=clock, max_epoch_commands=4)
+    assert arq.epoch_left() == 4
+    for _ in range(4):
+        arq.issue("PING")
+    assert not arq.can_issue()
+    with pytest.raises(RuntimeError, match="epoch is full"):
+        arq.issue("PING")
