@@ -27,7 +27,7 @@ def test_bench_link_quick_cli_writes_json(tmp_path, monkeypatch):
     assert es["trials"] == 3 and es["byte_to_outputs_off"]["n"] == 3
     assert data["round_trip"]["n"] == 20
     assert so["plans"] >= 1 and so["executed"] == so["waypoints"]
-    assert (so["lost"], so["duplicated"], so["in_order"]) == (0, 0, True)
+    assert (so["lost"], so["duplicated"], so["wrong_value"], so["in_order"]) == (0, 0, 0, True)
     assert so["resets"] >= 1 and so["resyncs"] >= 1
     assert "sustained waypoints/s" in result.output
 

@@ -1,16 +1,21 @@
-"""Emulator pieces (plant, paced UART, SimHal) and the emulated board in lockstep
-(no pty: bytes go in with inject() and come out with read_output())."""
+"""Emulator pieces (plant, paced UART, SimHal, fault parsing) and the emulated
+board in lockstep (no pty: bytes go in with inject() and come out with
+read_output()), spoken to in protocol v2 by the host codec."""
 import math
 import sys
 
 import numpy as np
 import pytest
 
-from armbridge.emulator.board import EmulatedBoard, Faults, load_firmware, parse_delay, parse_rate, parse_stall
+from armbridge.emulator.board import EmulatedBoard
+from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
 from armbridge.emulator.plant import PlantParams, ServoPlant, step
+from armbridge.emulator.runner import load_firmware
 from armbridge.emulator.simhal import PersistentMemory, SimClock, SimHal, ticks_diff
 from armbridge.emulator.uart import LinkFaults, PacedUart
 from armbridge.errors import ArmbridgeError
+from armbridge.resources import firmware_dir
+from emu_host import Codec, done_ev, is_reply
 
 BT = 1.0 / 11520.0  # one byte at 115200 8N1
 
@@ -189,6 +194,20 @@ def test_link_fault_validation():
     assert parse_stall("2@1.5") == (2, 1.5)
     with pytest.raises(ArmbridgeError):
         parse_stall("0@1")
+    assert parse_lanes("rx, tx") == ("rx", "tx") and parse_lanes("tx") == ("tx",)
+    with pytest.raises(ArmbridgeError, match=r"--lanes.*'up'.*rx.*tx"):
+        parse_lanes("rx,up", "--lanes")
+    with pytest.raises(ArmbridgeError, match="unknown lane"):
+        Faults(lanes=("sideways",))
+    assert parse_seconds("2.5", "--reset-at") == 2.5
+    with pytest.raises(ArmbridgeError, match=r"--reset-at -1 must be >= 0"):
+        parse_seconds("-1", "--reset-at")
+
+
+def test_faults_describe_themselves():
+    assert Faults().describe() == "none"
+    f = Faults(drop=0.01, delay=0.1, delay_ms=20, lanes=("rx",), reset_at=(2.0,), stall=((2, 1.5),))
+    assert f.describe() == "drop 0.01, delay 0.1 x 20 ms, on rx, reset at 2 s, joint 2 stalls at 1.5 s"
 
 
 # ---------------------------------------------------------------- SimHal
@@ -245,34 +264,35 @@ def test_simhal_outputs_uart_and_persist():
 # ---------------------------------------------------------------- emulated board, lockstep
 
 class Lockstep:
-    """A minimal host over inject()/read_output() with the firmware's own codec."""
+    """A minimal v2 host over inject()/read_output() (tests/emu_host.py frames the lines)."""
 
     def __init__(self, emu, keepalive=True):
         self.emu = emu
-        self.proto = emu.modules["proto"]
-        self.seq = 0
+        self.codec = Codec()
         self.lines = []
         self.raw = b""
-        self._buf = b""
         self.keepalive = keepalive  # PING every 0.25 s while waiting (the watchdog wants a live host)
         self._sent_at = 0.0
 
-    def send(self, verb, *args):
-        self.seq += 1
-        self.emu.inject(self.proto.encode(self.seq, verb, args))
+    @property
+    def seq(self):
+        return self.codec.seq
+
+    def _put(self, line):
+        self.emu.inject(line)
         self._sent_at = self.emu.now()
-        return self.seq
+        return self.codec.seq
+
+    def send(self, verb, *args):
+        return self._put(self.codec.line(verb, *args))
+
+    def hello(self, session, max_s=1.0):
+        return self._reply(self._put(self.codec.hello(session)), max_s)
 
     def pump(self):
         data = self.emu.read_output()
         self.raw += data
-        self._buf += data
-        *done, self._buf = self._buf.split(b"\n")
-        for raw in done:
-            try:
-                self.lines.append(self.proto.decode(raw, self.proto.MAX_BOARD_LINE))
-            except self.proto.ProtoError:
-                self.lines.append((None, "BAD", [raw]))
+        self.lines += self.codec.feed(data)
 
     def find(self, verb, pred=lambda a: True):
         if self.keepalive and self.emu.now() - self._sent_at > 0.25:
@@ -300,11 +320,8 @@ class Lockstep:
 
         def check():
             self.pump()
-            for l in self.lines:
-                if l[1] in ("OK", "ER") and l[2] and l[2][0] == str(seq):
-                    found.append(l)
-                    return True
-            return False
+            found[:] = [l for l in self.lines if is_reply(l, seq)][:1]
+            return bool(found)
 
         assert self.emu.run_until(check, max_s), f"no reply to {seq}: {self.lines[-5:]}"
         return found[0]
@@ -323,21 +340,29 @@ def test_unknown_device():
 
 
 def test_firmware_modules_are_private(emu):
-    for name in ("arm", "proto", "session", "pid", "traj", "config"):
+    names = set(emu.modules)
+    assert {"arm", "proto", "config"} <= names and emu.interpreter == "cpython"
+    for name in names:
         assert name not in sys.modules
     other = EmulatedBoard("esp32", speed=0)
-    assert other.modules["arm"] is not emu.modules["arm"]
-    assert other.modules["proto"] is not emu.modules["proto"]
+    for name in names:
+        assert other.modules[name] is not emu.modules[name]
     assert emu.board.__class__.__module__ == "arm"
     assert emu.board.cfg is emu.cfg
-    assert emu.modules["arm"].proto is emu.modules["proto"]
+    # the firmware's own imports resolve inside its namespace
+    assert all(m is emu.modules[k] for k, m in vars(emu.modules["arm"]).items()
+               if isinstance(m, type(sys)) and k in names)
+    before = dict(emu.modules)
+    emu.reset()
+    emu.run_for(0.3)  # a reset boots fresh modules
+    assert all(emu.modules[k] is not before[k] for k in names)
 
 
 def test_boot_hello_and_waypoints(emu):
     h = Lockstep(emu)
-    assert h.wait("BOOT")[2] == ["arm3r", "0.1.0", "1"]
-    ok = h.request("HELLO", 4242)
-    assert ok[1] == "OK" and ok[2][2:6] == ["arm3r", "0.1.0", "1", "3"]
+    assert h.wait("BOOT")[2] == ["arm3r", "0.1.0", "2", "IDLE"]
+    ok = h.hello(4242)
+    assert ok[1] == "OK" and ok[2][2:6] == ["arm3r", "0.1.0", "2", "3"]
     targets = [(2000, -1000, 500), (1000, -2000, -500), (1571, -1571, 0)]
     for i, q in enumerate(targets):
         assert h.request("W", 10 + i, 400, *q)[1] == "OK"
@@ -346,7 +371,8 @@ def test_boot_hello_and_waypoints(emu):
     h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "12")
     h.wait("T", lambda a: int(a[0]) > int(h.find("EV", lambda a: a[1] == "DONE" and a[2] == "12")[2][0]) + 300)
     assert emu.positions() == pytest.approx(np.array(targets[2]) / 1000, abs=0.01)
-    assert [i for _, i in emu.executed] == [10, 11, 12]
+    # the board's log holds what it executed: ids and the values the W lines carried
+    assert [(i, v) for _, i, v in emu.executed] == [(10 + i, q) for i, q in enumerate(targets)]
     tel = [l for l in h.lines if l[1] == "T"]
     assert len(tel) > 10 and tel[-1][2][1] == "IDLE"
     assert emu.hal.saturation_violations == 0
@@ -354,7 +380,7 @@ def test_boot_hello_and_waypoints(emu):
 
 def test_reset_mid_motion(emu):
     h = Lockstep(emu)
-    h.request("HELLO", 77)
+    h.hello(77)
     h.request("W", 1, 200, 2000, -1000, 500)
     h.request("W", 2, 2000, 500, -2500, -1000)
     h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "1")
@@ -365,12 +391,12 @@ def test_reset_mid_motion(emu):
     assert emu.outputs_off_at[-1] == pytest.approx(emu.resets[-1])
     mark = len(h.raw)
     # the reset may cut a line on the wire: BOOT can arrive glued to its start
-    assert emu.run_until(lambda: h.pump() or b" BOOT arm3r 0.1.0 1*" in h.raw[mark:], 1.0)
+    assert emu.run_until(lambda: h.pump() or b" BOOT arm3r 0.1.0 2 IDLE*" in h.raw[mark:], 1.0)
     assert emu.boots[-1] - emu.resets[-1] == pytest.approx(0.25, abs=0.002)
     assert emu.board is not None and emu.state == "IDLE"
-    hello = h.request("HELLO", 77)
-    assert hello[2][-2] == "1"  # done survives the reset in persistent memory
-    assert [i for _, i in emu.executed] == [1]
+    hello = h.hello(77)
+    assert hello[2][-3:] == ["1", "-", "IDLE"]  # done survives the reset in persistent memory
+    assert [(i, v) for _, i, v in emu.executed] == [(1, (2000, -1000, 500))]
 
 
 def test_scheduled_reset_from_faults():
@@ -382,7 +408,7 @@ def test_scheduled_reset_from_faults():
 
 
 def fill_queue(h):
-    h.request("HELLO", 5)
+    h.hello(5)
     qsize = int(h.request("STAT")[2][1]) + 0  # FREE of the STAT reply
     for i in range(qsize + 1):
         h.request("W", i, 2000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0)
@@ -413,9 +439,9 @@ def test_estop_latency_with_full_queue(emu):
 
 def test_estop_mid_line(emu):
     h = Lockstep(emu)
-    h.request("HELLO", 5)
+    h.hello(5)
     h.request("W", 1, 3000, 2500, -1571, 0)
-    line = h.proto.encode(h.seq + 1, "W", [2, 100, 0, -1571, 0])
+    line = h.codec.line("W", 2, 100, 0, -1571, 0)
     emu.inject(line[:8] + b"\x98" + line[8:])
     h.wait("EV", lambda a: a[1] == "ESTOP")
     emu.run_for(0.1)
@@ -426,7 +452,7 @@ def test_estop_mid_line(emu):
 
 def test_watchdog_stops_a_silent_host(emu):
     h = Lockstep(emu, keepalive=False)
-    h.request("HELLO", 9)
+    h.hello(9)
     for i in range(5):
         h.request("W", i, 1000, 1571 + 400 * (-1) ** i, -1571, 0)
     t0 = emu.now()
@@ -443,7 +469,7 @@ def test_watchdog_stops_a_silent_host(emu):
 def test_stalled_joint_latches_fault():
     e = EmulatedBoard("esp32", speed=0, faults=Faults(stall=((2, 0.2),)))
     h = Lockstep(e)
-    h.request("HELLO", 3)
+    h.hello(3)
     h.request("W", 1, 1500, 2500, -500, 1000)
     ev = h.wait("EV", lambda a: a[1] == "FAULT", max_s=3.0)
     assert ev[2][2] == "2" and e.state == "FAULT" and not e.hal.outputs_enabled
@@ -465,7 +491,7 @@ def test_single_bit_errors_never_estop():
 def test_board_runs_across_the_tick_wrap():
     e = EmulatedBoard("esp32", speed=0, tick_offset_ms=(1 << 30) - 300)
     h = Lockstep(e)
-    h.request("HELLO", 1)
+    h.hello(1)
     h.request("W", 1, 600, 2000, -1571, 0)
     ev = h.wait("EV", lambda a: a[1] == "DONE")
     assert int(ev[2][0]) < 1000  # board time wrapped
@@ -484,7 +510,7 @@ def test_load_firmware_restores_sys_path_and_modules():
         del sys.modules["proto"]
     assert sys.path == path
     with pytest.raises(ArmbridgeError, match="missing"):
-        load_firmware([e._dirs[0].parent / "nowhere"], ("arm",))
+        load_firmware([firmware_dir() / "nowhere"], ("arm",))
 
 
 @pytest.mark.parametrize("args, words", [
@@ -511,11 +537,9 @@ def test_cli_refuses_bad_arguments(args, words):
 def test_firmware_exception_stops_the_board_until_reset(tmp_path):
     import shutil
 
-    from armbridge.emulator.board import FIRMWARE_ROOT
-
     (tmp_path / "esp32").mkdir()
-    shutil.copytree(FIRMWARE_ROOT / "common", tmp_path / "common")
-    shutil.copy(FIRMWARE_ROOT / "esp32" / "config.py", tmp_path / "esp32")
+    shutil.copytree(firmware_dir() / "common", tmp_path / "common")
+    shutil.copy(firmware_dir() / "esp32" / "config.py", tmp_path / "esp32")
     (tmp_path / "esp32" / "arm.py").write_text(
         "class Board:\n"
         "    def __init__(self, hal, cfg):\n"

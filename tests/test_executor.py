@@ -54,7 +54,7 @@ def ports(monkeypatch):
 
 
 def executed_ids(port) -> list[int]:
-    return [wid for _, wid in port.emulator.executed]
+    return [wid for _, wid, _ in port.emulator.executed]
 
 
 def tracking_bound(peak_v: float, period_s: float) -> float:
@@ -200,7 +200,7 @@ def test_link_faults_and_a_reset_every_waypoint_once_in_order(tmp_path, ports):
     assert s.completed and s.waypoints_done == 200 and s.waypoints_acked >= 190
     assert emu.counters["resets"] == 1 and s.resyncs >= 1
     reset_ms = emu.resets[0] * 1000
-    before = [wid for ms, wid in emu.executed if ms < reset_ms]
+    before = [wid for ms, wid, _ in emu.executed if ms < reset_ms]
     assert 0 < len(before) < 200  # the reset fell mid-plan
     c = emu.counters
     assert c["rx"]["corrupt"] > 0 and c["rx"]["drop"] > 0 and c["tx"]["dup"] > 0

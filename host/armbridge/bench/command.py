@@ -50,8 +50,8 @@ def link_cmd(
     table.add_row("e-stop byte -> ESTOP event at host median (ms)",
                   f"{es['byte_to_event_at_host']['median_ms']:.2f}", "")
     table.add_row(f"soak {so['seconds']:.0f} s: waypoints executed", f"{so['executed']} / {so['waypoints']}", "")
-    table.add_row("soak: lost / duplicated / in order", f"{so['lost']} / {so['duplicated']} / {so['in_order']}",
-                  "0 / 0 / True")
+    table.add_row("soak: lost / duplicated / wrong value / in order",
+                  f"{so['lost']} / {so['duplicated']} / {so['wrong_value']} / {so['in_order']}", "0 / 0 / 0 / True")
     table.add_row("soak: resets / resyncs / retransmitted", f"{so['resets']} / {so['resyncs']} / {so['retransmitted']}", "")
     console.print(table)
     console.print(f"wrote {json_out}")

@@ -154,13 +154,18 @@ def soak(seconds: float, url_faults: str, reset_every_s: float, chunk: int = 100
             client.execute([20] * chunk, q, timeout=600)
             plans += 1
         # Ids run on across the plans of a session: the log must read 0, 1, 2, ...
-        ids = [i for _, i in emu.executed]
+        ids = [i for _, i, _ in emu.executed]
         expected = [i % 65536 for i in range(plans * chunk)]
         lost = sum((Counter(expected) - Counter(ids)).values())
         duplicated = sum((Counter(ids) - Counter(expected)).values())
+        # The board logs the values it executed: an (id, values) pair the host did not
+        # send, beyond the duplicates, is a waypoint run with a wrong value.
+        sent = [tuple(int(x) for x in row) for row in q]  # q is in mrad already
+        pairs = Counter((i % 65536, sent[i % chunk]) for i in range(plans * chunk))
+        wrong = sum((Counter((i, v) for _, i, v in emu.executed) - pairs).values()) - duplicated
         elapsed = time.monotonic() - t0
         return {"seconds": elapsed, "plans": plans, "waypoints": plans * chunk,
-                "executed": len(emu.executed), "lost": lost, "duplicated": duplicated,
+                "executed": len(emu.executed), "lost": lost, "duplicated": duplicated, "wrong_value": wrong,
                 "in_order": ids == expected, "resets": emu.counters["resets"],
                 "resyncs": client.stats.resyncs, "retransmitted": client.stats.waypoints_retransmitted,
                 "line_errors": client.stats.line_errors, "faults_injected": emu.counters}

@@ -1,12 +1,14 @@
-"""An emulated board: the real firmware modules on a simulated HAL, served on a pty.
+"""An emulated board: a board's real firmware on a simulated HAL, served on a pty.
 
-`EmulatedBoard("esp32")` loads firmware/common + firmware/esp32 (flat module
-names: proto, session, pid, traj, arm, config) into a private namespace, builds
-a `SimHal` (sim clock, `ServoPlant`, `PacedUart`, persistent memory) and
-`arm.Board(hal, cfg)`, which prints BOOT. Each iteration of the emulator
-advances the sim clock by one tick (1 ms), moves host bytes into the UART,
-calls `board.poll()`, moves the bytes that have left the board to the host,
-and integrates the plant.
+This is the board-independent machinery; what differs between boards is data
+(`registry.BoardSpec`: firmware, plant, HAL, clock, identity) and the firmware
+runner (`runner.py`: MicroPython under CPython, the same under the real
+MicroPython interpreter, ...). `EmulatedBoard("esp32")` builds the runner, reads
+the firmware's config, builds the plant and the HAL from the spec (sim clock,
+plant, `PacedUart`, persistent memory) and boots the board, which prints BOOT.
+Each iteration of the emulator advances the sim clock by one tick (1 ms),
+moves host bytes into the UART, calls `board.poll()`, moves the bytes that
+have left the board to the host, and integrates the plant.
 
 Clock modes (`speed`):
   1.0   paced to the wall clock (default). Between ticks the loop waits in
@@ -21,228 +23,60 @@ Clock modes (`speed`):
         the host. With `start()`, a thread runs it as fast as it can, 10 ms an
         iteration, on a pty.
 
-Resets (`reset()`, `Faults.reset_at`, `schedule_reset(t)`) throw away the Board
-and its module state, keep the persisted memory and the plant, switch the
+Resets (`reset()`, `Faults.reset_at`, `schedule_reset(t)`) throw away the board
+and its firmware state, keep the persisted memory and the plant, switch the
 outputs off for `boot_ms` of sim time (bytes from the host are lost meanwhile),
-then load fresh modules and build a new Board, which prints BOOT.
+then boot the firmware afresh (`runner.boot`), which prints BOOT.
 """
 from __future__ import annotations
 
 import bisect
-import importlib
 import math
 import os
 import select
-import sys
 import threading
 import time
 import traceback
 import types
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
-from armbridge.emulator.plant import PlantParams, ServoPlant
+from armbridge.emulator.faults import Faults
+from armbridge.emulator.plant import PlantParams
 from armbridge.emulator.pty import Pty, open_pty
-from armbridge.emulator.simhal import PersistentMemory, SimClock, SimHal
-from armbridge.emulator.uart import LANES, LinkFaults, PacedUart
+from armbridge.emulator.registry import BoardSpec, board_spec
+from armbridge.emulator.runner import firmware_config, make_runner
+from armbridge.emulator.simhal import PersistentMemory, SimClock
+from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
+from armbridge.resources import firmware_dir
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-FIRMWARE_ROOT = REPO_ROOT / "firmware"
-
-
-@dataclass(frozen=True)
-class DeviceSpec:
-    """Where a device's firmware lives: folders under firmware/, searched in order."""
-
-    name: str
-    dirs: tuple[str, ...]
-    board_module: str = "arm"
-    config_module: str = "config"
-
-
-DEVICES: dict[str, DeviceSpec] = {
-    "esp32": DeviceSpec("esp32", ("esp32", "common")),
-}
-
-
-def device_spec(device: str) -> DeviceSpec:
-    try:
-        return DEVICES[device]
-    except KeyError:
-        raise ArmbridgeError(
-            f"unknown device {device!r}; known devices: {', '.join(sorted(DEVICES))}"
-        ) from None
-
-
-@dataclass(frozen=True)
-class Faults:
-    """Faults to inject.
-
-    Link (per byte, rates in [0, 1]; on the lanes named in `lanes`: "rx" host ->
-    board, "tx" board -> host, both by default): drop, corrupt (one bit flipped),
-    dup, delay (rate) with delay_ms extra.
-    Board: reset_at (sim seconds at which the board resets).
-    Plant: stall ((joint, sim seconds), ...), joints numbered 1..n as in the protocol.
-    """
-
-    drop: float = 0.0
-    corrupt: float = 0.0
-    dup: float = 0.0
-    delay: float = 0.0
-    delay_ms: float = 0.0
-    lanes: tuple[str, ...] = LANES
-    reset_at: tuple[float, ...] = ()
-    stall: tuple[tuple[int, float], ...] = ()
-
-    def __post_init__(self) -> None:
-        try:
-            self.link  # LinkFaults checks the rates and the delay
-        except ValueError as exc:
-            raise ArmbridgeError(f"fault {exc}") from None
-        for lane in self.lanes:
-            if lane not in LANES:
-                raise ArmbridgeError(f"unknown lane {lane!r}; lanes: {', '.join(LANES)}")
-        for t in self.reset_at:
-            if t < 0:
-                raise ArmbridgeError(f"reset time {t} s must be >= 0")
-        for j, t in self.stall:
-            if j < 1 or t < 0:
-                raise ArmbridgeError(f"stall {j}@{t}: joint is numbered from 1, time must be >= 0")
-
-    @property
-    def link(self) -> LinkFaults:
-        return LinkFaults(self.drop, self.corrupt, self.dup, self.delay, self.delay_ms)
-
-
-def parse_rate(name: str, value: str | float) -> float:
-    """A fault rate in [0, 1]; `name` (flag or parameter) is named in the error."""
-    try:
-        r = float(value)
-    except (TypeError, ValueError):
-        raise ArmbridgeError(f"{name} {value!r} is not a number; expected a rate in the range [0, 1]") from None
-    if not 0.0 <= r <= 1.0:  # also refuses nan
-        raise ArmbridgeError(f"{name} {value} is outside the range [0, 1]")
-    return r
-
-
-def parse_delay(value: str, name: str = "delay") -> tuple[float, float]:
-    """'R:MS' -> (rate in [0, 1], extra delay in ms >= 0)."""
-    rate, sep, ms = str(value).partition(":")
-    if not sep:
-        raise ArmbridgeError(f"{name} {value!r}: expected RATE:MS, e.g. 0.01:50")
-    r = parse_rate(name, rate)
-    try:
-        d = float(ms)
-    except ValueError:
-        raise ArmbridgeError(f"{name} {value!r}: MS {ms!r} is not a number") from None
-    if not d >= 0:
-        raise ArmbridgeError(f"{name} {value!r}: MS must be >= 0")
-    return r, d
-
-
-def parse_stall(value: str, name: str = "stall") -> tuple[int, float]:
-    """'J@SECONDS' -> (joint 1..n, sim seconds)."""
-    j, sep, t = str(value).partition("@")
-    try:
-        if not sep:
-            raise ValueError
-        jj, tt = int(j), float(t)
-    except ValueError:
-        raise ArmbridgeError(f"{name} {value!r}: expected JOINT@SECONDS, e.g. 2@1.5") from None
-    if jj < 1 or not tt >= 0:
-        raise ArmbridgeError(f"{name} {value!r}: joints are numbered from 1 and the time must be >= 0")
-    return jj, tt
-
-
-# ---------------------------------------------------------------- firmware loading
-
-_IMPORT_LOCK = threading.Lock()
-
-
-def _micropython_shim() -> types.ModuleType:
-    m = types.ModuleType("micropython")
-    m.const = lambda x: x  # type: ignore[attr-defined]
-    m.native = lambda f: f  # type: ignore[attr-defined]
-    m.viper = lambda f: f  # type: ignore[attr-defined]
-    m.alloc_emergency_exception_buf = lambda n: None  # type: ignore[attr-defined]
-    m.schedule = lambda f, a: f(a)  # type: ignore[attr-defined]
-    return m
-
-
-def load_firmware(dirs: list[Path], names: tuple[str, ...]) -> dict[str, types.ModuleType]:
-    """Import the modules `names` (and whatever they import) from the folders `dirs`
-    into a private namespace: fresh module objects every call, and sys.modules /
-    sys.path are restored afterwards, so boards never share module state.
-
-    Returns {module name: module} for every module of those folders that was loaded.
-    """
-    for d in dirs:
-        if not d.is_dir():
-            raise ArmbridgeError(f"firmware folder {d} is missing")
-    local = {p.stem for d in dirs for p in d.glob("*.py")}
-    touched = local | {"micropython"}
-    with _IMPORT_LOCK:
-        saved = {n: sys.modules.pop(n) for n in list(touched) if n in sys.modules}
-        saved_path = list(sys.path)
-        saved_dwb = sys.dont_write_bytecode
-        try:
-            sys.path[:0] = [str(d) for d in dirs]
-            sys.dont_write_bytecode = True  # keep the firmware folders clean
-            importlib.invalidate_caches()
-            try:
-                importlib.import_module("micropython")
-            except ImportError:
-                sys.modules["micropython"] = _micropython_shim()
-            for n in names:
-                if n not in local:
-                    raise ArmbridgeError(f"firmware module {n}.py not found in {', '.join(map(str, dirs))}")
-                importlib.import_module(n)
-            loaded = {n: sys.modules[n] for n in local if n in sys.modules}
-        finally:
-            for n in touched:
-                sys.modules.pop(n, None)
-            sys.modules.update(saved)
-            sys.path[:] = saved_path
-            sys.dont_write_bytecode = saved_dwb
-    return loaded
-
-
-def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:
-    """Joint limits (rad) from the firmware config (LIMITS_MRAD: ((min, max), ...) in mrad)."""
-    lims = np.asarray(cfg.LIMITS_MRAD, dtype=float) / 1000.0
-    n = int(getattr(cfg, "N_JOINTS", len(lims)))
-    if lims.shape != (n, 2):
-        raise ArmbridgeError(f"firmware config LIMITS_MRAD has shape {lims.shape}, expected ({n}, 2)")
-    return lims[:, 0], lims[:, 1]
-
-
-# ---------------------------------------------------------------- the board
 
 class EmulatedBoard:
-    """A board running the real firmware on a SimHal; see the module docstring.
+    """A board running its real firmware on a simulated HAL; see the module docstring.
 
-    device: a key of DEVICES. speed: clock mode (1.0 wall clock, K faster, 0
-    lockstep). faults: `Faults`. seed: seeds the plant noise and the link faults.
-    link: optional symlink to the pty. q0: initial joint positions (rad; default
-    mid-range). on_line(t, line): called with every line the firmware writes (sim
-    seconds, bytes without LF), before link faults.
+    device: a name in registry.BOARDS, or a BoardSpec. speed: clock mode (1.0
+    wall clock, K faster, 0 lockstep). faults: `Faults`. seed: seeds the plant
+    noise and the link faults. link: optional symlink to the pty (owned: see
+    pty.py). interpreter: the firmware runner ("cpython", "micropython"; None:
+    the spec's default). q0, plant_params: override the spec's. on_line(t, line):
+    called with every line the firmware writes (sim seconds, bytes without LF),
+    before link faults.
     """
 
-    TICK_US = 1000          # one iteration of the emulator: 1 ms of sim time
     MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
 
     def __init__(
         self,
-        device: str = "esp32",
+        device: str | BoardSpec = "esp32",
         speed: float = 1.0,
         faults: Faults | None = None,
         seed: int = 0,
         link: str | None = None,
         *,
+        interpreter: str | None = None,
         q0=None,
         plant_params: PlantParams | None = None,
         firmware_root: str | os.PathLike | None = None,
@@ -250,9 +84,10 @@ class EmulatedBoard:
         boot_ms: float = 250.0,
         on_line: Callable[[float, bytes], None] | None = None,
     ) -> None:
-        self.spec = device_spec(device)
-        self.device = device
-        if speed < 0:
+        spec = board_spec(device)
+        self.spec = spec
+        self.device = spec.name
+        if not speed >= 0:
             raise ArmbridgeError(f"speed {speed} must be >= 0 (0 = lockstep)")
         self.speed = float(speed)
         self.faults = faults or Faults()
@@ -260,26 +95,29 @@ class EmulatedBoard:
         self.link = link
         self.boot_ms = boot_ms
         self.on_line = on_line
-        root = Path(firmware_root) if firmware_root is not None else FIRMWARE_ROOT
-        self._dirs = [root / d for d in self.spec.dirs]
+        self.tick_us = int(spec.tick_us)   # one iteration of the emulator (1 ms of sim time)
+        root = Path(firmware_root) if firmware_root is not None else firmware_dir()
+        self.runner = make_runner(spec, interpreter, root)
+        self.interpreter: str = getattr(self.runner, "interpreter", interpreter or spec.interpreters[0])
 
-        self.modules = self._load()
-        self.cfg = self.modules[self.spec.config_module]
-        lo, hi = joint_limits_rad(self.cfg)
-        self.n = lo.size
+        self.cfg: Any = firmware_config(spec, root)
         self.period_ms = int(getattr(self.cfg, "PERIOD_MS", 10))
         self.clock = SimClock()
-        self.plant = ServoPlant(lo, hi, plant_params, q0=q0, seed=seed)
+        self.plant = spec.plant(self.cfg, plant_params if plant_params is not None else spec.plant_params,
+                                q0 if q0 is not None else spec.q0, seed)
+        self.n = int(self.plant.n)
         for j, t in self.faults.stall:
             if j > self.n:
-                raise ArmbridgeError(f"stall joint {j} does not exist; the {device} board has joints 1..{self.n}")
+                raise ArmbridgeError(f"stall joint {j} does not exist; the {self.device} board has joints 1..{self.n}")
             self.plant.stall(j - 1, t)
-        self.uart = PacedUart(115200, self.faults.link, self.faults.lanes, seed)
-        self.persist = PersistentMemory()
-        self.hal = SimHal(self.clock, self.plant, self.uart, self.persist,
-                          tick_offset_ms=tick_offset_ms, on_line=self._tap)
+        self.uart = PacedUart(spec.baud, self.faults.link, self.faults.lanes, seed)
+        self.persist = PersistentMemory(size=spec.persist_bytes)
+        self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,
+                            tick_offset_ms=tick_offset_ms, on_line=self._tap)
 
-        self.executed: list[tuple[int, int]] = []   # (board_ms, id) of completed waypoints (the firmware's trace hook), across resets
+        # (board_ms, id, (q1..qn) in milli-units as the W line carried them) of every
+        # completed waypoint (the firmware's on_done hook), across resets.
+        self.executed: list[tuple[int, int, tuple[int, ...]]] = []
         self.boots: list[float] = []                # sim times of BOOT (board constructions)
         self.resets: list[float] = []               # sim times resets began
         self.crash: str | None = None               # traceback if the firmware raised
@@ -292,39 +130,38 @@ class EmulatedBoard:
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._closed = False
         self._pace: tuple[float, int, float] | None = None  # (wall0, sim0 us, sim us per wall s)
 
-        self.board = None
-        self._boot(self.modules)
+        self.board: Any = None
+        self._boot()
 
     # ------------------------------------------------------------ firmware
-    def _load(self) -> dict[str, types.ModuleType]:
-        return load_firmware(self._dirs, (self.spec.config_module, self.spec.board_module))
+    @property
+    def modules(self) -> dict[str, types.ModuleType]:
+        """The firmware's modules when it runs in this process ({} otherwise, and during a reset)."""
+        return getattr(self.runner, "modules", {}) if self.board is not None else {}
 
-    def _boot(self, modules: dict[str, types.ModuleType] | None = None) -> None:
-        self.modules = modules if modules is not None else self._load()
-        cfg = self.modules[self.spec.config_module]
-        self.cfg = cfg
+    def _boot(self) -> None:
         self.uart.rx.clear()
         self.hal.reset_line_tap()
         self._boot_at = None
         self.boots.append(self.clock.t)
-        board = self.modules[self.spec.board_module].Board(self.hal, cfg)
+        board = self.runner.boot(self.hal, self.cfg)
         board.on_done = self._on_done
         self.board = board
 
     def _begin_reset(self) -> None:
         self.hal.outputs_off()
         self.board = None
-        self.modules = {}
         self._counters["resets"] += 1
         self._counters["lost_in_reset"] += self.uart.rx.clear() + self.uart.tx.clear()
         self.hal.reset_line_tap()
         self.resets.append(self.clock.t)
         self._boot_at = self.clock.t + self.boot_ms / 1000.0
 
-    def _on_done(self, wid: int) -> None:
-        self.executed.append((self.hal.ticks_ms(), wid))
+    def _on_done(self, wid: int, targets_milli) -> None:
+        self.executed.append((self.hal.ticks_ms(), int(wid), tuple(int(x) for x in targets_milli)))
 
     def _tap(self, t: float, line: bytes) -> None:
         if self.on_line is not None:
@@ -384,7 +221,7 @@ class EmulatedBoard:
 
     def _advance_to(self, target_us: int) -> None:
         while self.clock.us < target_us:
-            self._tick(self._next_due(min(target_us, self.clock.us + self.TICK_US)) - self.clock.us)
+            self._tick(self._next_due(min(target_us, self.clock.us + self.tick_us)) - self.clock.us)
 
     def _pty_in(self, now: float) -> None:
         assert self._pty is not None
@@ -440,7 +277,7 @@ class EmulatedBoard:
             while not pred():
                 if self.clock.us >= end:
                     return False
-                self._tick(self._next_due(min(end, self.clock.us + self.TICK_US)) - self.clock.us)
+                self._tick(self._next_due(min(end, self.clock.us + self.tick_us)) - self.clock.us)
         return True
 
     def inject(self, data: bytes) -> None:
@@ -478,6 +315,14 @@ class EmulatedBoard:
         """Sim time in seconds."""
         return self.clock.t
 
+    def host_time(self) -> float:
+        """Seconds on the emulator's time scale, for a host's clock: the wall
+        clock times `speed` when paced (smooth between ticks), sim time in
+        lockstep (where the wall clock means nothing)."""
+        if self.speed > 0:
+            return time.monotonic() * self.speed
+        return self.clock.t
+
     def wall_time(self, t: float) -> float:
         """The time.monotonic() at which sim time t (s) happened (paced modes only):
         lets a host compare its own clock with the board's records."""
@@ -496,6 +341,11 @@ class EmulatedBoard:
     @property
     def port(self) -> str | None:
         return self._pty.name if self._pty is not None else None
+
+    @property
+    def link_note(self) -> str | None:
+        """What start() had to say about the link (a dead owner's link taken over)."""
+        return self._pty.note if self._pty is not None else None
 
     @property
     def outputs_off_at(self) -> list[float]:
@@ -525,6 +375,8 @@ class EmulatedBoard:
         if self._thread is not None:
             return self
         if self._pty is None:
+            if self._closed:
+                raise ArmbridgeError("this emulator was stopped; build a new EmulatedBoard")
             try:
                 self._pty = open_pty(self.link)
             except OSError as exc:
@@ -537,7 +389,8 @@ class EmulatedBoard:
         return self
 
     def stop(self) -> None:
-        """Stop the thread and close the pty (removing the symlink)."""
+        """End the emulator: stop the thread, close the pty (removing the symlink
+        and its lock) and the firmware runner. The records stay readable."""
         t = self._thread
         if t is not None:
             self._stop.set()
@@ -546,6 +399,9 @@ class EmulatedBoard:
         if self._pty is not None:
             self._pty.close()
             self._pty = None
+        if not self._closed:
+            self._closed = True
+            self.runner.close()
 
     close = stop
 
@@ -585,7 +441,7 @@ class EmulatedBoard:
     def _run_paced(self) -> None:
         assert self._pty is not None
         master = self._pty.master
-        tick = self.TICK_US
+        tick = self.tick_us
         rate = self.speed * 1e6  # sim us per wall second
         wall0 = time.monotonic()
         sim0 = self.clock.us

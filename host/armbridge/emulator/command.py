@@ -9,21 +9,18 @@ from typing import List, Optional
 
 import typer
 
-from armbridge.emulator.board import (
-    DEVICES,
-    EmulatedBoard,
-    Faults,
-    device_spec,
-    parse_delay,
-    parse_rate,
-    parse_stall,
-)
+from armbridge.emulator.board import EmulatedBoard
+from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
+from armbridge.emulator.registry import BOARDS, board_spec
 from armbridge.errors import ArmbridgeError
 
 
 def _say(text: str) -> None:
     sys.stdout.write(text + "\n")
     sys.stdout.flush()
+
+
+_DEVICES = "; ".join(f"{name} ({BOARDS[name].description})" for name in sorted(BOARDS))
 
 
 def format_counters(counters: dict) -> str:
@@ -38,9 +35,12 @@ def format_counters(counters: dict) -> str:
 
 
 def emulate_cmd(
-    device: str = typer.Argument(..., help=f"Board to emulate: {', '.join(sorted(DEVICES))}."),
+    device: str = typer.Argument(..., help=f"Board to emulate: {_DEVICES}."),
     link: Optional[str] = typer.Option(None, "--link", metavar="PATH", help="Also make PATH a symlink to the pty."),
     speed: float = typer.Option(1.0, "--speed", help="Sim time per wall time: 1 real time, K faster, 0 as fast as it goes."),
+    interpreter: Optional[str] = typer.Option(None, "--interpreter", metavar="NAME",
+                                              help="Run the firmware under cpython (default) or micropython "
+                                                   "(the real MicroPython interpreter, WebAssembly, slower)."),
     drop: str = typer.Option("0", "--drop", metavar="R", help="Fraction of bytes dropped, [0, 1]."),
     corrupt: str = typer.Option("0", "--corrupt", metavar="R", help="Fraction of bytes with one bit flipped, [0, 1]."),
     dup: str = typer.Option("0", "--dup", metavar="R", help="Fraction of bytes sent twice, [0, 1]."),
@@ -53,21 +53,21 @@ def emulate_cmd(
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
 ) -> None:
     """Put an emulated board on a pseudo-terminal and print its path; Ctrl-C stops it."""
-    device_spec(device)
+    spec = board_spec(device)
+    if interpreter is not None and interpreter not in spec.interpreters:
+        raise ArmbridgeError(f"--interpreter {interpreter!r}: the {device} firmware runs under "
+                             f"{', '.join(spec.interpreters)}")
     if not speed >= 0:
         raise ArmbridgeError(f"--speed {speed} must be >= 0 (0 = as fast as it goes)")
     delay_rate, delay_ms = parse_delay(delay, "--delay") if delay else (0.0, 0.0)
-    for t in reset_at:
-        if not t >= 0:
-            raise ArmbridgeError(f"--reset-at {t} must be >= 0 seconds")
     faults = Faults(
         drop=parse_rate("--drop", drop),
         corrupt=parse_rate("--corrupt", corrupt),
         dup=parse_rate("--dup", dup),
         delay=delay_rate,
         delay_ms=delay_ms,
-        lanes=_lanes(lanes),
-        reset_at=tuple(reset_at),
+        lanes=parse_lanes(lanes, "--lanes"),
+        reset_at=tuple(parse_seconds(t, "--reset-at") for t in reset_at),
         stall=tuple(parse_stall(s, "--stall") for s in stall),
     )
 
@@ -82,18 +82,22 @@ def emulate_cmd(
             else:
                 _say(text)
 
-    emu = EmulatedBoard(device, speed=speed, faults=faults, seed=seed, link=link,
+    emu = EmulatedBoard(spec, speed=speed, faults=faults, seed=seed, link=link, interpreter=interpreter,
                         on_line=None if quiet else echo)
     try:
-        emu.start()
-    except FileExistsError as exc:
-        raise ArmbridgeError(f"--link {link}: {exc}") from None
+        emu.start()  # a link another emulator owns: ArmbridgeError naming the owner
+    except BaseException:
+        emu.stop()
+        raise
     first = f"{device} emulator on {emu.port}"
     if link:
         first += f" (link {link})"
     _say(first)
+    if emu.link_note:
+        _say(f"note: {emu.link_note}")
     if not quiet:
-        _say(f"speed {speed:g}, seed {seed}, faults: {_describe(faults)}; Ctrl-C stops")
+        _say(f"speed {speed:g}, seed {seed}, firmware under {emu.interpreter}, faults: {faults.describe()}; "
+             "Ctrl-C stops")
         for text in held or []:
             _say(text)
     held = None
@@ -119,27 +123,3 @@ def emulate_cmd(
     if emu.crash:
         sys.stderr.write(emu.crash)
         raise ArmbridgeError(f"the {device} firmware raised an exception (traceback above)")
-
-
-def _lanes(text: str) -> tuple[str, ...]:
-    names = tuple(x.strip() for x in text.split(",") if x.strip())
-    for n in names:
-        if n not in ("rx", "tx"):
-            raise ArmbridgeError(f"--lanes {text!r}: lanes are rx (host->board) and tx (board->host)")
-    return names
-
-
-def _describe(f: Faults) -> str:
-    parts = []
-    for name in ("drop", "corrupt", "dup"):
-        if getattr(f, name):
-            parts.append(f"{name} {getattr(f, name):g}")
-    if f.delay and f.delay_ms:
-        parts.append(f"delay {f.delay:g} x {f.delay_ms:g} ms")
-    if parts:
-        parts.append("on " + "+".join(f.lanes))
-    for t in f.reset_at:
-        parts.append(f"reset at {t:g} s")
-    for j, t in f.stall:
-        parts.append(f"joint {j} stalls at {t:g} s")
-    return ", ".join(parts) if parts else "none"

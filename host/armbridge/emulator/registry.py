@@ -1,0 +1,135 @@
+"""The boards the emulator knows, as data: one `BoardSpec` per board in `BOARDS`.
+
+A board is where its firmware is (`MicroPythonFirmware`: folders searched in
+order, the module that defines `Board(hal, cfg)` and the config module; or
+`ElfFirmware`: a folder with a Makefile and the .elf it builds, for a board in
+C run under simavr), which interpreters can run that firmware, how to build its
+plant and its HAL from the firmware's config, its clock (emulator tick, baud)
+and its identity (the firmware name it reports in BOOT and HELLO).
+
+A new board plugs in with one entry here and its own plant/HAL modules;
+`EmulatedBoard` also takes a `BoardSpec` directly, so a variant of a board
+(another plant, other initial positions) needs no registration and no copy:
+
+    slow = dataclasses.replace(board_spec("esp32"), name="esp32-slow",
+                               plant_params=PlantParams(v_servo=2.0))
+    EmulatedBoard(slow, speed=0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from armbridge.emulator.plant import PlantParams, ServoPlant
+from armbridge.emulator.simhal import RTC_MEMORY_SIZE, SimHal
+from armbridge.errors import ArmbridgeError
+
+
+@dataclass(frozen=True)
+class MicroPythonFirmware:
+    """MicroPython firmware: `dirs` under the firmware root, searched in order
+    (flat module names); `board_module` defines `Board(hal, cfg)`;
+    `config_module` holds the board's constants (N_JOINTS, LIMITS_MRAD, PERIOD_MS ...)."""
+
+    dirs: tuple[str, ...]
+    board_module: str = "arm"
+    config_module: str = "config"
+    interpreters: tuple[str, ...] = ("cpython", "micropython")  # the first is the default
+
+
+@dataclass(frozen=True)
+class ElfFirmware:
+    """C firmware: `folder` under the firmware root holds the Makefile that
+    builds `elf` (relative to the folder); simavr runs the image."""
+
+    folder: str
+    elf: str
+    interpreters: tuple[str, ...] = ("simavr",)
+
+
+class Plant(Protocol):
+    """What the emulator needs of a plant (ServoPlant is one)."""
+
+    n: int
+    q: np.ndarray
+
+    def advance_to(self, t: float) -> None: ...
+
+    def stall(self, j: int, t: float) -> None: ...
+
+
+PlantFactory = Callable[..., Plant]   # (cfg, params, q0, seed) -> Plant
+HalFactory = Callable[..., Any]       # (clock, plant, uart, persist, *, tick_offset_ms, on_line) -> HAL
+
+
+def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:
+    """Joint limits (rad) from the firmware config (LIMITS_MRAD: ((min, max), ...) in mrad)."""
+    lims = np.asarray(cfg.LIMITS_MRAD, dtype=float) / 1000.0
+    n = int(getattr(cfg, "N_JOINTS", len(lims)))
+    if lims.shape != (n, 2):
+        raise ArmbridgeError(f"firmware config LIMITS_MRAD has shape {lims.shape}, expected ({n}, 2)")
+    return lims[:, 0], lims[:, 1]
+
+
+def servo_plant(cfg, params: PlantParams | None, q0, seed: int) -> ServoPlant:
+    """The servo plant of docs/emulator.md, its hard stops around the firmware's limits."""
+    lo, hi = joint_limits_rad(cfg)
+    return ServoPlant(lo, hi, params, q0=q0, seed=seed)
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """One emulated board; see the module docstring.
+
+    name: the DEVICE of `armbridge emulate DEVICE` and `emu:DEVICE`.
+    identity: the firmware name the board reports (BOOT, HELLO), for messages and checks.
+    plant(cfg, params, q0, seed), hal(clock, plant, uart, persist, tick_offset_ms=, on_line=):
+    factories; q0 / plant_params: defaults handed to the plant (None: the plant's own).
+    tick_us: one emulator iteration in sim time; baud: the UART's (8N1 pacing);
+    persist_bytes: memory that survives a reset (RTC memory on the ESP32).
+    """
+
+    name: str
+    description: str
+    identity: str
+    firmware: MicroPythonFirmware | ElfFirmware
+    plant: PlantFactory = servo_plant
+    hal: HalFactory = SimHal
+    q0: tuple[float, ...] | None = None
+    plant_params: PlantParams | None = None
+    tick_us: int = 1000
+    baud: int = 115200
+    persist_bytes: int = RTC_MEMORY_SIZE
+
+    @property
+    def interpreters(self) -> tuple[str, ...]:
+        return self.firmware.interpreters
+
+
+BOARDS: dict[str, BoardSpec] = {
+    spec.name: spec
+    for spec in (
+        BoardSpec(
+            name="esp32",
+            description="3R servo arm (ESP32, MicroPython)",
+            identity="arm3r",
+            firmware=MicroPythonFirmware(dirs=("esp32", "common")),
+        ),
+    )
+}
+
+
+def known_boards() -> str:
+    return ", ".join(sorted(BOARDS))
+
+
+def board_spec(device: str | BoardSpec) -> BoardSpec:
+    """The spec of `device` (a name in BOARDS, or a BoardSpec, returned as is)."""
+    if isinstance(device, BoardSpec):
+        return device
+    try:
+        return BOARDS[device]
+    except (KeyError, TypeError):
+        raise ArmbridgeError(f"unknown device {device!r}; known devices: {known_boards()}") from None

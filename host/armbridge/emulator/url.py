@@ -1,0 +1,126 @@
+"""`emu:DEVICE[?key=value&...]`: an emulated board as a port, in this process.
+
+    emu:esp32?speed=4&drop=0.01&delay=0.01:20&seed=3&reset_at=2.5&stall=2@4
+
+Parameters (all optional):
+  speed=K          clock mode: 1 wall clock (default), K times faster, 0 as fast as it goes
+  interpreter=I    firmware runner: cpython (default) or micropython
+  drop=R corrupt=R dup=R   byte fault rates in [0, 1]
+  delay=R:MS       a fraction R of bytes delayed MS milliseconds (or delay=R&delay_ms=MS)
+  lanes=rx,tx      which directions get the link faults (default both)
+  seed=N           seed of plant noise and link faults
+  reset_at=S[,S]   sim seconds at which the board resets
+  stall=J@S[,J@S]  joint J (1..n) stalls at sim second S
+  link=PATH        a symlink to the pty (owned while the port is open)
+
+`parse_emu_url` turns the text into EmulatedBoard arguments (every bad part is
+one ArmbridgeError naming the URL and the parameter); `open_emu_port` starts
+the emulator on its pty and opens it like any serial port.
+"""
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import parse_qsl, urlsplit
+
+import serial  # type: ignore[import-untyped]
+
+from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
+from armbridge.emulator.registry import board_spec
+from armbridge.errors import ArmbridgeError
+
+PARAMETERS = ("speed", "interpreter", "seed", "link", "drop", "corrupt", "dup", "delay", "delay_ms",
+              "lanes", "reset_at", "stall")
+
+
+def _number(text: str, name: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise ArmbridgeError(f"{name} {text!r} is not a number") from None
+    if not x >= 0:
+        raise ArmbridgeError(f"{name} {text} must be >= 0")
+    return x
+
+
+def _board_kw(key: str, value: str) -> Any:
+    if key == "speed":
+        return _number(value, key)
+    if key == "seed":
+        try:
+            return int(value)
+        except ValueError:
+            raise ArmbridgeError(f"seed {value!r} is not an integer") from None
+    return value  # link, interpreter: checked when the board is built
+
+
+def _fault_kw(key: str, value: str) -> dict[str, Any]:
+    if key in ("drop", "corrupt", "dup"):
+        return {key: parse_rate(key, value)}
+    if key == "delay":
+        if ":" in value:
+            rate, ms = parse_delay(value)
+            return {"delay": rate, "delay_ms": ms}
+        return {"delay": parse_rate(key, value)}
+    if key == "delay_ms":
+        return {key: _number(value, key)}
+    if key == "lanes":
+        return {key: parse_lanes(value)}
+    if key == "reset_at":
+        return {key: tuple(parse_seconds(x, key) for x in value.split(",") if x)}
+    return {"stall": tuple(parse_stall(x) for x in value.split(",") if x)}
+
+
+def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
+    """'emu:esp32?speed=4&drop=0.01' -> ('esp32', {EmulatedBoard keyword arguments})."""
+    parts = urlsplit(url.strip())
+    device = parts.path or parts.netloc
+    if parts.scheme != "emu" or not device:
+        raise ArmbridgeError(f"bad port {url!r}: expected emu:DEVICE[?key=value&...]")
+    spec = board_spec(device)  # unknown device -> ArmbridgeError naming the known ones
+    try:
+        params = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
+    except ValueError as exc:
+        raise ArmbridgeError(f"bad port {url!r}: {exc}") from None
+    kw: dict[str, Any] = {}
+    fk: dict[str, Any] = {}
+    for key, value in params:
+        if key not in PARAMETERS:
+            raise ArmbridgeError(f"bad port {url!r}: unknown parameter {key!r}; known: {', '.join(PARAMETERS)}")
+        try:
+            if key == "interpreter" and value not in spec.interpreters:
+                raise ArmbridgeError(f"{value!r} cannot run the {device} firmware; "
+                                     f"interpreters: {', '.join(spec.interpreters)}")
+            if key in ("speed", "seed", "link", "interpreter"):
+                kw[key] = _board_kw(key, value)
+            else:
+                fk.update(_fault_kw(key, value))
+        except ArmbridgeError as exc:
+            raise ArmbridgeError(f"bad port {url!r}, parameter {key}: {exc}") from None
+    if fk:
+        try:
+            kw["faults"] = Faults(**fk)
+        except ArmbridgeError as exc:
+            raise ArmbridgeError(f"bad port {url!r}: {exc}") from None
+    return device, kw
+
+
+def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
+    """Start the emulator `url` names on its pty and open the pty: a
+    `armbridge.link.transport.Port` whose close() also stops the emulator,
+    with `.emulator` (the EmulatedBoard) and `.clock` (seconds on the
+    emulator's time scale: `EmulatedBoard.host_time`)."""
+    from armbridge.emulator.board import EmulatedBoard
+    from armbridge.link.transport import Port
+
+    device, kw = parse_emu_url(url)
+    emu = EmulatedBoard(device, **kw)
+    try:
+        emu.start()
+        ser = serial.Serial(emu.port, baudrate=baud, timeout=timeout)
+    except (serial.SerialException, OSError) as exc:
+        emu.stop()
+        raise ArmbridgeError(f"cannot open port {url!r}: emulator pty {emu.port}: {exc}") from exc
+    except BaseException:
+        emu.stop()
+        raise
+    return Port(ser, url, emulator=emu, clock=emu.host_time)
