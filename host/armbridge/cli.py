@@ -17,12 +17,33 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain help: rich markup would swallow "[default: ...]" in help strings as a
+    # style tag and print flags as "<bool>"; this applies to every subcommand.
+    rich_markup_mode=None,
 )
 _debug = False
 
 
+def version_line() -> str:
+    """`armbridge --version`: the package and the protocol it speaks."""
+    from armbridge import __version__
+    from armbridge.link.protodef import PROTOCOL_VERSION
+
+    return f"armbridge {__version__} (protocol {PROTOCOL_VERSION})"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(version_line())
+        raise typer.Exit()
+
+
 @app.callback()
-def _main(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on errors.")) -> None:
+def _main(
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks on errors."),
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                 help="Print the package and protocol versions and exit."),
+) -> None:
     global _debug
     _debug = debug
 
@@ -41,6 +62,7 @@ def build_app() -> typer.Typer:
 
 def _register() -> None:
     from armbridge.bench.command import bench_app
+    from armbridge.console.command import board_app
     from armbridge.demo import demo_cmd
     from armbridge.emulator.command import emulate_cmd
     from armbridge.executor.command import run_cmd
@@ -55,16 +77,24 @@ def _register() -> None:
     app.command("smm")(smm_cmd)
     app.command("view")(view_cmd)
     app.add_typer(bench_app, name="bench")
+    app.add_typer(board_app, name="board")
     app.add_typer(plan_app, name="plan")
     app.add_typer(train_app, name="train")
 
 
 def main() -> None:
+    """Exit codes (docs/formats.md §5): 0 success; 1 a run or a board request
+    failed (BoardFailure: fault, refusal, no answer, busy or lost port); 2 bad
+    input or usage (ArmbridgeError, typer's usage errors); 128 + the signal
+    when a stop signal ended the command (130 Ctrl-C)."""
     build_app()
     try:
         app()  # standalone: typer reports usage errors itself and exits
     except ArmbridgeError as exc:
         if _debug:
             raise
-        typer.secho(f"error: {exc}", fg="red", err=True)
-        sys.exit(2)
+        try:
+            typer.secho(f"error: {exc}", fg="red", err=True)
+        except OSError:
+            pass  # no terminal left (SIGHUP): the exit code still says it
+        sys.exit(getattr(exc, "exit_code", 2))

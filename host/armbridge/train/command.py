@@ -1,4 +1,12 @@
-"""`armbridge train ...`: the typer app `train_app` (registered by cli.py as `train`)."""
+"""`armbridge train ...`: the typer app `train_app` (registered by cli.py as `train`).
+
+Where a run writes: everything under its work folder, `runs/<model>/` below
+the current directory (checkpoints, the data-set cache, and the exported model
+in `runs/<model>/model/`), as training tools commonly do, and printed at the
+end. A model is never written over an existing one, and in particular never
+over a shipped model (resources.models_dir()), unless --force is given: to
+update a shipped model from a checkout, pass `--out models/onnx/... --force`.
+"""
 from __future__ import annotations
 
 import json
@@ -11,9 +19,29 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from armbridge import resources
 from armbridge.errors import ArmbridgeError
+from armbridge.extras import require
 
-train_app = typer.Typer(help="Train models and export them to models/onnx with a card.", no_args_is_help=True)
+train_app = typer.Typer(help="Train models and export them as ONNX with a model card (into runs/ unless --out).",
+                        no_args_is_help=True)
+
+#: What training needs beyond the runtime (the `train` extra).
+TRAIN_MODULES = ("torch", "onnx", "scipy")
+
+
+def _require_train_extra() -> None:
+    for module in TRAIN_MODULES:
+        require(module, "train", "`armbridge train`")
+
+
+def check_output(card: Path, force: bool) -> None:
+    """Refuse to write a model whose card already exists (a shipped one above all) unless force."""
+    if force or not card.exists():
+        return
+    shipped = card.resolve().is_relative_to(resources.models_dir().resolve())
+    what = "a shipped model" if shipped else "a model"
+    raise ArmbridgeError(f"{card} exists ({what}); pass --force to overwrite it, or choose another --out")
 
 
 def _command_line() -> str:
@@ -41,9 +69,10 @@ def masr_iknn_cmd(
     rho: int = typer.Option(10, "--rho", help="Largest enclosed vacancy (cells) allowed before sampling stops."),
     max_samples: int = typer.Option(10_000_000, "--max-samples", help="Cap on random configurations for the data set."),
     seed: int = typer.Option(0, "--seed", help="Seed of training and data set."),
-    out: Path = typer.Option(Path("models/onnx"), "--out", help="Folder for the ONNX files and the card."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for the ONNX files and the card [default: WORK_DIR/model]."),
     name: str = typer.Option("", "--name", help="Model name [default: ROBOT-iknn]."),
-    work_dir: Path = typer.Option(Path("runs/masr-iknn"), "--work-dir", help="Checkpoints and the data-set cache."),
+    work_dir: Path = typer.Option(Path("runs/masr-iknn"), "--work-dir", help="Checkpoints and the data-set cache, below the current directory."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing model in --out (also a shipped one)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint in --work-dir."),
     eval_trials: int = typer.Option(5000, "--eval-trials", help="Random trials for the card's accuracy."),
     nr_trials: int = typer.Option(0, "--nr-trials", help="Also measure the numeric baseline on this many trials."),
@@ -54,6 +83,7 @@ def masr_iknn_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the accuracy as JSON here."),
 ) -> None:
     """Build/cache the data set, train the IK-NN, export float/int8 ONNX + flat int8, write the card."""
+    _require_train_extra()
     from armbridge.ik.masr_data import GridSpec
     from armbridge.ik.masr_nn import TrainConfig
     from armbridge.train.masr_iknn import PipelineConfig, parse_hidden, run
@@ -70,9 +100,10 @@ def masr_iknn_cmd(
                        ang_unit=ang_unit, link_softness=link_softness, lr=lr, lr_final=lr_final, epochs=epochs,
                        batch=batch, seed=seed, max_steps=max_steps)
     cfg = PipelineConfig(robot=robot, name=name, nx=nx, ny=ny, rho=rho, max_samples=max_samples, data_seed=seed,
-                         out=out, work_dir=work_dir, eval_trials=eval_trials, nr_trials=nr_trials, train=tcfg,
+                         out=out or work_dir / "model", work_dir=work_dir, eval_trials=eval_trials, nr_trials=nr_trials, train=tcfg,
                          int8_epochs=int8_epochs, int8_lr=int8_lr,
                          command=_command_line())
+    check_output(cfg.out / f"{cfg.model_name}-card.json", force)
     console = Console(stderr=True)
     card = run(cfg, resume=resume, progress=progress, log=lambda s: console.print(s, highlight=False))
     acc = card["accuracy"]
@@ -99,14 +130,14 @@ def masr_iknn_cmd(
 @train_app.command("smm-3r")
 def smm_cmd(
     ctx: typer.Context,
-    robot: str = typer.Option("", "--robot", help="SMM arm (default: planar3r, spatial4r, spatial7r); smm-3r also takes arm3r."),
-    dataset: Optional[Path] = typer.Option(None, "--dataset", help="SMM data set .npz; built over --grid and saved there if absent (default: WORK_DIR/dataset.npz)."),
-    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R), 250x400 (4R) or 3x3x24x48 (7R: rho, z, tool polar, azimuth over one region) (default: the paper's; the 7R: 3x3x24x48)."),
+    robot: str = typer.Option("", "--robot", help="SMM arm; smm-3r also takes arm3r [default: planar3r, spatial4r, spatial7r]."),
+    dataset: Optional[Path] = typer.Option(None, "--dataset", help="SMM data set .npz; built over --grid and saved there if absent [default: WORK_DIR/dataset.npz]."),
+    grid: str = typer.Option("", "--grid", help="Cells of the data-set grid, e.g. 200 (3R), 250x400 (4R) or 3x3x24x48 (7R: rho, z, tool polar, azimuth over one region) [default: the paper's; the 7R: 3x3x24x48]."),
     k: int = typer.Option(40, "--k", help="Fourier components kept when building the data set."),
     sing_tol: float = typer.Option(0.02, "--sing-tol", help="Singular flag of the nullspace tracer when building the data set (smallest singular value of the weighted Jacobian; flagged cells separate clusters)."),
     boundary_points: int = typer.Option(4, "--boundary-points", help="Random points traced per cluster-boundary cell when building the data set, classifier-only (0: none)."),
-    cls_hidden: str = typer.Option("", "--cls-hidden", help="Classifier hidden layers, e.g. 5,5 or 3x50 (default: section VI-A)."),
-    reg_hidden: str = typer.Option("", "--reg-hidden", help="Regressor hidden layers, e.g. 4x150 (default: section VI-A)."),
+    cls_hidden: str = typer.Option("", "--cls-hidden", help="Classifier hidden layers, e.g. 5,5 or 3x50 [default: section VI-A]."),
+    reg_hidden: str = typer.Option("", "--reg-hidden", help="Regressor hidden layers, e.g. 4x150 [default: section VI-A]."),
     epochs: int = typer.Option(200, "--epochs", help="Epochs over each network's training locations."),
     min_steps: int = typer.Option(2000, "--min-steps", help="Least optimiser steps per network (small clusters)."),
     batch: int = typer.Option(256, "--batch", help="Batch size."),
@@ -116,12 +147,14 @@ def smm_cmd(
     holdout: float = typer.Option(0.1, "--holdout", help="Share of each cluster held out for the card's accuracy."),
     correct_iters: int = typer.Option(3, "--correct-iters", help="Eq. (18) iterations for the card's 'after' FK error."),
     seed: int = typer.Option(0, "--seed", help="Seed of training (and of the data set's IK seeds)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Model folder (default: models/onnx/smm-ROBOT)."),
-    work_dir: Optional[Path] = typer.Option(None, "--work-dir", help="Checkpoint and data set (default: runs/smm-ROBOT)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Model folder [default: WORK_DIR/model]."),
+    work_dir: Optional[Path] = typer.Option(None, "--work-dir", help="Checkpoint and data set [default: runs/smm-ROBOT below the current directory]."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing model in --out (also a shipped one)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint in --work-dir."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),
 ) -> None:
     """Train the learned-SMM networks (section V-D), export ONNX and a card with held-out accuracy."""
+    _require_train_extra()
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.networks import default_architecture
     from armbridge.train import smm as tr
@@ -138,6 +171,8 @@ def smm_cmd(
         holdout=holdout, seed=seed)
     work = work_dir or Path("runs") / f"smm-{arm.name}"
     data_path = dataset or work / "dataset.npz"
+    model_dir = out or work / "model"
+    check_output(model_dir / tr.CARD_NAME, force)
     console = Console(stderr=True)
 
     def log(s: str) -> None:
@@ -146,7 +181,7 @@ def smm_cmd(
     argv = sys.argv[sys.argv.index(kind) + 1 :] if kind in sys.argv else []
     command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
     ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol)
-    pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=out or Path("models/onnx") / f"smm-{arm.name}",
+    pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=model_dir,
                              work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
     card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)
     held = card["accuracy"]["held_out"]

@@ -29,7 +29,7 @@ class PipelineConfig:
     rho: int = 10
     max_samples: int = 10_000_000
     data_seed: int = 0
-    out: Path = Path("models/onnx")
+    out: Path = Path("runs/masr-iknn/model")  # the shipped models: resources.models_dir()
     work_dir: Path = Path("runs/masr-iknn")
     eval_trials: int = 5000
     eval_seed: int = 20240501
