@@ -1,0 +1,269 @@
+"""The firmware under the real MicroPython interpreter (`--interpreter micropython`).
+
+The emulator normally imports the firmware modules into CPython, which runs
+them about nine times faster than MicroPython does. This runner boots the same
+firmware files instead in the MicroPython WebAssembly interpreter from npm
+(`@micropython/micropython-webassembly-pyscript`), run by Node
+(`mpbridge/bridge.mjs`), against the bridge HAL of `mpbridge/bridgehal.py`, so
+that the executor and the tests meet MicroPython itself: its integers, its
+string formatting, its builtins, its memory.
+
+Lockstep, one round trip per emulator tick: `poll()` sends the emulator's clock,
+the bytes the UART delivered and the joint readings, the firmware runs one pass
+of its main loop there, and the answer (the firmware's HAL calls, in order: UART
+writes, outputs, outputs off, persisted memory, completed waypoints, and its
+state) is replayed on the emulator's `SimHal`, so plant, UART lanes and the
+board's records are the same objects as under CPython. About 60 us of the round
+trip is the pipe; the rest is MicroPython.
+
+A boot starts a fresh Node process (a fresh interpreter: a reset loses all
+module state, as on the chip; the persisted memory comes from the SimHal). The
+next process is started ahead, so a reset does not stall the emulator's clock.
+"""
+from __future__ import annotations
+
+import json
+import os
+import select
+import shutil
+import subprocess
+import tempfile
+import weakref
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from armbridge.errors import ArmbridgeError
+
+PACKAGE = "@micropython/micropython-webassembly-pyscript"
+PACKAGE_VERSION = "1.29.0-6"   # the version package.json pins
+ENV_PACKAGE = "ARMBRIDGE_MICROPYTHON"  # path to the npm package's folder (or its micropython.mjs)
+HEAP_BYTES = 512 * 1024        # MicroPython heap; an ESP32 without PSRAM has ~110 KiB free
+ANSWER_TIMEOUT_S = 10.0
+INSTALL = (f"run `make setup` in the armbridge checkout, or `npm install {PACKAGE}@{PACKAGE_VERSION}` "
+           f"in this folder, or set {ENV_PACKAGE} to the package's folder")
+
+
+class BridgeError(ArmbridgeError):
+    """The Node process of the bridge failed (did not start, exited, timed out)."""
+
+
+class FirmwareCrashed(RuntimeError):
+    """The firmware raised under MicroPython; the message holds its traceback."""
+
+
+def bridge_script() -> Path:
+    """bridge.mjs, found through the installed package's resources."""
+    return Path(str(resources.files("armbridge.emulator.mpbridge") / "bridge.mjs"))
+
+
+def find_node() -> str:
+    node = shutil.which("node")
+    if node is None:
+        raise ArmbridgeError("--interpreter micropython needs Node.js 18 or newer (`node` is not on PATH); "
+                             "install it (apt-get install nodejs npm), then " + INSTALL)
+    return node
+
+
+def find_micropython() -> Path:
+    """micropython.mjs of the npm package: $ARMBRIDGE_MICROPYTHON, else
+    node_modules in the working directory or a folder above it, else the
+    armbridge checkout this module runs from (`make setup` installs it there)."""
+    env = os.environ.get(ENV_PACKAGE)
+    if env:
+        p = Path(env)
+        mjs = p if p.suffix == ".mjs" else p / "micropython.mjs"
+        if not mjs.is_file():
+            raise ArmbridgeError(f"{ENV_PACKAGE}={env}: no micropython.mjs there; " + INSTALL)
+        return mjs
+    rel = Path("node_modules", *PACKAGE.split("/"), "micropython.mjs")
+    cwd = Path.cwd().resolve()
+    for base in (cwd, *cwd.parents, Path(__file__).resolve().parents[3]):
+        if (base / rel).is_file():
+            return base / rel
+    raise ArmbridgeError(f"--interpreter micropython needs the npm package {PACKAGE} "
+                         "(the MicroPython WebAssembly interpreter); " + INSTALL)
+
+
+class NodeProcess:
+    """One `node bridge.mjs` child speaking the line protocol of bridgehal.py."""
+
+    def __init__(self, argv: list[str], timeout: float = ANSWER_TIMEOUT_S) -> None:
+        self.timeout = timeout
+        self._err = tempfile.TemporaryFile()
+        try:
+            self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=self._err, bufsize=0)
+        except OSError as exc:
+            self._err.close()
+            raise BridgeError(f"cannot start {argv[0]}: {exc}") from None
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self._in = self.proc.stdin.fileno()
+        self._out = self.proc.stdout.fileno()
+        self._buf = bytearray()
+        self.version: str | None = None
+
+    def ready(self) -> str:
+        """Waits for READY; -> the MicroPython version."""
+        if self.version is None:
+            line = self.readline()
+            if not line.startswith("READY "):
+                raise BridgeError(f"the MicroPython bridge said {line[:200]!r} instead of READY{self._stderr()}")
+            self.version = line[6:]
+        return self.version
+
+    def call(self, line: str) -> str:
+        try:
+            os.write(self._in, line.encode("latin-1") + b"\n")
+        except OSError as exc:
+            raise BridgeError(f"the MicroPython bridge is gone ({exc}){self._stderr()}") from None
+        return self.readline()
+
+    def readline(self) -> str:
+        while True:
+            i = self._buf.find(b"\n")
+            if i >= 0:
+                line = bytes(self._buf[:i]).decode("latin-1")
+                del self._buf[:i + 1]
+                return line
+            r, _, _ = select.select([self._out], [], [], self.timeout)
+            if not r:
+                raise BridgeError(f"the MicroPython bridge did not answer within {self.timeout:g} s{self._stderr()}")
+            chunk = os.read(self._out, 65536)
+            if not chunk:
+                self.proc.wait(timeout=5)
+                raise BridgeError(f"the MicroPython bridge exited (status {self.proc.returncode}){self._stderr()}")
+            self._buf += chunk
+
+    def _stderr(self) -> str:
+        try:
+            self._err.seek(0)
+            tail = self._err.read()[-2000:].decode("utf-8", "replace").strip()
+        except (OSError, ValueError):
+            return ""
+        return f": {tail}" if tail else ""
+
+    def close(self) -> None:
+        p = self.proc
+        if p.poll() is None:
+            try:
+                p.stdin.close()  # type: ignore[union-attr]
+                p.wait(timeout=2)
+            except (OSError, subprocess.TimeoutExpired):
+                p.kill()
+                p.wait()
+        for f in (p.stdout, self._err):
+            try:
+                f.close()  # type: ignore[union-attr]
+            except OSError:
+                pass
+
+
+def _stop_all(procs: list[NodeProcess]) -> None:
+    for p in procs:
+        p.close()
+    procs.clear()
+
+
+class MicroPythonRunner:
+    """The firmware runner of `runner.py` for the MicroPython interpreter: boots
+    the firmware in `dirs` (import order) there; `boot(hal, cfg)` -> a
+    `MicroPythonBoard` (poll(), state, estop(), on_done)."""
+
+    interpreter = "micropython"
+
+    def __init__(self, dirs: Sequence[os.PathLike | str], board_module: str = "arm",
+                 config_module: str = "config", heap_bytes: int = HEAP_BYTES,
+                 timeout: float = ANSWER_TIMEOUT_S) -> None:
+        node = find_node()
+        mjs = find_micropython()
+        self.argv = [node, str(bridge_script()), str(mjs), str(int(heap_bytes)), board_module,
+                     config_module, "serve", *[str(Path(d)) for d in dirs]]
+        self.dirs = [Path(d) for d in dirs]
+        self.config_module = config_module
+        self.timeout = timeout
+        self.modules: dict = {}               # the firmware does not run in this process
+        self._procs: list[NodeProcess] = []   # [current, spare] or fewer
+        self._finalizer = weakref.finalize(self, _stop_all, self._procs)
+        self.version: str | None = None
+        self._spawn()  # the first boot's interpreter loads while the emulator is built
+
+    def config(self) -> Any:
+        """The board's constants for the emulator (plant, period): the firmware's
+        config module, a file of constants, read under CPython."""
+        from armbridge.emulator.runner import load_firmware
+
+        return load_firmware(self.dirs, (self.config_module,))[self.config_module]
+
+    def _spawn(self) -> NodeProcess:
+        p = NodeProcess(self.argv, self.timeout)
+        self._procs.append(p)
+        return p
+
+    def boot(self, hal: Any, cfg: Any) -> "MicroPythonBoard":
+        """A fresh interpreter runs the firmware's boot (`Board(hal, cfg)` there);
+        the process of the previous boot ends."""
+        spare = [p for p in self._procs if p.version is None]
+        proc = spare[0] if spare else self._spawn()
+        for old in [p for p in self._procs if p is not proc and p.version is not None]:
+            old.close()
+            self._procs.remove(old)
+        self.version = proc.ready()
+        self._spawn()  # the next boot's interpreter loads meanwhile
+        return MicroPythonBoard(proc, hal, int(cfg.N_JOINTS))
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+class MicroPythonBoard:
+    """The emulator's view of a board running under MicroPython (the duck type
+    of the firmware's Board: poll(), state, estop(), on_done)."""
+
+    def __init__(self, proc: NodeProcess, hal: Any, n: int) -> None:
+        self.proc = proc
+        self.hal = hal
+        self.state = "RESET"
+        self.on_done: Callable[..., None] | None = None
+        self._q = [0.0] * n
+        self._answer(self._request("B", hal.load_persist() or b""))
+
+    def poll(self) -> bool:
+        """One pass of the firmware's main loop: UART bytes in, lines handled,
+        control tick if due. -> True if bytes came."""
+        data = self.hal.uart_read()
+        self._answer(self._request("S", data))
+        return bool(data)
+
+    def estop(self) -> None:
+        self._answer(self._request("E", None))
+
+    def _request(self, cmd: str, data: bytes | None) -> str:
+        hal = self.hal
+        hal.read_positions(self._q)
+        line = "%s %d %d %s %s" % (cmd, hal.ticks_ms(), hal.ticks_us(), data.hex() if data else "-",
+                                   " ".join(map(repr, self._q)))
+        return self.proc.call(line)
+
+    def _answer(self, answer: str) -> None:
+        """Replays the firmware's HAL calls on the emulator's HAL, in order."""
+        fields = answer.split("\t")
+        self.state = fields[0]
+        hal = self.hal
+        for f in fields[1:]:
+            kind, body = f[:1], f[1:]
+            if kind == "T":
+                hal.uart_write(bytes.fromhex(body))
+            elif kind == "O":
+                hal.write_outputs([float(x) for x in body.split(",")])
+            elif kind == "X":
+                hal.outputs_off()
+            elif kind == "P":
+                hal.save_persist(bytes.fromhex(body))
+            elif kind == "D":
+                if self.on_done is not None:
+                    self.on_done(*json.loads(body))
+            elif kind == "!":
+                raise FirmwareCrashed("the firmware raised under MicroPython:\n" + json.loads(body))
+            else:
+                raise BridgeError(f"the MicroPython bridge sent an unknown field {f[:40]!r}")

@@ -1,0 +1,184 @@
+"""The firmware's HAL under the MicroPython bridge, and the step functions
+bridge.mjs calls (MicroPython; also imports under CPython for fwcost.py).
+
+The HAL holds plain values that one round trip per emulator tick fills and
+drains: the emulator's clock (`ms`, `us`), the bytes the UART received since
+the last poll (`rx`), the joint readings (`q`), and a log of what the firmware
+did, in order (`ops`: UART writes, outputs written, outputs off, persisted
+memory written, completed waypoints). The CPython side replays that log on the
+emulator's own HAL, so the plant, the UART lanes and the board's records see
+exactly what they see when the firmware runs under CPython.
+
+Request lines (one per round trip, from armbridge.emulator.micropython):
+    B ms us PERSIST q1 .. qn    boot: import the firmware, construct the board
+    S ms us RX q1 .. qn         one pass of the main loop: board.poll()
+    E ms us - q1 .. qn          the board's estop()
+PERSIST and RX are hex, "-" for none. The answer is one line of tab-separated
+fields: the board's state, then the log in order: `T<hex>` UART bytes,
+`O<e1>,..,<en>` outputs written, `X` outputs off, `P<hex>` persisted memory
+written, `D<json list>` the arguments of the completion hook; and last, when
+the firmware raised, `!<json string>` its traceback.
+"""
+
+import binascii
+import json
+import sys
+
+try:
+    from time import ticks_diff as _ticks_diff, ticks_add as _ticks_add
+except ImportError:  # CPython (fwcost.py's comparison run): MicroPython's semantics
+    def _ticks_diff(a, b):
+        return ((a - b + 0x20000000) & 0x3FFFFFFF) - 0x20000000
+
+    def _ticks_add(t, delta):
+        return (t + delta) & 0x3FFFFFFF
+
+TX = 0
+OUT = 1
+OFF = 2
+PERSIST = 3
+DONE = 4
+
+
+class BridgeHal:
+    """The HAL of docs/architecture.md over values set from outside."""
+
+    def __init__(self, n, persist=b""):
+        self.ms = 0
+        self.us = 0
+        self.rx = None
+        self.q = [0.0] * n
+        self.ops = []
+        self.persist = persist
+
+    def ticks_ms(self):
+        return self.ms
+
+    def ticks_us(self):
+        return self.us
+
+    def ticks_diff(self, a, b):
+        return _ticks_diff(a, b)
+
+    def ticks_add(self, t, delta):
+        return _ticks_add(t, delta)
+
+    def read_positions(self, out):
+        q = self.q
+        for i in range(len(out)):
+            out[i] = q[i]
+
+    def write_outputs(self, efforts):
+        self.ops.append((OUT, tuple(efforts)))
+
+    def outputs_off(self):
+        self.ops.append((OFF, None))
+
+    def uart_read(self):
+        data = self.rx
+        self.rx = None
+        return data
+
+    def uart_write(self, data):
+        self.ops.append((TX, bytes(data)))
+
+    def load_persist(self):
+        return self.persist
+
+    def save_persist(self, data):
+        self.persist = bytes(data)
+        self.ops.append((PERSIST, self.persist))
+
+    def on_done(self, *args):
+        """The board's completion hook (its arguments are passed on as they are)."""
+        self.ops.append((DONE, args))
+
+
+# ---------------------------------------------------------------- the bridge
+
+_board = None
+_hal = None
+_modules = ("arm", "config")
+
+
+def setup(board_module, config_module):
+    """Names of the firmware's board and config modules (bridge.mjs, at start)."""
+    global _modules
+    _modules = (board_module, config_module)
+
+
+def _hex(data):
+    return binascii.hexlify(data).decode()
+
+
+def _drain(hal, state, error=None):
+    out = [state]
+    tx = b""
+    for kind, v in hal.ops:
+        if kind == TX:
+            tx += v
+            continue
+        if tx:
+            out.append("T" + _hex(tx))
+            tx = b""
+        if kind == OUT:
+            out.append("O" + ",".join([repr(float(x)) for x in v]))
+        elif kind == OFF:
+            out.append("X")
+        elif kind == PERSIST:
+            out.append("P" + _hex(v))
+        else:
+            out.append("D" + json.dumps(list(v)))
+    if tx:
+        out.append("T" + _hex(tx))
+    hal.ops = []
+    if error is not None:
+        out.append("!" + json.dumps(error))
+    return "\t".join(out)
+
+
+def _traceback(e):
+    try:
+        import io
+        buf = io.StringIO()
+        sys.print_exception(e, buf)
+        return buf.getvalue()
+    except Exception:
+        return "%s: %s" % (type(e).__name__, e)
+
+
+def step(line):
+    """One request line -> one answer line (see the module docstring)."""
+    global _board, _hal
+    parts = line.split(" ")
+    cmd = parts[0]
+    data = None if parts[3] == "-" else binascii.unhexlify(parts[3])
+    q = [float(x) for x in parts[4:]]
+    if cmd == "B":
+        _hal = BridgeHal(len(q), data or b"")
+    hal = _hal
+    if hal is None:
+        return "RESET\t!" + json.dumps("the bridge got %r before a boot" % cmd)
+    hal.ms = int(parts[1])
+    hal.us = int(parts[2])
+    hal.q = q
+    board = _board
+    try:
+        if cmd == "B":
+            cfg = __import__(_modules[1])
+            board = __import__(_modules[0]).Board(hal, cfg)
+            board.on_done = hal.on_done
+            _board = board
+        elif board is None:
+            raise RuntimeError("the board is not running")
+        elif cmd == "S":
+            hal.rx = data
+            board.poll()
+        elif cmd == "E":
+            board.estop()
+        else:
+            raise ValueError("unknown bridge request %r" % cmd)
+    except Exception as e:
+        _board = None
+        return _drain(hal, "CRASHED", _traceback(e))
+    return _drain(hal, board.state)
