@@ -291,3 +291,52 @@ def test_ticks_wrap():
     run(board, hal, 1000)
     assert ["DONE", "1", "32"] in events(hal.take())
     assert board.state == "IDLE"
+
+
+def test_setlim_narrowing_moves_the_set_point_at_vmax_with_one_limit_event():
+    hal, board, host = _session()                      # shoulder at 1000 mrad, vmax 3000
+    assert host.answer(2, "SETLIM", 1, 2000, 2500, 2000)[1] == "OK"
+    prev = board.traj.sp[0]
+    lines = []
+    for _ in range(80):
+        run(board, hal, 10)
+        lines += hal.take()
+        sp = board.traj.sp[0]
+        assert 0.0 <= sp - prev <= 2000 * 0.010 + 1e-6, (prev, sp)   # never above vmax
+        prev = sp
+    assert board.traj.sp[0] == 2000.0
+    assert events(lines, "LIMIT") == [["LIMIT", "1"]]
+    assert board.state == "IDLE" and abs(hal.q[0] - 2.0) < 0.05
+    assert host.answer(3, "SETLIM", 2, -500, -500, 1000)[1] == "OK"   # min == max: locked
+    run(board, hal, 800)
+    assert board.traj.sp[1] == -500.0
+    assert host.answer(4, "LIM", 2)[2][2:] == ["2", "-500", "-500", "1000"]
+    assert host.answer(5, "W", 1, 100, 2200, -400, 0)[2][1:4] == ["6", "RANGE", "2"]
+    assert host.answer(6, "W", 1, 100, 2200, -500, 0)[1] == "OK"
+
+
+def test_setlim_excluding_a_queued_target_refused():
+    hal, board, host = _session()
+    host.answer(2, "WDOG", 5000)
+    host.answer(3, "W", 1, 1000, 1500, -1000, 0)
+    host.answer(4, "W", 2, 1000, 2500, -1000, 0)
+    ans = host.answer(5, "SETLIM", 1, 0, 2000, 3000)      # waypoint 2 would fall outside
+    assert ans[1] == "ER" and ans[2][1:4] == ["6", "RANGE", "1"]
+    assert host.answer(6, "LIM", 1)[2][2:] == ["1", "0", "3142", "3000"]
+    assert host.answer(7, "SETLIM", 1, 0, 2500, 3000)[1] == "OK"
+    run(board, hal, 1100)                                  # 1 done, 2 under way
+    assert board.state == "RUN" and board.traj.active_id == 2
+    ans = host.answer(8, "SETLIM", 1, 0, 2400, 3000)       # the active target counts too
+    assert ans[2][1:4] == ["6", "RANGE", "1"]
+    assert host.answer(9, "SETLIM", 2, -1000, -1000, 3000)[1] == "OK"
+
+
+def test_on_done_gets_id_and_values():
+    hal, board, host = _session()
+    got = []
+    board.on_done = lambda w, targets: got.append((w, list(targets)))
+    host.answer(2, "W", 40, 200, 1100, -900, 50)
+    for i in range(4):                                     # short ones: coalesced events,
+        host.answer(3 + i, "W", 41 + i, 2, 1100 + i, -900, 50)   # each still reported here
+    run(board, hal, 400)
+    assert got == [(40, [1100, -900, 50])] + [(41 + i, [1100 + i, -900, 50]) for i in range(4)]
