@@ -2,9 +2,12 @@
 
 The emulator runs the real firmware in this process at `speed=2` (sim time 2x
 wall time) so a 10 s plan takes ~5 s (at 4x the emulator, starved of CPU on a
-busy 2-core machine, skips control ticks; 2x keeps the board's timing exact); the checks use the board's own log of
-completed waypoints (`EmulatedBoard.executed`, from the firmware's trace hook,
-before any link fault) as the ground truth for exactly-once, in-order execution.
+busy 2-core machine, skips control ticks; 2x keeps the board's timing exact).
+The client's timers run on the emulator's clock (`Port.clock`), and every time
+checked is board time, never the wall clock. The checks use the board's own log
+of completed waypoints (`EmulatedBoard.executed`: board ms, id and the targets
+the firmware executed, from its completion hook, before any link fault) as the
+ground truth for exactly-once, in-order execution with the values the host sent.
 """
 from __future__ import annotations
 
@@ -17,7 +20,9 @@ import pytest
 import armbridge.link.transport as transport
 from armbridge.emulator.plant import PlantParams
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.client import BoardClient, BoardClock
+from armbridge.executor.client import BoardClient
+from armbridge.executor.stream import Stream
+from armbridge.link.boardclock import BoardClock
 from armbridge.executor.run import Summary, plan_error, run_plan
 from armbridge.link.protocol import to_milli
 from armbridge.plans.format import make_plan, save_plan
@@ -57,6 +62,15 @@ def executed_ids(port) -> list[int]:
     return [wid for _, wid, _ in port.emulator.executed]
 
 
+def executed_values(port) -> list[tuple[int, ...]]:
+    """The targets (mrad) of every waypoint the board completed, from its own log."""
+    return [values for _, _, values in port.emulator.executed]
+
+
+def sent_values(plan) -> list[tuple[int, ...]]:
+    return [tuple(to_milli(row)) for row in plan.q]
+
+
 def tracking_bound(peak_v: float, period_s: float) -> float:
     """Worst |set point - measured| (rad) the emulated servo may show on a plan whose
     joint speeds stay below peak_v, from the plant's numbers (PlantParams):
@@ -93,17 +107,16 @@ def test_board_clock_unwraps_and_survives_a_restart():
 
 
 def test_waypoint_ids_wrap_at_65536():
-    class NoPort:
-        timeout = None
-        in_waiting = 0
-
-    c = BoardClient(NoPort(), ARM3R, session=7)
+    s = Stream([10], [[0, 0, 0]])
     # Plan index for a board id, searched among the indices in flight.
-    assert c._index_of(5, 0, 100) == 5
-    assert c._index_of(3, 65530, 65540) == 65539  # id 3 is index 65539 = 65536 + 3
-    assert c._index_of(65535, 65530, 65540) == 65535
-    assert c._index_of(9, 65530, 65540) is None  # not in flight
-    assert c._index_of(7, 10, 5) is None
+    assert s.index_of(5, 0, 100) == 5
+    assert s.index_of(3, 65530, 65540) == 65539  # id 3 is index 65539 = 65536 + 3
+    assert s.index_of(65535, 65530, 65540) == 65535
+    assert s.index_of(9, 65530, 65540) is None  # not in flight
+    assert s.index_of(7, 10, 5) is None
+    # A second plan of the session: its ids follow on from the first's.
+    s2 = Stream([10], [[0, 0, 0]], base=65530)
+    assert s2.wid(0) == 65530 and s2.wid(10) == 4 and s2.index_of(4, 0, 20) == 10
 
 
 def test_plan_error_follows_the_linear_path():
@@ -127,14 +140,13 @@ def test_200_waypoints_run_exactly_once_in_order_and_track(tmp_path, ports):
     plan = wave_plan(200)
     path = save_plan(plan, tmp_path / "wave.json")
     rrd = tmp_path / "wave.rrd"
-    t0 = time.monotonic()
     s = run_plan(path, f"emu:esp32?speed={SPEED}&seed=3", rrd, rate_hz=50, progress=False)
-    wall = time.monotonic() - t0
     port = ports[0]
     emu = port.emulator
 
     assert s.completed, s
     assert executed_ids(port) == list(range(200))
+    assert executed_values(port) == sent_values(plan)
     assert (s.waypoints_done, s.waypoints_sent, s.waypoints_acked) == (200, 200, 200)
     assert s.resyncs == 0 and s.final_state == "IDLE"
     # Board time: the plan's 10 s (9.999-10.001 s measured on an idle machine; no SLOW
@@ -142,7 +154,9 @@ def test_200_waypoints_run_exactly_once_in_order_and_track(tmp_path, ports):
     # control ticks and so stretches segments in board time.
     assert s.slow_events == 0
     assert s.measured_duration_s == pytest.approx(s.planned_duration_s, rel=0.05)
-    assert wall < 10.0 / SPEED + 3.0
+    # The board's own log agrees: first to last completion spans the plan's 9.95 s.
+    ms = [t for t, _, _ in emu.executed]
+    assert (ms[-1] - ms[0]) / 1000 == pytest.approx(plan.total_duration - plan.durations[0], rel=0.05)
 
     # Tracking, from telemetry while RUN (see tracking_bound for the derivation).
     assert emu.cfg.PID_KFF[0] == pytest.approx(1 / PlantParams().v_servo)  # the premise of the bound
@@ -197,6 +211,7 @@ def test_link_faults_and_a_reset_every_waypoint_once_in_order(tmp_path, ports):
     emu = port.emulator
     ids = executed_ids(port)
     assert ids == list(range(200)), ids  # exactly once, in order, across the reset
+    assert executed_values(port) == sent_values(plan)  # and with the values the host sent
     assert s.completed and s.waypoints_done == 200 and s.waypoints_acked >= 190
     assert emu.counters["resets"] == 1 and s.resyncs >= 1
     reset_ms = emu.resets[0] * 1000
@@ -226,6 +241,7 @@ def test_a_reset_early_in_a_second_plan_of_the_session():
         client.execute(durations, q)
         assert emu.counters["resets"] == 1 and client.stats.resyncs >= 1
         assert executed_ids(port) == list(range(60))
+        assert executed_values(port) == 2 * sent_values(plan)
     finally:
         port.close()
 
@@ -258,7 +274,7 @@ def test_ctrl_c_sends_estop_and_keeps_the_recording(tmp_path, ports, monkeypatch
     for chunk in RrdReader(rrd).stream():
         if chunk.entity_path in ("/errors", "/events"):
             texts += [x for row in chunk.to_record_batch().column("TextLog:text").to_pylist() for x in row]
-    assert "stopped by user, e-stop sent" in texts and "ESTOP" in texts
+    assert "stopped by SIGINT, e-stop sent" in texts and "ESTOP" in texts
     seen["run"] = s.telemetry_samples
     assert seen["run"] > 0
 
@@ -352,15 +368,15 @@ def test_run_command_prints_the_table_and_writes_json(tmp_path, ports):
 
 @pytest.mark.hil
 def test_silent_board_is_resynchronised(ports):
-    """A reset whose reboot takes 1.5 s of wall time: no BOOT line, no answer, only
+    """A reset whose reboot takes 3 s of board time: no BOOT line, no answer, only
     silence, until the board is back; then HELLO with the same session resumes."""
     import serial
 
     from armbridge.emulator.board import EmulatedBoard
 
-    # The reboot lasts 1.5 s of wall time: longer than the host's 1 s silence timeout.
-    emu = EmulatedBoard("esp32", speed=SPEED, boot_ms=1500 * SPEED).start()
-    port = transport.Port(serial.Serial(emu.port, 115200, timeout=0.1), "emu:esp32", emulator=emu)
+    # The reboot lasts 3 s: longer than the host's 1 s silence timeout (both on the board's clock).
+    emu = EmulatedBoard("esp32", speed=SPEED, boot_ms=3000).start()
+    port = transport.Port(serial.Serial(emu.port, 115200, timeout=0.1), "emu:esp32", emulator=emu, clock=emu.now)
     ports.append(port)
     reasons = []
     client = BoardClient(port, ARM3R, on_error=lambda t, text: reasons.append(text))
@@ -373,6 +389,7 @@ def test_silent_board_is_resynchronised(ports):
 
     client.execute([50] * plan.k, [to_milli(r) for r in plan.q], on_progress=reset_once)
     assert executed_ids(port) == list(range(60))
+    assert executed_values(port) == sent_values(plan)
     assert client.stats.resyncs == 1
     assert any(r.startswith("resync: the board was silent") for r in reasons), reasons
     # The retransmission timer backs off while the board is away: no flood of lines.
@@ -384,7 +401,8 @@ def test_a_stalled_joint_latches_fault_and_stops_the_run(tmp_path, ports):
     """The shoulder is seized from the start; as the plan moves it 0.4 rad away, the
     board's following-error check (350 mrad for 300 ms) latches FAULT and the run
     stops with an error that says so (no e-stop needed: the board is stopped)."""
-    with pytest.raises(ArmbridgeError, match="the board stopped: a following error latched FAULT"):
+    with pytest.raises(ArmbridgeError, match=r"the board stopped: FAULT latched, joint 1 \(shoulder\): "
+                                             r"following error \d+ mrad"):
         run_plan(wave_plan(200), f"emu:esp32?speed={SPEED}&stall=1@0", tmp_path / "f.rrd", progress=False)
     emu = ports[0].emulator
     assert emu.state == "FAULT" and not emu.estop_byte_at
