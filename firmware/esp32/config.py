@@ -16,8 +16,7 @@ LINK_LENGTHS_M = (0.19, 0.12, 0.07)
 LIMITS_MRAD = ((0, 3142), (-3142, 0), (-1571, 1571))
 VMAX_MRAD_S = (3000, 3000, 3000)   # speed limit per joint
 
-CONTROL_HZ = 100
-PERIOD_MS = 10                      # control period: 1000 // CONTROL_HZ
+PERIOD_MS = 10                      # control period (100 Hz)
 QSIZE = 32                          # waypoint queue slots
 TELEMETRY_HZ = 25                   # default telemetry rate (RATE changes it)
 WDOG_MS = 1000                      # default watchdog timeout (WDOG changes it)
