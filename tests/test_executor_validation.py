@@ -60,7 +60,7 @@ def _bad(kind: str) -> str:
         ("malformed", r"plan.json: line \d+, column \d+: not valid JSON"),
         ("nan", r"plan.json: waypoint 1, q\[0\] \(shoulder\) is nan: plans hold finite numbers only"),
         ("range", r"plan.json: waypoint 2, q\[0\] \(shoulder\) = 3.5 rad is outside \[0, 3.1416\]"),
-        ("robot", r'plan.json: robot: unknown robot "ur5" \(known: arm3r\)'),
+        ("robot", r'plan.json: robot: unknown robot "ur5" \(known: [^)]*\barm3r\b'),
         ("speed", r"plan.json: waypoint 1, joint 0 \(shoulder\) moves 0.1 rad in 0.01 s = 10 rad/s"),
     ],
 )

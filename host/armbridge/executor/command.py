@@ -1,7 +1,16 @@
-"""`armbridge run PLAN --port PORT`: run a plan file on a board and summarise the run."""
+"""`armbridge run PLAN --port PORT`: run a plan file on a board and summarise the run.
+
+Exit codes (docs/formats.md §5): 0 the plan completed; 1 the run failed (a
+board fault or refusal, no answer, a busy or lost port); 2 bad input or usage
+(nothing was sent); 128 + the signal when stopped by one (130 Ctrl-C, 143
+SIGTERM, 129 SIGHUP), after the e-stop byte. The summary (table, and the
+`--json` file) is written for every run that got as far as trying the port.
+"""
 from __future__ import annotations
 
 import json
+import os
+import sys
 from pathlib import Path
 from typing import Optional
 
@@ -9,7 +18,8 @@ import typer
 from rich.console import Console
 
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.run import RATE_MAX, RATE_MIN, run_plan
+from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, run_plan
+from armbridge.executor.signals import Stopped, holding, stop_on_signals
 
 
 def run_cmd(
@@ -17,20 +27,96 @@ def run_cmd(
     port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, loop://) or emu:DEVICE."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Recording to write [default: runs/<time>-<plan>.rrd]."),
     rate: int = typer.Option(50, "--rate", help=f"Telemetry rate in Hz ({RATE_MIN}..{RATE_MAX})."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the summary as JSON to this file."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
+                                           help="Also write the summary as JSON to FILE ('-': stdout)."),
     clear: bool = typer.Option(False, "--clear", help="Clear a latched ESTOP/WDOG/FAULT on the board first."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
-    """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary."""
-    console = Console()
-    summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console)
-    console.print(summary.table())
-    if json_out is not None:
+    """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
+
+    Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
+    """
+    # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
+    console = Console(stderr=json_out == "-")
+    try:
+        with stop_on_signals():
+            _run(plan, port, rrd, rate, json_out, clear, progress, console)
+    except Stopped as stop:  # before the run started, or while its files were written
+        raise typer.Exit(stop.exit_code) from None
+
+
+def _run(plan, port, rrd, rate, json_out, clear, progress, console) -> None:
+    failed: RunFailed | None = None
+    try:
+        summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console)
+    except RunFailed as exc:
+        failed, summary = exc, exc.summary
+    with holding():
+        if json_out is not None:
+            write_summary(summary, json_out)
+        _print(console, summary.table())
+        if failed is not None:
+            _say(f"error: {failed}", "red")
+            raise typer.Exit(1)
+        if summary.stopped_by_user:
+            _say(f"stopped by {summary.stopped_by or 'SIGINT'}"
+                 + (", e-stop sent" if summary.estop_sent else ""), "yellow")
+            raise typer.Exit(128 + _signum(summary.stopped_by))
+        if not summary.completed:
+            raise typer.Exit(1)
+
+
+def write_summary(summary: Summary, target: str) -> None:
+    """The JSON summary to a file ('-': stdout), written whole (a temporary file renamed)."""
+    text = json.dumps(summary.to_dict(), indent=2) + "\n"
+    if target == "-":
         try:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
-            json_out.write_text(json.dumps(summary.to_dict(), indent=2) + "\n")
-        except OSError as exc:
-            raise ArmbridgeError(f"{json_out}: cannot write the summary: {exc.strerror}") from None
-    if summary.stopped_by_user:
-        typer.secho("stopped by user, e-stop sent", fg="yellow", err=True)
-        raise typer.Exit(130)
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        except OSError:
+            _detach_stdout()
+        return
+    path = Path(target)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise ArmbridgeError(f"{path}: cannot write the summary: {exc.strerror}") from None
+
+
+def _signum(name: str | None) -> int:
+    import signal
+
+    try:
+        return int(signal.Signals[name or "SIGINT"])
+    except KeyError:
+        return int(signal.SIGINT)
+
+
+def _print(console: Console, renderable) -> None:
+    """Print, unless the terminal is gone (SIGHUP): the files are what counts then."""
+    try:
+        console.print(renderable)
+    except OSError:
+        _detach_stdout()
+
+
+def _say(text: str, colour: str) -> None:
+    try:
+        typer.secho(text, fg=colour, err=True)
+    except OSError:
+        pass
+
+
+def _detach_stdout() -> None:
+    """Point stdout at /dev/null, so that Python's flush at exit cannot fail on a
+    closed terminal (which would turn our exit code into 120)."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError):
+        pass

@@ -4,11 +4,16 @@
     summary.table()      # a rich Table
     summary.to_dict()    # JSON-ready
 
-The plan is validated before the port is opened: a bad plan sends nothing.
-Ctrl-C sends the e-stop byte at once, stops cleanly, closes the recording
-with what was recorded, and returns a Summary with `stopped_by_user` set.
-Any other failure while the arm may be moving also sends the e-stop byte
-(unless the board has already stopped itself) and then raises.
+The plan is validated before the port is opened: a bad plan sends nothing
+and writes nothing (ArmbridgeError). The session is opened with
+`open_session` (refusing a board latched from before unless `clear`).
+
+Ctrl-C, SIGTERM and SIGHUP (executor/signals.py) all take one path: the e-stop
+byte at once, a bounded wait for the board's ESTOP, the recording closed (it
+verifies), and a Summary with `stopped_by_user` and `stopped_by` set. Any
+other failure while the arm may move also sends the e-stop byte (unless the
+board has stopped itself), closes the recording, and raises `RunFailed`, which
+carries the Summary (`error`, `final_state`, and `fault` for a FAULT).
 """
 from __future__ import annotations
 
@@ -19,7 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from armbridge.errors import ArmbridgeError
+from armbridge.errors import ArmbridgeError, BoardFailure
+from armbridge.executor.client import LATCHED_STATES, BoardClient
+from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, load_plan, validate
 
@@ -61,8 +68,10 @@ class Summary:
     tracking_plan: dict[str, JointTracking] = field(default_factory=dict)  # q vs the plan's linear path
     final_state: str | None = None
     stopped_by_user: bool = False
+    stopped_by: str | None = None  # SIGINT, SIGTERM or SIGHUP
     estop_sent: bool = False
     error: str | None = None
+    fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None
     fw_version: str | None = None
 
@@ -92,9 +101,14 @@ class Summary:
         t = Table(title=f"run of {self.plan}", show_header=True, header_style="bold")
         t.add_column("", style="bold")
         t.add_column("value", justify="right")
-        status = "completed" if self.completed else ("stopped by user" if self.stopped_by_user else
+        status = "completed" if self.completed else (f"stopped by {self.stopped_by or 'user'}" if
+                                                      self.stopped_by_user else
                                                       f"failed: {self.error}" if self.error else "incomplete")
         t.add_row("status", status)
+        if self.final_state:
+            t.add_row("final board state", self.final_state + (", e-stop sent" if self.estop_sent else ""))
+        if self.fault:
+            t.add_row("fault", self.fault)
         t.add_row("board", f"{self.fw} {self.fw_version}" if self.fw else "-")
         t.add_row("waypoints done / total", f"{self.waypoints_done} / {self.waypoints_total}")
         t.add_row("waypoints sent / acknowledged", f"{self.waypoints_sent} / {self.waypoints_acked}")
@@ -159,6 +173,16 @@ def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_st
     return np.array(rows).reshape(-1, plan.n)
 
 
+class RunFailed(BoardFailure):
+    """The run was tried and failed (a board fault or refusal, a lost port, no
+    answer): exit code 1. `summary` is the Summary of what happened, already
+    complete (recording closed)."""
+
+    def __init__(self, message: str, summary: Summary) -> None:
+        super().__init__(message)
+        self.summary = summary
+
+
 def run_plan(
     plan: Plan | str | Path,
     port_url: str,
@@ -174,7 +198,13 @@ def run_plan(
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
 
     `clear`: send CLR first when the board is latched (ESTOP/WDOG/FAULT) from
-    before; without it a latched board is an ArmbridgeError.
+    before; without it a latched board fails the run.
+
+    Outcomes: a Summary (completed, or `stopped_by_user` after SIGINT/SIGTERM/
+    SIGHUP: e-stop sent, `stopped_by` names the signal); `RunFailed` carrying
+    the Summary for a run that failed once the port was tried; a plain
+    ArmbridgeError for bad input (the plan, the rate, a port that names no
+    serial device), before anything was sent and with nothing written.
     """
     # 1. Validate before anything touches a port.
     if isinstance(plan, Plan):
@@ -183,8 +213,8 @@ def run_plan(
         plan = load_plan(plan)
     if not isinstance(rate_hz, int) or not RATE_MIN <= rate_hz <= RATE_MAX:
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
-    from armbridge.executor.client import BoardClient
-    from armbridge.link.transport import open_port
+    from armbridge.executor.session import open_session
+    from armbridge.link.transport import PortError
     from armbridge.telemetry.recording import Recording, default_rrd_path
 
     robot = plan.robot
@@ -220,84 +250,135 @@ def run_plan(
     def on_event(t: float | None, ev: P.Event) -> None:
         summary.events += 1
         if rec is not None:
-            level = "error" if ev.kind in ("ESTOP", "WDOG", "FAULT") else "warn" if ev.kind in ("SLOW", "BOOT") else "info"
+            level = "error" if ev.kind in LATCHED_STATES else "warn" if ev.kind in ("SLOW", "BOOT") else "info"
             rec.event(t, " ".join([ev.kind, *ev.args]), level)
 
     def on_error(t: float | None, text: str) -> None:
         if rec is not None:
             rec.error(t, text, "error" if text.startswith("resync") else "warn")
 
-    port = open_port(port_url)
+    failure: BaseException | None = None
     bar = None
-    try:
-        rec = Recording(rrd, robot, plan)
-        summary.rrd = str(rrd)
-        client = BoardClient(port, robot, session, on_telemetry=on_telemetry, on_event=on_event, on_error=on_error)
-        info = client.connect()
-        summary.fw, summary.fw_version = info.fw, info.version
-        state, _, _, _ = client.stat()
-        if state in ("ESTOP", "WDOG", "FAULT"):
-            if not clear:
-                raise ArmbridgeError(
-                    f"the board is latched in {state} from before; check the arm, then run again with --clear "
-                    "to clear it"
-                )
-            client.command("CLR")
-            state, _, _, _ = client.stat()
-            if state in ("ESTOP", "WDOG", "FAULT"):
-                raise ArmbridgeError(f"the board is still latched in {state} after CLR")
-        client.set_rate(rate_hz)
-        on_progress = None
-        if progress:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-            bar = Progress(TextColumn("[bold]running[/bold] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                           TextColumn("waypoints"), TimeElapsedColumn(), console=console, transient=False)
-            task = bar.add_task(plan.name, total=plan.k)
-            bar.start()
-
-            def on_progress(done: int) -> None:
-                bar.update(task, completed=done)
-
+    with stop_on_signals():
         try:
-            client.execute(durs_ms, q_milli, on_progress=on_progress, timeout=timeout)
-            # Let the last samples (the arm settling on the final waypoint) arrive.
-            client.drain(min(0.2, 2.0 / rate_hz) / client.speed)
-            summary.final_state = client.stat()[0]
-        except KeyboardInterrupt:
-            client.estop()
-            summary.estop_sent = True
-            summary.stopped_by_user = True
-            if rec is not None:
-                rec.error(None, "stopped by user, e-stop sent", "error")
-            try:
-                # The ESTOP event (the board confirms) and the last telemetry.
-                client.drain(1.0, until=lambda: client.state == "ESTOP")
-            except (ArmbridgeError, KeyboardInterrupt):
-                pass
-            summary.final_state = client.state
-        except BaseException as exc:
-            if client.state not in ("ESTOP", "WDOG", "FAULT"):
+            rec = Recording(rrd, robot, plan)
+            summary.rrd = str(rrd)
+            with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
+                              session=session, on_telemetry=on_telemetry, on_event=on_event,
+                              on_error=on_error) as c:
+                client = c
+                summary.fw, summary.fw_version = c.info.fw, c.info.version
+                bar = _progress_bar(plan, console) if progress else None
                 try:
-                    client.estop()
-                    summary.estop_sent = True
-                except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops it
-                    pass
+                    c.execute(durs_ms, q_milli, on_progress=bar.update if bar else None, timeout=timeout)
+                    # Let the last samples (the arm settling on the final waypoint) arrive.
+                    c.drain(min(0.2, 2.0 / rate_hz) / c.speed)
+                    summary.final_state = c.stat()[0]
+                except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
+                    _stop(c, summary, rec, stop)
+                except BaseException as exc:
+                    failure = exc
+                    _fail(c, summary, rec, exc)
+                finally:
+                    if bar is not None:
+                        bar.stop()
+                    _fill(summary, c, plan, samples, names)
+        except PortError as exc:
+            if exc.usage:  # the --port value names no serial device: bad input, nothing ran
+                _discard(rec, rrd)
+                summary.rrd = None
+                raise
+            failure = exc
             summary.error = str(exc)
+        except KeyboardInterrupt as stop:  # outside streaming (connecting): nothing sent moves the arm
+            summary.stopped_by_user = True
+            summary.stopped_by = getattr(stop, "name", "SIGINT")
             if rec is not None:
-                rec.error(None, f"run failed: {exc}" + ("; e-stop sent" if summary.estop_sent else ""), "error")
-            if summary.estop_sent and isinstance(exc, ArmbridgeError):
-                raise ArmbridgeError(f"{exc}; e-stop sent (the next run needs --clear)") from exc
-            raise
-    finally:
-        if bar is not None:
-            bar.stop()
-        if client is not None:
-            _fill(summary, client, plan, samples, names)
-        if rec is not None:
-            rec.close()
-        port.close()
+                rec.error(None, f"stopped by {summary.stopped_by}", "error")
+        except ArmbridgeError as exc:  # handshake: no answer, another board, latched, refused
+            if failure is None:
+                failure = exc
+                summary.error = str(exc)
+                summary.final_state = client.state if client is not None else None
+                if rec is not None:
+                    rec.error(None, f"run failed: {exc}", "error")
+        finally:
+            with holding():
+                if rec is not None:
+                    rec.close()
+    if failure is not None:
+        raise RunFailed(summary.error or str(failure), summary) from failure
     return summary
+
+
+def _progress_bar(plan: Plan, console):
+    """A rich progress bar over the waypoints: .update(done), .stop()."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    bar = Progress(TextColumn("[bold]running[/bold] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("waypoints"), TimeElapsedColumn(), console=console, transient=False)
+    task = bar.add_task(plan.name, total=plan.k)
+    bar.start()
+
+    class _Bar:
+        @staticmethod
+        def update(done: int) -> None:
+            bar.update(task, completed=done)
+
+        @staticmethod
+        def stop() -> None:
+            try:
+                bar.stop()
+            except OSError:
+                pass  # the terminal is gone (SIGHUP)
+
+    return _Bar()
+
+
+def _estop(client: BoardClient, summary: Summary) -> None:
+    try:
+        client.estop()
+        summary.estop_sent = True
+    except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
+        pass
+
+
+def _stop(client: BoardClient, summary: Summary, rec, stop: KeyboardInterrupt) -> None:
+    """A stop signal mid-run: the e-stop byte at once, then wait (bounded) for the
+    board to confirm it, so the recording holds the ESTOP event and the last samples."""
+    _estop(client, summary)
+    summary.stopped_by_user = True
+    summary.stopped_by = getattr(stop, "name", "SIGINT")
+    if rec is not None:
+        rec.error(None, f"stopped by {summary.stopped_by}" + (", e-stop sent" if summary.estop_sent else
+                                                              ", e-stop could not be sent"), "error")
+    try:
+        client.drain(1.0 / client.speed, until=lambda: client.state == "ESTOP")
+    except (ArmbridgeError, KeyboardInterrupt):
+        pass
+    summary.final_state = client.state
+
+
+def _fail(client: BoardClient, summary: Summary, rec, exc: BaseException) -> None:
+    """Any other failure while the arm may move: e-stop unless the board stopped itself."""
+    if client.state not in LATCHED_STATES:
+        _estop(client, summary)
+    summary.error = str(exc) or type(exc).__name__
+    if summary.estop_sent and isinstance(exc, ArmbridgeError):
+        summary.error += "; e-stop sent (the next run needs --clear)"
+    summary.final_state = client.state
+    summary.fault = client.fault_reason
+    if rec is not None:
+        rec.error(None, f"run failed: {summary.error}", "error")
+
+
+def _discard(rec, path: Path) -> None:
+    if rec is not None:
+        rec.close()
+    try:
+        path.unlink()
+    except OSError:
+        pass
 
 
 def _fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> None:
