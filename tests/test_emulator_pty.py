@@ -1,7 +1,9 @@
 """The emulated ESP32 board over a real pseudo-terminal, driven with pyserial.
 
-The host side here is a minimal test client using the firmware's own codec
-(proto.encode / proto.decode); the real host client lives in armbridge.executor.
+The host side here is a minimal v2 test client (tests/emu_host.py: the host
+codec with a seq and the link epoch); the real host client lives in
+armbridge.executor. Waits are bounded by wall time only as a safety net:
+every assertion is about what the board said and the emulator recorded.
 """
 import os
 import time
@@ -10,8 +12,11 @@ import numpy as np
 import pytest
 import serial
 
-from armbridge.emulator.board import EmulatedBoard, Faults
+from armbridge.emulator.board import EmulatedBoard
+from armbridge.emulator.faults import Faults
 from armbridge.emulator.pty import open_pty
+from armbridge.link import protocol as P
+from emu_host import Codec, done_ev, is_reply
 
 pytestmark = pytest.mark.hil
 
@@ -21,14 +26,16 @@ SPEED = 4.0  # sim seconds per wall second
 class Host:
     def __init__(self, emu, port=None):
         self.emu = emu
-        self.proto = emu.modules["proto"]
+        self.codec = Codec()
         self.ser = serial.Serial(port or emu.port, 115200, timeout=0.01)
-        self.seq = 0
         self.lines = []
         self.raw = b""
-        self._buf = b""
         self._sent = time.monotonic()
         self.keepalive = True
+
+    @property
+    def seq(self):
+        return self.codec.seq
 
     def close(self):
         self.ser.close()
@@ -38,24 +45,19 @@ class Host:
         self._sent = time.monotonic()
 
     def send(self, verb, *args):
-        self.seq += 1
-        self.write(self.proto.encode(self.seq, verb, args))
-        return self.seq
+        self.write(self.codec.line(verb, *args))
+        return self.codec.seq
+
+    def hello(self, session, timeout=2.0):
+        self.write(self.codec.hello(session))
+        return self.wait_reply(self.codec.seq, timeout)
 
     def pump(self):
         if self.keepalive and time.monotonic() - self._sent > 0.25 / SPEED * 2:
             self.send("PING")
         data = self.ser.read(4096)
         self.raw += data
-        self._buf += data
-        *done, self._buf = self._buf.split(b"\n")
-        for raw in done:
-            if not raw:  # the lone LF a board sends before BOOT
-                continue
-            try:
-                self.lines.append(self.proto.decode(raw, self.proto.MAX_BOARD_LINE))
-            except self.proto.ProtoError:
-                self.lines.append((None, "BAD", [raw]))
+        self.lines += self.codec.feed(data)
 
     def wait(self, verb, pred=lambda a: True, timeout=3.0, start=0):
         end = time.monotonic() + timeout
@@ -74,13 +76,9 @@ class Host:
         while True:
             self.pump()
             for line in self.lines:
-                if line[1] in ("OK", "ER") and line[2] and line[2][0] == str(seq):
+                if is_reply(line, seq):
                     return line
             assert time.monotonic() < end, f"no reply to {seq}; last lines {self.lines[-4:]}"
-
-
-def done_ev(i):
-    return lambda a: a[1] == "DONE" and a[2] == str(i)
 
 
 @pytest.fixture
@@ -116,14 +114,15 @@ def test_open_pty_is_raw_and_named():
 
 def test_hello_waypoints_telemetry_done(board):
     emu, h = board
-    ok = h.request("HELLO", 4242)
-    assert ok[1] == "OK" and ok[2][2:] == ["arm3r", "0.1.0", "1", "3", "32", "25", "1000", "-", "-"]
+    ok = h.hello(4242)
+    assert ok[1] == "OK" and ok[2][2:] == ["arm3r", "0.1.0", "2", "3", "32", "25", "1000", "-", "-", "IDLE"]
     assert h.request("LIM", 2)[2][2:] == ["2", "-3142", "0", "3000"]
     targets = [(2000, -1000, 500), (1000, -2000, -500), (1800, -1300, 200)]
-    for i, q in enumerate(targets):
-        assert h.request("W", i + 1, 300, *q)[1] == "OK"
-    h.wait("EV", done_ev(1))
+    assert h.request("W", 1, 300, *targets[0])[1] == "OK"
+    h.wait("EV", done_ev(1))  # the queue is empty: the arm holds waypoint 1 however late the host looks
     assert emu.positions() == pytest.approx(np.array(targets[0]) / 1000, abs=0.03)
+    for i, q in enumerate(targets[1:], start=2):
+        assert h.request("W", i, 300, *q)[1] == "OK"
     last = h.wait("EV", done_ev(3))
     h.wait("T", lambda a: int(a[0]) >= int(last[2][0]) + 300)
     assert emu.positions() == pytest.approx(np.array(targets[2]) / 1000, abs=0.01)
@@ -131,7 +130,7 @@ def test_hello_waypoints_telemetry_done(board):
     assert len(tel) >= 10
     q_meas = np.array([int(x) for x in tel[-1][2][4:7]]) / 1000
     assert q_meas == pytest.approx(np.array(targets[2]) / 1000, abs=0.01)
-    assert [i for _, i in emu.executed] == [1, 2, 3]
+    assert [(i, v) for _, i, v in emu.executed] == [(i + 1, q) for i, q in enumerate(targets)]
     # Opening the port can catch a line the board was half-way through sending:
     # only lines after the HELLO reply must all decode.
     first = next(i for i, line in enumerate(h.lines) if line[1] == "OK")
@@ -144,7 +143,7 @@ def test_bad_lines_get_error_replies_and_the_board_keeps_running(board):
     range: each gets its error reply over the pty, nothing moves, and the board
     answers normally afterwards."""
     emu, h = board
-    assert h.request("HELLO", 77)[1] == "OK"
+    assert h.hello(77)[1] == "OK"
     q0 = emu.positions()
 
     def error_after(data):
@@ -154,8 +153,10 @@ def test_bad_lines_get_error_replies_and_the_board_keeps_running(board):
 
     assert error_after(b"\x01\xffgarbage\n")[:3] == ["-", "1", "PARSE"]
     assert error_after(b"9" * 300 + b"\n")[:3] == ["-", "3", "LONG"]
-    good = h.proto.encode(h.seq + 1, "PING", [])
-    assert error_after(good[:-5] + b"0000\n")[:3] == ["-", "2", "CRC"]
+    good = P.encode(h.seq + 1, "PING", epoch=h.codec.epoch)  # built, not sent: the seq is not used up
+    assert error_after(good[:-9] + b"00000000\n")[:3] == ["-", "2", "CRC"]
+    stale = P.encode(h.seq + 1, "PING", epoch=h.codec.epoch - 1)  # the same line in an earlier epoch
+    assert error_after(stale)[:3] == ["-", "2", "CRC"]
     assert h.request("JUMP")[2][1:3] == ["4", "VERB"]
     assert h.request("W", 1, 100, 5000, 0, 0)[2][1:3] == ["6", "RANGE"]
     assert h.request("W", 2, 100, 1000)[2][1:3] == ["5", "ARGS"]
@@ -167,7 +168,7 @@ def test_bad_lines_get_error_replies_and_the_board_keeps_running(board):
 
 def test_reset_mid_motion_prints_boot_and_keeps_done(board):
     emu, h = board
-    h.request("HELLO", 99)
+    h.hello(99)
     h.request("W", 1, 200, 2000, -1000, 500)
     h.request("W", 2, 3000, 500, -2500, -1000)
     h.wait("EV", lambda a: a[1] == "DONE" and a[2] == "1")  # waypoint 2 starts in this tick
@@ -177,22 +178,23 @@ def test_reset_mid_motion_prints_boot_and_keeps_done(board):
     end = time.monotonic() + 3
     # A reset cuts the line on the wire, so BOOT may arrive glued to a partial
     # line (as on a real board); look for it in the byte stream.
-    while b" BOOT arm3r 0.1.0 1*" not in h.raw[mark:]:
+    while b" BOOT arm3r 0.1.0 2 IDLE*" not in h.raw[mark:]:
         assert time.monotonic() < end, h.raw[mark:][-300:]
         h.pump()
     assert len(emu.resets) == 1 and len(emu.boots) == 2
     assert emu.outputs_off_at[-1] == pytest.approx(emu.resets[-1])
     h.keepalive = True
-    hello = h.request("HELLO", 99)
-    assert hello[2][-2:] == ["1", "-"]  # done 1 survived the reset; nothing queued in the new boot
-    assert [i for _, i in emu.executed] == [1]
+    hello = h.hello(99)
+    assert hello[2][-3:] == ["1", "-", "IDLE"]  # done 1 survived the reset; nothing queued in the new boot
+    assert [(i, v) for _, i, v in emu.executed] == [(1, (2000, -1000, 500))]
 
 
 def test_estop_with_full_queue_latches_until_clr(board):
     emu, h = board
-    h.request("HELLO", 5)
-    for i in range(33):
-        h.request("W", i, 2000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0)
+    h.hello(5)
+    # 20 s waypoints: none finishes while the host fills the queue, however slow the host
+    replies = [h.request("W", i, 20000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0) for i in range(33)]
+    assert all(r[1] == "OK" for r in replies), [r for r in replies if r[1] != "OK"]
     st = h.request("STAT")
     assert st[2][1] == "0" and st[2][2] == "RUN"  # queue full
     assert emu.hal.outputs_enabled
@@ -215,7 +217,7 @@ def test_estop_with_full_queue_latches_until_clr(board):
 
 def test_watchdog_when_host_goes_silent(board):
     emu, h = board
-    h.request("HELLO", 6)
+    h.hello(6)
     for i in range(4):
         h.request("W", i, 1000, 1571 + 400 * (-1) ** i, -1571, 0)
     h.keepalive = False
@@ -232,29 +234,44 @@ def test_port_survives_host_close_and_symlink(tmp_path):
     with EmulatedBoard("esp32", speed=SPEED, link=link) as emu:
         assert os.path.realpath(link) == emu.port
         h = Host(emu, port=link)
-        assert h.request("HELLO", 1)[1] == "OK"
+        assert h.hello(1)[1] == "OK"
         h.close()
         time.sleep(0.1)
         h = Host(emu, port=link)
         h.ser.reset_input_buffer()
-        assert h.request("HELLO", 1)[1] == "OK"
+        assert h.hello(1)[1] == "OK"
         h.close()
     assert not os.path.lexists(link)
 
 
 def test_link_faults_over_pty_are_counted():
+    """PINGs one at a time, each waiting for its answer (or for the next line when
+    a fault ate it), until both lanes have carried 500 bytes and met every fault
+    kind: what ends the loop is the emulator's counters, not a clock."""
+    kinds = ("drop", "dup", "corrupt")
+
+    def enough(c):
+        return all(c[lane]["bytes"] > 500 and all(c[lane][k] > 0 for k in kinds) for lane in ("rx", "tx"))
+
     with EmulatedBoard("esp32", speed=SPEED, faults=Faults(drop=0.02, dup=0.02, corrupt=0.02), seed=3) as emu:
         h = Host(emu)
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end:
-            h.send("PING")
-            h.pump()
+        h.keepalive = False
+        for _ in range(400):
+            if enough(emu.counters):
+                break
+            seq, start = h.send("PING"), len(h.lines)
+            end = time.monotonic() + 0.5  # only a safety net: a lost line gets no answer
+            while not any(is_reply(line, seq) or line[1] in ("ER", "BAD") for line in h.lines[start:]):
+                if time.monotonic() > end:
+                    break
+                h.pump()
         c = emu.counters
+    assert enough(c), c
     for lane in ("rx", "tx"):
-        assert c[lane]["bytes"] > 500
-        for kind in ("drop", "dup", "corrupt"):
-            assert 0 < c[lane][kind] < c[lane]["bytes"] * 0.06
+        for kind in kinds:
+            assert c[lane][kind] < c[lane]["bytes"] * 0.06
     assert emu.state != "ESTOP"
+    assert any(line[1] == "OK" for line in h.lines) and any(line[1] in ("ER", "BAD") for line in h.lines)
 
 
 def _run_cli(*args):
@@ -273,9 +290,6 @@ def _run_cli(*args):
 def test_cli_serves_a_board_until_ctrl_c(tmp_path):
     import signal
 
-    from armbridge.emulator.board import load_firmware, DEVICES, FIRMWARE_ROOT
-
-    proto = load_firmware([FIRMWARE_ROOT / d for d in DEVICES["esp32"].dirs], ("proto",))["proto"]
     link = str(tmp_path / "arm")
     proc = _run_cli("esp32", "--link", link, "--speed", "2", "--drop", "0", "--seed", "4", "--quiet")
     try:
@@ -284,7 +298,7 @@ def test_cli_serves_a_board_until_ctrl_c(tmp_path):
         port = first.split()[3]
         assert os.path.realpath(link) == port
         s = serial.Serial(link, 115200, timeout=0.05)
-        s.write(proto.encode(1, "HELLO", [3]))
+        s.write(P.encode(1, "HELLO", P.PROTOCOL_VERSION, 3, 1))
         buf = b""
         end = time.monotonic() + 5
         while b" OK 1 32 arm3r" not in buf and time.monotonic() < end:
