@@ -154,11 +154,13 @@ def test_stale_epoch_second_client_with_the_same_session():
         a.arq.need_resync = "test"
         a._resync()
     assert peer.epoch == 4
+    durs, q = plan(5)
+    a.execute(durs, q)
     b = client_for(peer, session=9)  # a second run, same session: starts at epoch 1
     assert b.arq.epoch == 5 and peer.epoch == 5
-    durs, q = plan(5)
     b.execute(durs, q)
-    assert [wid for wid, _ in peer.executed] == list(range(5))
+    # b's ids follow on from the board's newest: its `done` 4 is not one of b's.
+    assert [wid for wid, _ in peer.executed] == list(range(10))
     # The first client's lines are now from an old epoch: they fail the board's CRC.
     before = len(peer.executed)
     peer.write(P.encode(50, "W", 99, 20, *MID, epoch=4))

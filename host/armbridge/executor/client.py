@@ -189,6 +189,11 @@ class BoardClient:
         info = parse_hello(ok)
         check_identity(info, self.robot)
         self.state = info.state
+        # Same session as a board that ran waypoints already (an earlier run):
+        # our ids follow on from its newest, so its `done` never names one of ours.
+        newest = info.queued if info.queued is not None else info.done
+        if newest is not None and self._stream is None:
+            self._base = newest + 1
         self.arq.keepalive = min(0.25, info.wdog_ms / 4000.0)
         self.arq.live = True
         info.limits_milli = read_limits(self.command, info.n)
