@@ -129,7 +129,7 @@ class BoardLink:
         self._in_command = False
         self._telem_acc = 0
         self._verbs = {
-            "HELLO": None, "LIM": self._cmd_lim, "HOLD": self._cmd_hold,
+            "LIM": self._cmd_lim, "HOLD": self._cmd_hold,
             "RESUME": self._cmd_resume, "CLR": self._cmd_clr, "RATE": self._cmd_rate,
             "WDOG": self._cmd_wdog, "STAT": self._cmd_stat, "PING": self._cmd_ping,
         }

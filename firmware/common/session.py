@@ -137,9 +137,6 @@ class Session:
         self.bseq = (self.bseq + 1) & _SEQ_MASK
         return data
 
-    def ok(self, seq: int, free: int, payload=()) -> bytes:
-        return self.line("OK", [seq, free] + list(payload))
-
     def er(self, seq, code: int, detail=None) -> bytes:
         fields = [seq, code, P.ERROR_NAMES.get(code, "ERR")]
         if detail is not None and detail != "":

@@ -57,10 +57,17 @@ class Traj:
         return True
 
     def set_range(self, j: int, lo: int, hi: int, vmax: int) -> None:
-        """Joint j's (0-based) range and speed limit."""
+        """Joint j's (0-based) range and speed limit. A lower vmax re-plans the
+        active segment from where the set point is (no jump), stretched so that
+        it obeys the new limit."""
+        slower = vmax < self.vmax[j]
         self.lo[j] = lo
         self.hi[j] = hi
         self.vmax[j] = vmax
+        if slower and self.active_id >= 0:
+            for k in range(self.n):
+                self._start[k] = self.sp[k]
+            self._plan(self._dur - self._t)
 
     def excludes(self, j: int, lo: int, hi: int) -> bool:
         """True when a queued or active target of joint j lies outside [lo, hi]."""
@@ -141,11 +148,21 @@ class Traj:
     def _begin(self, events: list) -> None:
         wid, dur, targets = self._queue.pop(0)
         self._targets = targets
-        worst = -1
         for j in range(self.n):
             self._ramping[j] = False
             self._start[j] = self.sp[j]
             self._end[j] = float(targets[j])
+        self.active_id = wid
+        events.append(("START", wid))
+        worst = self._plan(dur)
+        if worst >= 0:
+            events.append(("SLOW", wid, worst + 1))
+
+    def _plan(self, dur: int) -> int:
+        """Times the active segment _start -> _end: dur ms, or longer where a
+        joint would exceed its vmax -> the joint that set the time, or -1."""
+        worst = -1
+        for j in range(self.n):
             need = abs(self._end[j] - self._start[j]) * 1000.0 / self.vmax[j]
             need_ms = int(need)
             if need_ms < need:
@@ -153,15 +170,14 @@ class Traj:
             if need_ms > dur:
                 dur = need_ms
                 worst = j
+        if dur < 1:
+            dur = 1
         self._dur = dur
         self._t = 0
-        self.active_id = wid
-        events.append(("START", wid))
-        if worst >= 0:
-            events.append(("SLOW", wid, worst + 1))
         scale = 1000.0 / dur
         for j in range(self.n):
             self.vel[j] = (self._end[j] - self._start[j]) * scale
+        return worst
 
     def _interpolate(self) -> None:
         f = self._t / self._dur

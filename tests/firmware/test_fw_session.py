@@ -135,7 +135,7 @@ def test_wraparound():
 def test_board_lines_count_and_parse():
     s = sess.Session()
     a = s.boot("arm3r", "0.1.0", "IDLE")
-    b = s.ok(5, 31)
+    b = s.line("OK", [5, 31])
     c = s.er("-", proto.CRC)
     d = s.er(7, proto.SEQ, 9)
     e = s.ev(123, "DONE", [4, 32])
@@ -151,7 +151,7 @@ def test_board_lines_count_and_parse():
 def test_board_seq_wraps_and_lines_stay_short():
     s = sess.Session()
     s.bseq = 65535
-    s.ok(1, 1)
+    s.line("OK", [1, 1])
     assert s.bseq == 0
     line = s.line("T", ["x" * 50] * 10)
     assert len(line) <= proto.MAX_BOARD_LINE

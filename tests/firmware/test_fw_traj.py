@@ -175,3 +175,20 @@ def test_excludes_sees_queued_and_active_targets():
     assert t.active_id == 2 and t.excludes(0, 0, 200)
     _run(t, 20)
     assert not t.busy() and not t.excludes(0, 0, 200)
+
+
+def test_lower_vmax_replans_the_active_segment_without_a_jump():
+    t = Traj(1, vmax=[100000])
+    t.set_point([0])
+    t.push(1, 100, [1000])
+    _run(t, 5)                                         # start + 40 ms: at 400
+    assert t.sp[0] == 400.0
+    t.set_range(0, -5000, 5000, 1000)                  # 600 left at 1000 mrad/s: 600 ms
+    assert t.sp[0] == 400.0 and abs(t.vel[0] - 1000.0) < 1e-9
+    prev = t.sp[0]
+    evs = []
+    for _ in range(59):
+        evs += t.step(10)
+        assert 0.0 < t.sp[0] - prev <= 10.0 + 1e-9
+        prev = t.sp[0]
+    assert evs == [] and t.step(10) == [("DONE", 1, [1000])]
