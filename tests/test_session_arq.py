@@ -10,6 +10,7 @@ from armbridge.executor.client import BoardClient
 from armbridge.executor.stream import Stream
 from armbridge.link import protocol as P
 from armbridge.link.arq import MIN_WINDOW, Arq, Cmd
+from armbridge.link.rto import RTO_MAX_S, RetransmitTimer
 from armbridge.robots import ARM3R
 from session_peer import FakeClock, Peer
 
@@ -100,14 +101,14 @@ def test_timeout_backs_off_and_karn_takes_no_sample_from_a_retransmission():
     c = client_for(peer, robot=None)
     for _ in range(40):
         c.command("PING")
-    arq = c.arq
-    assert arq._srtt == pytest.approx(0.02, abs=0.006)
-    assert arq.rto_min <= arq.rto <= arq.rto_initial
-    srtt = arq._srtt
+    timer = c.arq.timer
+    assert timer.srtt == pytest.approx(0.02, abs=0.006)
+    assert timer.min <= timer.rto <= timer.initial
+    srtt = timer.srtt
     peer.drop_in = {peer.lines_in}  # the next PING is lost once: its answer comes to the resend
     c.command("PING")
     assert c.stats.timeouts == 1 and c.stats.retransmissions == 1
-    assert arq._srtt == srtt  # Karn: no sample from the retransmitted line
+    assert timer.srtt == srtt  # Karn: no sample from the retransmitted line
 
 
 def test_credits_hold_the_stream_at_the_boards_queue_size():
@@ -264,6 +265,17 @@ def test_a_boot_resyncs_and_resumes_after_done():
     c.execute(durs, q, on_progress=on_progress)
     assert [wid for wid, _ in peer.executed] == list(range(12))
     assert c.stats.resyncs == 1 and c.stats.boots == 1 and stream_done[-1] == 12
+
+
+def test_the_timer_backs_off_only_while_the_board_is_silent():
+    timer = RetransmitTimer(10 / 115200)
+    assert timer.timeout() == timer.initial
+    for _ in range(10):
+        timer.expired_in_silence()
+    assert timer.timeout() == RTO_MAX_S
+    timer.answered()
+    timer.sample(0.004)
+    assert timer.timeout() == max(timer.min, 0.004 + 4 * 0.002)
 
 
 def test_arq_refuses_to_issue_past_a_full_epoch():

@@ -42,7 +42,8 @@ from armbridge.errors import ArmbridgeError
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
 from armbridge.executor.stream import Stream
 from armbridge.link import protocol as P
-from armbridge.link.arq import RENEWAL, Arq, LinkStats
+from armbridge.link.arq import RENEWAL, Arq
+from armbridge.link.stats import LinkStats
 from armbridge.link.boardclock import BoardClock
 from armbridge.link.protodef import LATCHED_STATES
 

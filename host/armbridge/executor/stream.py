@@ -124,7 +124,10 @@ class Stream:
 
     def refusal(self, cmd: Cmd, er: P.Er, state: str | None) -> ArmbridgeError:
         """A refused W (RANGE, FULL, LATCHED ...) is fatal: the error says why."""
-        what = f"waypoint {cmd.wp - self.base} (W seq {cmd.seq})" if cmd.verb == "W" else f"{cmd.verb} (seq {cmd.seq})"
+        if cmd.wp is not None:
+            what = f"waypoint {cmd.wp - self.base} (W seq {cmd.seq})"
+        else:
+            what = f"{cmd.verb} (seq {cmd.seq})"
         why = {
             P.RANGE: "a value is outside the board's limits",
             P.FULL: "its queue was full (host credit error)",

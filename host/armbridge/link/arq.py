@@ -14,9 +14,8 @@ Reliability:
 * Every command carries a seq = its command number mod 65536; an answer (OK
   or ER) ends its life. Unanswered commands stay in a list in seq order and
   are sent again when
-  (a) their retransmission timer runs out: go-back-N from it. The RTO starts
-      at 4 x (command line + answer) time + 50 ms and then follows the measured
-      answer times (Jacobson/Karels; Karn: no samples from retransmitted lines);
+  (a) their retransmission timer runs out: go-back-N from it (link/rto.py:
+      Jacobson/Karels, Karn, back-off while the board is silent);
   (b) the board answers `ER SEQ E`: go-back-N from E, unless a retransmission
       of E is already on its way (answers to lines sent before it are stale);
   (c) the board reports a framing error (CRC/PARSE/LONG with seq `-`): the
@@ -48,10 +47,11 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
+from armbridge.link.rto import RetransmitTimer
+from armbridge.link.stats import LinkStats
 
 READ_WAIT_S = 0.005  # the port's read timeout (wall clock): the longest one wait for a byte
 MAX_WINDOW = 24  # unanswered commands at most: the board's replay ring holds 32
@@ -63,40 +63,6 @@ MAX_WINDOW = 24  # unanswered commands at most: the board's replay ring holds 32
 MIN_WINDOW = 4
 RENEWAL = "a new epoch before seqs repeat"  # need_resync reason of a full epoch: routine, not a fault
 _V1_FRAME = re.compile(rb"[\x20-\x7e]*\*[0-9A-F]{4}\r?\n?")  # a protocol 1 line (CRC-16)
-
-
-@dataclass
-class LinkStats:
-    """What happened on the link during a session."""
-
-    lines_sent: int = 0  # every line written, retransmissions included
-    commands: int = 0  # distinct commands (seqs) issued
-    retransmissions: int = 0  # lines written again (any verb)
-    waypoints_sent: int = 0  # distinct waypoints sent at least once
-    waypoint_lines: int = 0  # W lines written, retransmissions and resends included
-    waypoints_acked: int = 0  # distinct waypoints answered OK
-    timeouts: int = 0  # retransmission timer expiries
-    seq_errors: int = 0  # ER SEQ answers
-    board_framing_errors: int = 0  # ER - CRC/PARSE/LONG from the board (our lines damaged)
-    host_line_errors: int = 0  # board lines the host could not decode (their lines damaged)
-    v1_lines: int = 0  # of those, lines framed as protocol 1 (CRC-16): an old firmware
-    board_lines_lost: int = 0  # gaps in the board's line counter
-    nosession: int = 0
-    resyncs: int = 0  # resyncs after a fault (BOOT, NOSESSION, silence, confusion)
-    epochs: int = 0  # epochs opened (HELLOs accepted), renewals included
-    epoch_renewals: int = 0  # routine new epochs before seqs would repeat
-    boots: int = 0
-    pings: int = 0
-    slow_events: int = 0
-    window_cuts: int = 0  # congestion window halvings (lines lost on the way to the board)
-
-    @property
-    def waypoints_retransmitted(self) -> int:
-        return self.waypoint_lines - self.waypoints_sent
-
-    @property
-    def line_errors(self) -> int:
-        return self.board_framing_errors + self.host_line_errors
 
 
 class Cmd:
@@ -147,22 +113,11 @@ class Arq:
         self.max_epoch_commands = max_epoch_commands
         baud = baud or int(getattr(port, "baudrate", 0) or getattr(port, "baud", 0) or 115200)
         self.byte_time = 10.0 / baud  # clock seconds per byte (8N1)
-        # Retransmission timeout, counted from when a line should have reached
-        # the board: 4 x the time of a command line and its answer + 50 ms to
-        # start with, then adapted to the measured answer times, never below the
-        # time an answer needs when it queues behind a telemetry line.
-        line_pair = (P.MAX_HOST_LINE + 40) * self.byte_time
-        self.rto_initial = 4 * line_pair + 0.050
-        self.rto_min = (P.MAX_BOARD_LINE + P.MAX_HOST_LINE) * self.byte_time + 0.002
-        self.rto = self.rto_initial
-        self.rto_max = 0.5  # s: the longest back-off (a board that is rebooting)
-        self._backoff = 1.0  # doubles on a timeout while the board is silent, 1 again on any answer
-        self._srtt: float | None = None
-        self._rttvar = 0.0
+        self.timer = RetransmitTimer(self.byte_time)
         # From a line reaching the board to its answer reaching us: the answer
         # may queue behind a telemetry line, plus the board's poll.
         self.answer_time = 2 * P.MAX_BOARD_LINE * self.byte_time + 0.010
-        self.silence_timeout = silence_timeout if silence_timeout is not None else max(1.0, 10 * self.rto_initial)
+        self.silence_timeout = silence_timeout if silence_timeout is not None else max(1.0, 10 * self.timer.initial)
         self.keepalive = 0.25
         self.stats = LinkStats()
         self.live = False  # a session is open: keep-alive and silence detection run
@@ -309,7 +264,7 @@ class Arq:
         cmd.last_tx = now
         self._lane_free = max(now, self._lane_free) + len(cmd.data) * self.byte_time
         cmd.arrive_at = self._lane_free
-        cmd.deadline = cmd.arrive_at + min(self.rto_max, self.rto * self._backoff)
+        cmd.deadline = cmd.arrive_at + self.timer.timeout()
         st.lines_sent += 1
         if cmd.wp is not None:
             st.waypoint_lines += 1
@@ -391,15 +346,8 @@ class Arq:
                     self.on_line(msg)
 
     def _rtt_sample(self, cmd: Cmd) -> None:
-        if cmd.tx != 1:
-            return  # Karn: an answer to a retransmitted line cannot be timed
-        sample = max(0.0, self.now() - cmd.arrive_at)
-        if self._srtt is None:
-            self._srtt, self._rttvar = sample, sample / 2
-        else:
-            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - sample)
-            self._srtt = 0.875 * self._srtt + 0.125 * sample
-        self.rto = min(self.rto_initial, max(self.rto_min, self._srtt + 4 * self._rttvar))
+        if cmd.tx == 1:  # Karn: an answer to a retransmitted line cannot be timed
+            self.timer.sample(max(0.0, self.now() - cmd.arrive_at))
 
     def _on_answer(self, ok: P.Ok) -> None:
         cmd = self._find(ok.seq)
@@ -419,7 +367,7 @@ class Arq:
         self._lost_answers_before(cmd)
 
     def _settle(self, cmd: Cmd, answer) -> None:
-        self._backoff = 1.0  # the board answers
+        self.timer.answered()
         cmd.answer = answer
         self.out.remove(cmd)
         if cmd.keep:
@@ -499,10 +447,10 @@ class Arq:
         for cmd in self.out if not waiting else ():  # read what has arrived before timing out
             if not cmd.due and cmd.deadline <= now:
                 self.stats.timeouts += 1
-                if now - self._last_bytes > self.rto_initial:
+                if now - self._last_bytes > self.timer.initial:
                     # Not a byte from the board (rebooting, unplugged): back off.
                     # A noisy link that still delivers bytes keeps the plain RTO.
-                    self._backoff = min(self._backoff * 2, 64.0)
+                    self.timer.expired_in_silence()
                 self.note(f"no answer to seq {cmd.seq} ({cmd.verb}) in {now - cmd.last_tx:.3f} s: "
                           "resending from it")
                 self._retransmit_from(cmd)
