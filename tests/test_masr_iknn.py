@@ -233,7 +233,7 @@ def test_refinement_reduces_error():
     dp0, dphi0 = pose_errors(ARM, xg, q)
     qr = refine(ARM, xg, q, iters=8, neighbours=False)
     dp1, dphi1 = pose_errors(ARM, xg, qr)
-    assert ARM.feasible(qr).all()
+    assert ARM.within_limits(qr).all()
     score = lambda dp, dphi: np.maximum(dp / 0.008, dphi / math.radians(4))  # noqa: E731
     assert (score(dp1, dphi1) <= score(dp0, dphi0) + 1e-12).all()  # never worse
     assert dp1.mean() < 0.2 * dp0.mean() and dphi1.mean() < 0.2 * dphi0.mean()
@@ -266,7 +266,7 @@ def test_refinement_sparsifies_within_margin():
     assert np.all(np.maximum(dp / 0.008, dphi / math.radians(4))[changed] <= 0.5 + 1e-9)
     turned = lambda q: (np.abs(q[:, :5] - q_c[:, :5]) > 1e-9).sum(axis=1)  # noqa: E731
     assert np.all(turned(sparse)[changed] <= turned(plain)[changed])
-    assert ARM.feasible(sparse).all()
+    assert ARM.within_limits(sparse).all()
 
 
 def test_masr_ik_interface(tmp_path, exported):
@@ -276,7 +276,7 @@ def test_masr_ik_interface(tmp_path, exported):
     ik = MasrIK.load(f.parent / "card.json")
     xg, q0, inp = _inputs(20)
     q = ik.solve(xg, q0)
-    assert q.shape == (20, 6) and ARM.feasible(q).all()
+    assert q.shape == (20, 6) and ARM.within_limits(q).all()
     np.testing.assert_allclose(ik.solve(xg[3], q0[3]), q[3], atol=1e-6)  # single query
     assert ik.solve(xg[:4].reshape(2, 2, 3), q0[:4].reshape(2, 2, 6), refine=True).shape == (2, 2, 6)
     assert MasrIK.load(f.parent / "card.json", int8=True).solve(xg, q0).shape == (20, 6)
@@ -295,7 +295,7 @@ def test_nr_baseline_solves_reachable_goals(backend):
     nr = MasrNR(ARM, restarts=50 if backend == "rtb" else 200, seed=1, backend=backend)
     q = nr.solve(xg, q0)
     m = evaluate(ARM, xg, q0, q)
-    assert m["success_rate"] == 100.0 and ARM.feasible(q).all()
+    assert m["success_rate"] == 100.0 and ARM.within_limits(q).all()
     # the answer is the least-eq.-(12) one among those found: joints past the MA stay at q_c
     j, _ = ARM.locate(q[:, -1])
     for i in range(4):

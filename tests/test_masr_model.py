@@ -185,8 +185,8 @@ def test_feasible_eq5():
             [0, 0, 0, 0, 0, 0.8 + 1e-9],
         ]
     )
-    np.testing.assert_array_equal(MASR5.feasible(qs), [True, True, True, False, False, False, False])
-    assert MASR5.feasible(qs.reshape(7, 1, 6)).shape == (7, 1)
+    np.testing.assert_array_equal(MASR5.within_limits(qs), [True, True, True, False, False, False, False])
+    assert MASR5.within_limits(qs.reshape(7, 1, 6)).shape == (7, 1)
 
 
 # ------------------------------------------------------------ motion convention
@@ -423,7 +423,7 @@ def test_fig4c_regulariser():
     tau_l, tau_theta = l / MASR5.ma_speed, alpha / MASR5.joint_speed
     q_c = q(0, 0, 0, 0, 0, 1.5 * l)
     q_t = q(alpha, 2 * alpha, -3 * alpha, -3 * alpha, 2 * alpha, 2.5 * l)
-    assert MASR5.feasible(q_t)
+    assert MASR5.within_limits(q_t)
     assert MASR5.reg_action(q_c, q_t) == pytest.approx(12.5 * tau_l * tau_theta)
     assert MASR5.reg_joint(q_c, q_t) == pytest.approx(11 * alpha)
     uniform = MasrArm.from_dict({**MASR5.to_dict(), "name": "uniform5", "link_lengths": [l] * 5})

@@ -155,7 +155,7 @@ def test_planner_finds_a_valid_path(e1_result):
     P = res.path
     np.testing.assert_array_equal(P[0], env.start)
     assert env.in_goal(P[-1])  # eq. (9)
-    assert np.all(ARM.feasible(P))
+    assert np.all(ARM.within_limits(P))
     chk = env.checker()
     assert chk.path_problem(P) is None
     for qa, qb in zip(P[:-1], P[1:]):

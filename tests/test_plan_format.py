@@ -179,7 +179,7 @@ def test_wrong_joint_count(tmp_path):
 def test_unknown_robot_lists_the_known_ones(tmp_path):
     doc = _doc(3)
     doc["robot"] = "arm9x"
-    assert _err(tmp_path, doc) == 'robot: unknown robot "arm9x" (known: arm3r)'
+    assert _err(tmp_path, doc) == 'robot: unknown robot "arm9x" (known: arm3r, masr5, planar3r, spatial4r, spatial7r)'
 
 
 @pytest.mark.parametrize("dur,shown", [(0.0, "0"), (0.0005, "0.0005"), (61, "61"), (-1, "-1")])
@@ -282,3 +282,54 @@ def test_save_refuses_invalid_plan(tmp_path):
     with pytest.raises(ArmbridgeError, match=r"waypoint 0, q\[2\] \(wrist\) is nan"):
         save_plan(bad, tmp_path / "bad.json")
     assert not (tmp_path / "bad.json").exists()
+
+
+# ---------------------------------------------------------------- any robot of the interface
+
+
+def _masr_doc(robot="masr5") -> dict:
+    from armbridge.robots import MASR5
+
+    q = [[0.1 * i, -0.05 * i, 0.0, 0.02 * i, 0.0, 0.1 + 0.05 * i] for i in range(5)]
+    return {
+        "format": FORMAT, "version": VERSION, "robot": robot,
+        "joints": [{"name": n, "unit": u} for n, u in zip(MASR5.joint_names, MASR5.joint_units)],
+        "waypoints": [{"q": qi, "duration": 1.0} for qi in q],
+    }
+
+
+def test_a_masr_plan_has_its_d_in_m(tmp_path):
+    from armbridge.robots import MASR5
+
+    plan = load_plan(_write(tmp_path, _masr_doc()))
+    assert plan.robot is MASR5 and plan.n == 6 and not plan.inline_robot
+    np.testing.assert_allclose(plan.ee_path(), MASR5.ma_point(plan.q))  # the MA is the end effector
+    doc = _masr_doc()
+    doc["waypoints"][2]["q"][5] = 0.9
+    assert _err(tmp_path, doc) == "waypoint 2, q[5] (d) = 0.9 m is outside [0, 0.8]"
+    doc = _masr_doc()
+    doc["waypoints"][1]["q"][5] = 0.5  # 0.4 m in 1 s at 0.1 m/s
+    assert _err(tmp_path, doc) == ("waypoint 1, joint 5 (d) moves 0.4 m in 1 s = 0.4 m/s, above the "
+                                   "robot's v_max 0.1 m/s (needs duration >= 4 s)")
+    doc = _masr_doc()
+    doc["joints"][5]["unit"] = "rad"
+    assert _err(tmp_path, doc) == 'joints[5] (d).unit is "rad", allowed: "m"'
+
+
+def test_inline_robots_of_every_kind_round_trip(tmp_path):
+    from armbridge.robots import MASR5, get_robot, robot_to_dict
+
+    spatial = get_robot("spatial4r")
+    for robot in (MASR5.__class__.from_dict({**MASR5.to_dict(), "name": "masr-x"}),
+                  spatial.__class__.from_dict({**spatial.to_dict(), "name": "dh-x", "v_max": [2.0] * 4})):
+        q = (robot.q_min + robot.q_max) / 2 + np.zeros((3, robot.dof))
+        plan = make_plan(robot, q, 0.5)
+        assert plan.inline_robot
+        doc = json.loads(save_plan(plan, tmp_path / f"{robot.name}.json").read_text())
+        assert doc["robot"] == robot_to_dict(robot) and doc["robot"]["kind"] == robot.kind
+        back = load_plan(tmp_path / f"{robot.name}.json")
+        assert back.robot == robot and back.inline_robot
+    doc = _masr_doc(robot={"kind": "masr", **{k: v for k, v in MASR5.to_dict().items() if k != "name"}})
+    assert load_plan(_write(tmp_path, doc)).robot.name == "inline"  # a name may be left out
+    doc["robot"]["kind"] = "delta"
+    assert _err(tmp_path, doc) == "robot: unknown robot kind 'delta'; known kinds: planar, masr, dh"

@@ -72,7 +72,7 @@ def test_every_series_and_log_is_recorded(tmp_path):
     for entity in ("/arm/links", "/arm/target", "/arm/tip"):
         assert data[entity]["rows"] == n
     strip = np.array(data["/arm/links"]["columns"]["LineStrips2D:strips"][0][0])
-    np.testing.assert_allclose(strip, ARM3R.joint_positions(MID), atol=1e-6)
+    np.testing.assert_allclose(strip, ARM3R.joint_points(MID), atol=1e-6)
     # Static: the planned tip path and waypoints, the workspace, the measured trace (at close).
     path_strip = np.array(data["/plan/path"]["columns"]["LineStrips2D:strips"][0][0])
     np.testing.assert_allclose(path_strip, plan.ee_path(), atol=1e-6)
@@ -150,3 +150,37 @@ def test_rerun_verifies_the_file(tmp_path):
     r = subprocess.run([view.rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("name", ["masr5", "spatial4r", "planar3r"])
+def test_any_robot_goes_plan_file_to_recording(tmp_path, name):
+    """A MASR (dof n+1, d in m) and DH chains (3-D and planar) go make_plan -> save
+    -> load -> Recording, and the .rrd holds their arm strips from joint_points."""
+    from armbridge.plans.format import load_plan, save_plan
+    from armbridge.robots import get_robot
+
+    robot = get_robot(name)
+    lo, hi = robot.q_min, robot.q_max
+    q = lo + (hi - lo) * np.linspace(0.3, 0.6, 8)[:, None]  # inside the limits, slowly
+    plan = load_plan(save_plan(make_plan(robot, q, 2.0, {"tool": "test_recording"}), tmp_path / f"{name}.json"))
+    assert plan.robot == robot and not plan.inline_robot
+    np.testing.assert_array_equal(plan.q, q)
+    rrd = tmp_path / f"{name}.rrd"
+    n = 7
+    with Recording(rrd, plan.robot, plan, flush_every=3) as rec:
+        for i in range(n):
+            rec.telemetry(0.1 * i, q[i], q[i + 1], np.zeros(robot.dof))
+    data = read(rrd)
+    kind = "LineStrips2D" if robot.draw_dim == 2 else "LineStrips3D"
+    strips = [np.array(row[0]) for row in data["/arm/links"]["columns"][f"{kind}:strips"]]
+    assert len(strips) == n
+    for i, strip in enumerate(strips):
+        np.testing.assert_allclose(strip, robot.joint_points(q[i]), atol=1e-6)
+        assert strip.shape == (robot.joint_points(q[i]).shape[0], robot.draw_dim)
+    points = "Points2D" if robot.draw_dim == 2 else "Points3D"
+    tips = np.array([row[0] for row in data["/arm/tip"]["columns"][f"{points}:positions"]])
+    np.testing.assert_allclose(tips, robot.ee_point(q[:n]), atol=1e-6)
+    path = np.array(data["/plan/path"]["columns"][f"{kind}:strips"][0][0])
+    np.testing.assert_allclose(path, robot.ee_point(q), atol=1e-6)
+    for jn in robot.joint_names:
+        assert data[f"/joints/{jn}/q"]["rows"] == n

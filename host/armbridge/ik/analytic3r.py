@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.planar import PlanarChain, wrap_angle
+from armbridge.geometry import wrap_angle
+from armbridge.robots.planar import PlanarChain
 
 # Rounding slack: a wrist exactly at full reach or a joint exactly on a limit
 # must still count, though floating point may land a hair outside. Near a

@@ -14,7 +14,7 @@ touches the outer edge is outside the workspace; every other one is an
 enclosed vacancy. The check runs after every batch.
 
 Poses are stored as (x, y, phi) with phi the MA's absolute heading
-theta_hat_{j_d} as MasrArm.fk gives it, wrapped to (-pi, pi].
+theta_hat_{j_d} as MasrArm.fk gives it, wrapped to [-pi, pi).
 """
 from __future__ import annotations
 

@@ -32,7 +32,7 @@ from numba import njit, prange
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.masr import ANGLE_TOL, MasrArm
 from armbridge.robots.masr_kernels import action_cost, ma_pose, wrap
-from armbridge.robots.planar import wrap_angle
+from armbridge.geometry import wrap_angle
 
 E_P = 0.008  # m, eq. (9) bound of section V-A
 E_PHI = math.radians(4.0)  # rad

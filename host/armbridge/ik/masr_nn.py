@@ -44,6 +44,7 @@ import torch
 from torch import nn
 
 from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle
 
 # Goal-reach bounds of eq. (9), section V-A.
 E_P = 0.008  # m
@@ -140,11 +141,6 @@ def masr_fk_torch(q: torch.Tensor, lengths: torch.Tensor, r: torch.Tensor, link_
     return torch.cat([x, y, phi], dim=-1)
 
 
-def wrap_angle_torch(a: torch.Tensor) -> torch.Tensor:
-    """Wrap to [-pi, pi) with a gradient of 1 everywhere."""
-    return a - 2 * math.pi * torch.floor((a + math.pi) / (2 * math.pi))
-
-
 def se2_log(x_d: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """Twist V_b = log(x_d^-1 x) in R^3 = (v_x, v_y, omega), poses as (..., 3) (x, y, phi).
 
@@ -156,7 +152,7 @@ def se2_log(x_d: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     cd, sd = torch.cos(x_d[..., 2]), torch.sin(x_d[..., 2])
     tx = cd * dp[..., 0] + sd * dp[..., 1]
     ty = -sd * dp[..., 0] + cd * dp[..., 1]
-    w = wrap_angle_torch(x[..., 2] - x_d[..., 2])
+    w = wrap_angle(x[..., 2] - x_d[..., 2])  # a gradient of 1 everywhere
     small = w.abs() < 1e-3
     ws = torch.where(small, torch.ones_like(w), w)  # safe operand for the exact branch
     half = ws / 2

@@ -327,7 +327,7 @@ class CollisionChecker:
     def free(self, q: Any) -> np.ndarray:
         """(...,) bool: q is in C_free (eq. 5 and no obstacle within the margin of any link)."""
         q = self.arm._q(q)
-        return (self.hits(q) < 0) & self.arm.feasible(q)
+        return (self.hits(q) < 0) & self.arm.within_limits(q)
 
     def first_hit(self, q: Any) -> tuple[int, int] | None:
         """(polygon index, link index), 0-based, of the first collision of one configuration, or None."""

@@ -25,9 +25,9 @@ from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import read_json
 from armbridge.planning import dls_ik
 from armbridge.planning.collision import SWEEP_RES, CollisionChecker
-from armbridge.robots.catalog import MASRS, get_masr
+from armbridge.robots.catalog import get_masr, is_registered
 from armbridge.robots.masr import MasrArm
-from armbridge.robots.planar import wrap_angle
+from armbridge.geometry import wrap_angle
 
 FORMAT = "armbridge-masr-env"
 VERSION = 1
@@ -90,7 +90,7 @@ class Environment:
         return (dp <= self.e_p) & (dphi <= self.e_phi)
 
     def to_dict(self) -> dict[str, Any]:
-        robot: Any = self.arm.name if MASRS.get(self.arm.name) == self.arm else self.arm.to_dict()
+        robot: Any = self.arm.name if is_registered(self.arm) else self.arm.to_dict()
         goal: dict[str, Any] = {"pose": [float(v) for v in self.goal_pose]}
         if self.goal_q is not None:
             goal["q"] = [float(v) for v in self.goal_q]
@@ -200,7 +200,7 @@ def find_goal_configs(arm: MasrArm, goal_pose: np.ndarray, checker: CollisionChe
     x = arm.fk(q)
     dp = np.linalg.norm(x[:, :2] - goal_pose[:2], axis=-1)
     dphi = np.abs(wrap_angle(x[:, 2] - goal_pose[2]))
-    ok = (dp <= e_p) & (dphi <= e_phi) & arm.feasible(q)
+    ok = (dp <= e_p) & (dphi <= e_phi) & arm.within_limits(q)
     best = int(np.argmin(dp / e_p + dphi / e_phi))
     good = q[ok]
     return good, checker.free(good) if good.size else np.zeros(0, bool), float(dp[best]), float(dphi[best])
@@ -440,7 +440,7 @@ def random_environment(arm: MasrArm | None = None, seed: int = 0, *, max_obstacl
             "format": FORMAT, "version": VERSION, "name": name or f"random-{seed}",
             "description": f"random environment (section V-C), seed {seed}, {len(polys)} obstacles covering "
                            f"{cov * 100:.1f}% of the workspace",
-            "robot": arm.name if MASRS.get(arm.name) == arm else arm.to_dict(),
+            "robot": arm.name if is_registered(arm) else arm.to_dict(),
             "obstacles": [p.tolist() for p in polys],
             "start": q0.tolist(),
             "goal": {"pose": arm.fk(qg).tolist(), "q": qg.tolist(), "e_p": e_p, "e_phi": e_phi},

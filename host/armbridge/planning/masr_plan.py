@@ -28,9 +28,10 @@ from typing import Any, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle
 from armbridge.jsonfile import read_json
 from armbridge.planning.environment import Environment, environment_from_dict
-from armbridge.robots.catalog import MASRS, get_masr
+from armbridge.robots.catalog import get_masr, is_registered
 from armbridge.robots.masr import MasrArm
 
 FORMAT = "armbridge-masr-plan"
@@ -95,7 +96,7 @@ def masr_plan_document(env: Environment, path: Any, provenance: Optional[dict] =
     return {
         "format": FORMAT,
         "version": VERSION,
-        "robot": arm.name if MASRS.get(arm.name) == arm else arm.to_dict(),
+        "robot": arm.name if is_registered(arm) else arm.to_dict(),
         "configuration": configuration_names(arm),
         "tau": float(tau[-1]),
         "goal": {"pose": [float(v) for v in env.goal_pose], "e_p": env.e_p, "e_phi": env.e_phi},
@@ -179,7 +180,7 @@ def plan_from_document(doc: Any, source: Any = None) -> MasrPlan:
             raise err(f"waypoint {k}, tau must be a finite number of seconds")
         q[k] = w["q"]
         tau[k] = w["tau"]
-        if not arm.feasible(q[k]):
+        if not arm.within_limits(q[k]):
             off = [j for j in range(n) if abs(q[k, j]) > arm.theta_b[j]]
             what = (f"theta_{off[0] + 1} = {q[k, off[0]]:.4f} rad is outside +-{arm.theta_b[off[0]]:.4f}" if off
                     else f"d = {q[k, n]:.4f} m is off the arm [0, {arm.total_length:.4f}]")
@@ -232,7 +233,7 @@ def plan_from_document(doc: Any, source: Any = None) -> MasrPlan:
         pose = np.asarray(g["pose"], float)
         x = arm.fk(q[-1])
         dp = float(np.hypot(*(x[:2] - pose[:2])))
-        dphi = float(abs((x[2] - pose[2] + np.pi) % (2 * np.pi) - np.pi))
+        dphi = abs(float(wrap_angle(x[2] - pose[2])))
         if dp > g["e_p"] + 1e-12 or dphi > g["e_phi"] + 1e-12:
             raise err(f"the last waypoint puts the MA {dp * 1e3:.2f} mm and {math.degrees(dphi):.2f} deg from the "
                       f"goal, outside e_p = {g['e_p'] * 1e3:g} mm, e_phi = {math.degrees(g['e_phi']):g} deg (eq. 9)")

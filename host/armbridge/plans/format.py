@@ -2,7 +2,10 @@
 
 A plan is a list of joint-space waypoints for one robot; each waypoint is
 reached at the end of its `duration`, starting where the previous one ends
-(the first one starts wherever the arm is). See docs/formats.md.
+(the first one starts wherever the arm is). See docs/formats.md. The robot
+is any `robots.base.Robot`: named from the registry, or described inline
+(an object with its `kind`, default "planar"); a waypoint holds its `dof`
+coordinates, each in its own unit (rad, or m for a MASR's d).
 
 Every problem is an `ArmbridgeError` whose message names the file, the
 waypoint index, the field and the allowed range, e.g.
@@ -24,8 +27,8 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import parse_json, read_json
-from armbridge.robots.catalog import ROBOTS
-from armbridge.robots.planar import PlanarChain
+from armbridge.robots import catalog
+from armbridge.robots.base import Robot
 
 FORMAT = "armbridge-plan"
 VERSION = 1
@@ -40,14 +43,14 @@ _TOP_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance"
 
 @dataclass
 class Plan:
-    """A validated plan: `q` is (k, n) in rad, `durations` is (k,) in s."""
+    """A validated plan: `q` is (k, dof) in the robot's units, `durations` is (k,) in s."""
 
-    robot: PlanarChain
+    robot: Robot
     q: np.ndarray
     durations: np.ndarray
     provenance: dict = field(default_factory=dict)
     source: Path | None = None
-    inline_robot: bool = False  # the file described the robot inline (not a catalog name)
+    inline_robot: bool = False  # the file described the robot inline (not a registry name)
 
     @property
     def k(self) -> int:
@@ -56,13 +59,8 @@ class Plan:
 
     @property
     def n(self) -> int:
-        """Number of joints."""
+        """Coordinates per waypoint (the robot's dof)."""
         return int(self.q.shape[1])
-
-    @property
-    def end_times(self) -> np.ndarray:
-        """(k,) time at which each waypoint is reached, from the start of waypoint 0."""
-        return np.cumsum(self.durations)
 
     @property
     def total_duration(self) -> float:
@@ -78,8 +76,8 @@ class Plan:
         return name if isinstance(name, str) and name else "plan"
 
     def ee_path(self) -> np.ndarray:
-        """(k, 2) planned end-effector (tip) positions in m at the waypoints."""
-        return np.asarray(self.robot.joint_positions(self.q))[..., -1, :]
+        """(k, draw_dim) planned end-effector positions in m at the waypoints (robot.ee_point)."""
+        return np.asarray(self.robot.ee_point(self.q))
 
 
 # ---------------------------------------------------------------------------
@@ -127,27 +125,32 @@ class _Ctx:
 
 
 def known_robots() -> list[str]:
-    """Names of the catalog robots."""
-    return sorted(ROBOTS)
+    """Names of the registered robots."""
+    return catalog.names()
 
 
-def _catalog_robot(name: str, ctx: _Ctx):
-    robot = ROBOTS.get(name.lower())
-    if robot is None:
+def _registry_robot(name: str, ctx: _Ctx) -> Robot:
+    if name.lower() not in known_robots():
         raise ctx.err(f'robot: unknown robot "{name}" (known: {", ".join(known_robots())})')
-    return robot
+    try:
+        return catalog.get_robot(name)
+    except ArmbridgeError as exc:  # e.g. a kind whose optional dependency is missing
+        raise ctx.err(f"robot: {exc}") from None
 
 
-def robot_from_dict(d: Any, ctx: _Ctx | None = None) -> PlanarChain:
-    """An inline robot description -> PlanarChain (see docs/formats.md); `name`
-    and `joint_names` may be left out. PlanarChain checks every value."""
+def robot_from_dict(d: Any, ctx: _Ctx | None = None) -> Robot:
+    """An inline robot description -> a robot (see docs/formats.md): `kind` (default
+    "planar") and that model's keys; `name` may be left out, and so may a planar
+    chain's `joint_names` (j1..jn). The model class checks every value."""
     ctx = ctx or _Ctx(None)
     if not isinstance(d, dict):
-        raise ctx.err(f"robot must be a catalog name or an object, got {_describe(d)}")
-    n = len(d["link_lengths"]) if isinstance(d.get("link_lengths"), list) else 0
-    full = {"name": "inline", "joint_names": [f"j{i + 1}" for i in range(n)], **d}
+        raise ctx.err(f"robot must be a registered robot's name or an object, got {_describe(d)}")
+    full = {"name": "inline", **d}
+    if d.get("kind", "planar") == "planar" and "joint_names" not in d:
+        n = len(d["link_lengths"]) if isinstance(d.get("link_lengths"), list) else 0
+        full["joint_names"] = [f"j{i + 1}" for i in range(n)]
     try:
-        return PlanarChain.from_dict(full)
+        return catalog.robot_from_dict(full)
     except ArmbridgeError as exc:
         raise ctx.err(f"robot: {exc}") from None
 
@@ -181,13 +184,14 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
     # robot
     spec = doc["robot"]
     if isinstance(spec, str):
-        robot = _catalog_robot(spec, ctx)
+        robot = _registry_robot(spec, ctx)
         inline = False
     else:
         robot = robot_from_dict(spec, ctx)
         inline = True
-    n = int(robot.n)
+    n = int(robot.dof)
     jnames = list(robot.joint_names)
+    units = list(robot.joint_units)
     q_min = np.asarray(robot.q_min, dtype=float)
     q_max = np.asarray(robot.q_max, dtype=float)
     v_max = np.asarray(robot.v_max, dtype=float)
@@ -212,8 +216,8 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
                 f"joints[{j}].name is {json.dumps(jd['name'])}, robot {robot.name} calls joint {j} "
                 f'"{jnames[j]}" (joints: {", ".join(jnames)})'
             )
-        if jd["unit"] != "rad":
-            raise ctx.err(f'joints[{j}] ({jnames[j]}).unit is {json.dumps(jd["unit"])}, allowed: "rad"')
+        if jd["unit"] != units[j]:
+            raise ctx.err(f'joints[{j}] ({jnames[j]}).unit is {json.dumps(jd["unit"])}, allowed: "{units[j]}"')
 
     # provenance
     prov = doc.get("provenance", {})
@@ -251,7 +255,7 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
             if not math.isfinite(x):
                 raise ctx.err(f"{label} is {x}: plans hold finite numbers only")
             if not (q_min[j] <= x <= q_max[j]):
-                raise ctx.err(f"{label} = {fmt_num(x)} rad is outside [{fmt_num(q_min[j])}, {fmt_num(q_max[j])}]")
+                raise ctx.err(f"{label} = {fmt_num(x)} {units[j]} is outside [{fmt_num(q_min[j])}, {fmt_num(q_max[j])}]")
             q[i, j] = x
         d = wp["duration"]
         if not _is_number(d):
@@ -268,10 +272,11 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
             over = np.nonzero(speed > v_max * (1 + SPEED_SLACK))[0]
             if over.size:
                 j = int(over[0])
+                u = units[j]
                 raise ctx.err(
-                    f"{where}, joint {j} ({jnames[j]}) moves {fmt_num(abs(q[i, j] - q[i - 1, j]))} rad in "
-                    f"{fmt_num(d)} s = {fmt_num(speed[j])} rad/s, above the robot's v_max "
-                    f"{fmt_num(v_max[j])} rad/s (needs duration >= {fmt_num(abs(q[i, j] - q[i - 1, j]) / v_max[j])} s)"
+                    f"{where}, joint {j} ({jnames[j]}) moves {fmt_num(abs(q[i, j] - q[i - 1, j]))} {u} in "
+                    f"{fmt_num(d)} s = {fmt_num(speed[j])} {u}/s, above the robot's v_max "
+                    f"{fmt_num(v_max[j])} {u}/s (needs duration >= {fmt_num(abs(q[i, j] - q[i - 1, j]) / v_max[j])} s)"
                 )
     return Plan(
         robot=robot,
@@ -301,15 +306,15 @@ def validate(plan: Plan | dict, source: Path | str | None = None) -> Plan:
 
 
 def plan_to_dict(plan: Plan) -> dict:
-    """The JSON document of a plan (robot by catalog name unless it was inline)."""
+    """The JSON document of a plan (robot by registry name unless it was inline)."""
     robot = plan.robot
-    robot_spec: Any = robot.to_dict() if plan.inline_robot else robot.name
+    robot_spec: Any = catalog.robot_to_dict(robot) if plan.inline_robot else robot.name
     prov = dict(plan.provenance)
     return {
         "format": FORMAT,
         "version": VERSION,
         "robot": robot_spec,
-        "joints": [{"name": nm, "unit": "rad"} for nm in robot.joint_names],
+        "joints": [{"name": nm, "unit": u} for nm, u in zip(robot.joint_names, robot.joint_units)],
         "waypoints": [
             {"q": [float(x) for x in plan.q[i]], "duration": float(plan.durations[i])} for i in range(plan.k)
         ],
@@ -317,15 +322,15 @@ def plan_to_dict(plan: Plan) -> dict:
     }
 
 
-def make_plan(robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge") -> Plan:
-    """Build (and validate) a Plan in memory; fills provenance.tool and .created when missing."""
+def make_plan(robot: Robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge") -> Plan:
+    """Build (and validate) a Plan in memory; fills provenance.tool and .created when missing.
+    A robot that is not the registry's robot of its name is written inline."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     durations = np.broadcast_to(np.asarray(durations, dtype=float), (q.shape[0],)).copy()
     prov = dict(provenance or {})
     prov.setdefault("tool", tool)
     prov.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
-    known = ROBOTS.get(robot.name)
-    inline = known is None or known != robot
+    inline = not catalog.is_registered(robot)
     plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline)
     return validate(plan)
 

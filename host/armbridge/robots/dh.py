@@ -1,8 +1,10 @@
 """Serial chains of revolute joints given by standard Denavit-Hartenberg tables.
 
-Kinematics in torch float64 so that the SMM tracer (armbridge.smm.nullspace)
-runs batched on the CPU or on CUDA. Every method takes q of shape (..., n);
-a numpy q gives a numpy result, a tensor q a tensor on q's device.
+Kinematics in float64, written once against the array API (array_api_compat):
+a numpy q runs in numpy, so the runtime (learned SMMs, the fault-tolerant demo)
+needs no torch, and a torch q runs in torch on q's device, so the SMM tracer
+(armbridge.smm.nullspace) runs batched on the CPU or on CUDA. Every method
+takes q of shape (..., n) and answers in q's kind of array.
 
 Standard DH: frame i follows frame i-1 by Rz(theta_i + offset_i) Tz(d_i)
 Tx(a_i) Rx(alpha_i); joint i turns about z_{i-1}, so joint 1 turns about the
@@ -17,6 +19,12 @@ the orienting grid).
 
 Task spaces: 'xy' (planar arms: position in the base x-y plane), 'xyz'
 (position) and 'pose' (position and rotation vector, 6 numbers).
+
+A DHChain is a `robots.base.Robot` (kind "dh"): q_min, q_max, v_max and
+joint_names are data too, optional in a description: a joint without stops
+turns in [-pi, pi] (the range SMM configurations are wrapped to), at
+DEFAULT_V_MAX rad/s, named j1..jn. SMMs ignore the limits. `joint_points` is
+plain numpy, so drawing a DH chain costs no torch call.
 """
 from __future__ import annotations
 
@@ -24,34 +32,48 @@ import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
+import array_api_compat.numpy as _np_ns
 import numpy as np
-import torch
+from array_api_compat import device as _device
+from array_api_compat import is_torch_array
 
 from armbridge.errors import ArmbridgeError
+from armbridge.robots.base import limits_check
 from armbridge.robots.planar import PlanarChain, description_fields
 
-A = TypeVar("A", torch.Tensor, np.ndarray)
+if TYPE_CHECKING:
+    import torch
+
+A = TypeVar("A", "torch.Tensor", np.ndarray)
 
 SPACES = {"xy": 2, "xyz": 3, "pose": 6}
 _DH_FIELDS = ("a", "alpha", "d", "theta")
 _FIELDS = ("name", *_DH_FIELDS, "space")
+_LIMIT_FIELDS = ("q_min", "q_max", "v_max", "joint_names")  # optional in a description
+DEFAULT_V_MAX = 1.0  # rad/s for a joint whose description gives no speed limit (our choice)
 _CANON_DIM = {"xy": 1, "xyz": 2, "pose": 5}  # a tool-roll 'pose' chain: 4
 _SMALL_BATCH = 128  # configurations up to which batched 4x4 products beat the batch-last chain
 
 
 @dataclass(frozen=True, eq=False)
 class DHChain:
-    """A revolute chain: per joint a (m), alpha (rad), d (m), theta offset (rad)."""
+    """A revolute chain: per joint a (m), alpha (rad), d (m), theta offset (rad);
+    limits in rad and rad/s (None: the defaults of the module docstring)."""
 
+    kind: ClassVar[str] = "dh"
     name: str
     a: np.ndarray
     alpha: np.ndarray
     d: np.ndarray
     theta: np.ndarray
     space: str
-    _cache: dict[torch.device, tuple[torch.Tensor, ...]] = field(init=False, repr=False, compare=False)
+    q_min: Any = None
+    q_max: Any = None
+    v_max: Any = None
+    joint_names: Any = None
+    _cache: dict[tuple[str, str], tuple[Any, ...]] = field(init=False, repr=False, compare=False)
     _scalars: tuple[tuple[float, float, float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -73,9 +95,18 @@ class DHChain:
             )
         if not np.any(np.hypot(arrays["a"], arrays["d"]) > 0):
             raise ArmbridgeError(f"{where}: every a and d is 0, the chain has no length")
+        limits = PlanarChain(
+            name=self.name, link_lengths=np.ones(n),
+            q_min=np.full(n, -math.pi) if self.q_min is None else self.q_min,
+            q_max=np.full(n, math.pi) if self.q_max is None else self.q_max,
+            v_max=np.full(n, DEFAULT_V_MAX) if self.v_max is None else self.v_max,
+            joint_names=tuple(f"j{i + 1}" for i in range(n)) if self.joint_names is None else self.joint_names,
+        )  # checks the limits and names as a planar chain's (one set of rules)
         for key, v in arrays.items():
             v.setflags(write=False)
             object.__setattr__(self, key, v)
+        for key in _LIMIT_FIELDS:
+            object.__setattr__(self, key, getattr(limits, key))
         object.__setattr__(self, "_cache", {})
         scalars = zip(self.a, self.d, np.cos(self.alpha), np.sin(self.alpha))
         object.__setattr__(self, "_scalars", tuple((float(a), float(d), float(c), float(s)) for a, d, c, s in scalars))
@@ -111,36 +142,90 @@ class DHChain:
         """
         return float(np.hypot(self.a, self.d).sum())
 
+    # -- the robot interface (base.Robot) ------------------------------------
+    @property
+    def dof(self) -> int:
+        """Coordinates of q: the n joints."""
+        return self.n
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """Every joint is in rad."""
+        return ("rad",) * self.n
+
+    @property
+    def draw_dim(self) -> int:
+        """2 for an 'xy' chain (drawn in its plane), else 3."""
+        return 2 if self.space == "xy" else 3
+
+    def within_limits(self, q: Any) -> np.ndarray:
+        """True where every joint is inside [q_min, q_max] (bounds included), shape (...)."""
+        return limits_check(self, self._q_np(q))
+
+    def joint_points(self, q: Any) -> np.ndarray:
+        """Base and every frame origin (the last is the tip), (..., n+1, draw_dim); numpy.
+
+        The chain of frames() as plain 4x4 products; 'xy' chains keep x, y.
+        """
+        q = self._q_np(q)
+        th = q + self.theta
+        ct, st = np.cos(th), np.sin(th)
+        ca, sa = np.cos(self.alpha), np.sin(self.alpha)
+        frame = np.broadcast_to(np.eye(4), (*q.shape[:-1], 4, 4))
+        points = [frame[..., :3, 3]]
+        for i in range(self.n):
+            link = np.zeros((*q.shape[:-1], 4, 4))
+            c, s = ct[..., i], st[..., i]
+            link[..., 0, :] = np.stack([c, -s * ca[i], s * sa[i], self.a[i] * c], -1)
+            link[..., 1, :] = np.stack([s, c * ca[i], -c * sa[i], self.a[i] * s], -1)
+            link[..., 2, :] = [0.0, sa[i], ca[i], self.d[i]]
+            link[..., 3, 3] = 1.0
+            frame = frame @ link
+            points.append(frame[..., :3, 3])
+        p = np.stack(points, -2)
+        return p[..., :2] if self.space == "xy" else p
+
+    def ee_point(self, q: Any) -> np.ndarray:
+        """The tip, (..., draw_dim)."""
+        return self.joint_points(q)[..., -1, :]
+
+    def _q_np(self, q: Any) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.ndim == 0 or q.shape[-1] != self.n:
+            raise ArmbridgeError(f"robot {self.name!r}: q must have shape (..., {self.n}), got {q.shape}")
+        return q
+
     # -- kinematics --------------------------------------------------------
     def fk(self, q: A) -> A:
         """Pose of the last frame, shape (..., 4, 4)."""
         return _io(lambda t: self.frames(t)[..., -1, :, :], q)
 
-    def frames(self, q: torch.Tensor) -> torch.Tensor:
+    def frames(self, q: A) -> A:
         """Base frame and every joint frame, shape (..., n+1, 4, 4)."""
         q = self._q(q)
-        k0, kc, ks, off = self._params(q.device)
+        xp = xp_of(q)
+        k0, kc, ks, off = self._params(q)
         th = q + off
         # Link i: Rz(theta_i) C_i with C_i = Tz(d_i) Tx(a_i) Rx(alpha_i), and
         # Rz(theta) = E + cos(theta) P_c + sin(theta) P_s (see _params).
-        links = k0 + torch.cos(th)[..., None, None] * kc + torch.sin(th)[..., None, None] * ks
-        out = [torch.eye(4, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], 4, 4)]
+        links = k0 + xp.cos(th)[..., None, None] * kc + xp.sin(th)[..., None, None] * ks
+        out = [xp.broadcast_to(xp.eye(4, dtype=q.dtype, device=_device(q)), (*q.shape[:-1], 4, 4))]
         for i in range(self.n):
             out.append(out[-1] @ links[..., i, :, :])
-        return torch.stack(out, -3)
+        return xp.stack(out, axis=-3)
 
-    def kinematics(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def kinematics(self, q: A) -> tuple[A, A, A]:
         """Tip rotation (..., 3, 3), tip position (..., 3) and geometric Jacobian (..., m, n)."""
         rot, pos, jac = self._chain(q, jacobian=True)
         assert jac is not None
         return rot, pos, jac
 
-    def tip(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def tip(self, q: A) -> tuple[A, A]:
         """Tip rotation (..., 3, 3) and position (..., 3)."""
         rot, pos, _ = self._chain(q, jacobian=False)
         return rot, pos
 
-    def _chain(self, q: torch.Tensor, jacobian: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _chain(self, q: A, jacobian: bool) -> tuple[A, A, A | None]:
         """kinematics(), the Jacobian only when asked for.
 
         The same chain as frames(), computed with the batch as the last axis
@@ -150,13 +235,14 @@ class DHChain:
         Jacobian column i: joint i turns about z_{i-1} through o_{i-1}.
         """
         q = self._q(q)
-        lead = q.shape[:-1]
-        if q.numel() <= _SMALL_BATCH * self.n:
+        xp, dev = xp_of(q), _device(q)
+        lead = tuple(q.shape[:-1])
+        if math.prod(q.shape) <= _SMALL_BATCH * self.n:
             return self._chain_small(q, jacobian)
-        th = (q.reshape(-1, self.n) + self._params(q.device)[3]).T  # (n, P)
-        ct, st = torch.cos(th), torch.sin(th)
-        rot = torch.eye(3, dtype=q.dtype, device=q.device)[:, :, None].expand(3, 3, th.shape[1])
-        pos = torch.zeros(3, th.shape[1], dtype=q.dtype, device=q.device)
+        th = (xp.reshape(q, (-1, self.n)) + self._params(q)[3]).T  # (n, P)
+        ct, st = xp.cos(th), xp.sin(th)
+        rot = xp.broadcast_to(xp.eye(3, dtype=q.dtype, device=dev)[:, :, None], (3, 3, th.shape[1]))
+        pos = xp.zeros((3, th.shape[1]), dtype=q.dtype, device=dev)
         axes, origins = [], []
         for i, (a, d, ca, sa) in enumerate(self._scalars):
             axes.append(rot[:, 2])
@@ -165,27 +251,28 @@ class DHChain:
             u = rot[:, 0] * ct[i] + rot[:, 1] * st[i]
             v = rot[:, 1] * ct[i] - rot[:, 0] * st[i]
             pos = pos + a * u + d * rot[:, 2]
-            rot = torch.stack([u, ca * v + sa * rot[:, 2], ca * rot[:, 2] - sa * v], 1)
-        r_out = rot.permute(2, 0, 1).reshape(*lead, 3, 3)
-        p_out = pos.T.reshape(*lead, 3)
+            rot = xp.stack([u, ca * v + sa * rot[:, 2], ca * rot[:, 2] - sa * v], axis=1)
+        r_out = xp.reshape(xp.permute_dims(rot, (2, 0, 1)), (*lead, 3, 3))
+        p_out = xp.reshape(pos.T, (*lead, 3))
         if not jacobian:
             return r_out, p_out, None
-        z, r = torch.stack(axes), pos - torch.stack(origins)  # (n, 3, P)
-        jv = torch.stack([z[:, 1] * r[:, 2] - z[:, 2] * r[:, 1], z[:, 2] * r[:, 0] - z[:, 0] * r[:, 2],
-                          z[:, 0] * r[:, 1] - z[:, 1] * r[:, 0]])  # (3, n, P)
-        jac = torch.cat([jv, z.transpose(0, 1)]) if self.space == "pose" else jv[: self.m]
-        return r_out, p_out, jac.permute(2, 0, 1).reshape(*lead, self.m, self.n)
+        z, r = xp.stack(axes), pos - xp.stack(origins)  # (n, 3, P)
+        jv = xp.stack([z[:, 1] * r[:, 2] - z[:, 2] * r[:, 1], z[:, 2] * r[:, 0] - z[:, 0] * r[:, 2],
+                       z[:, 0] * r[:, 1] - z[:, 1] * r[:, 0]])  # (3, n, P)
+        jac = xp.concat([jv, xp.permute_dims(z, (1, 0, 2))]) if self.space == "pose" else jv[: self.m]
+        return r_out, p_out, xp.reshape(xp.permute_dims(jac, (2, 0, 1)), (*lead, self.m, self.n))
 
-    def _chain_small(self, q: torch.Tensor, jacobian: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _chain_small(self, q: A, jacobian: bool) -> tuple[A, A, A | None]:
         """_chain() from frames(): fewer, larger ops, faster for a few configurations."""
         f = self.frames(q)
+        xp = xp_of(f)
         rot, tip = f[..., -1, :3, :3], f[..., -1, :3, 3]
         if not jacobian:
             return rot, tip, None
         z, o = f[..., :-1, :3, 2], f[..., :-1, :3, 3]
-        jv = torch.linalg.cross(z, tip[..., None, :] - o, dim=-1)  # (..., n, 3)
-        jac = torch.cat([jv, z], -1) if self.space == "pose" else jv[..., : self.m]
-        return rot, tip, jac.transpose(-1, -2)
+        jv = xp.linalg.cross(z, tip[..., None, :] - o, axis=-1)  # (..., n, 3)
+        jac = xp.concat([jv, z], axis=-1) if self.space == "pose" else jv[..., : self.m]
+        return rot, tip, jac.mT
 
     def task(self, q: A) -> A:
         """Location of q: (x, y), (x, y, z) or (x, y, z, rotation vector)."""
@@ -207,12 +294,13 @@ class DHChain:
         """Eq. (19) as a fraction (x100 for %): |p - p_target| / L, and for 'pose'
         the mean of that and the orientation angle / pi."""
 
-        def err(t: torch.Tensor, xt: torch.Tensor) -> torch.Tensor:
+        def err(t: Any, xt: Any) -> Any:
             e = self.tip_error(*self.tip(t), xt)
-            ep = torch.linalg.vector_norm(e[..., :3] if self.space == "pose" else e, dim=-1) / self.reach
+            norm = xp_of(e).linalg.vector_norm
+            ep = norm(e[..., :3] if self.space == "pose" else e, axis=-1) / self.reach
             if self.space != "pose":
                 return ep
-            return 0.5 * ep + 0.5 * torch.linalg.vector_norm(e[..., 3:], dim=-1) / math.pi
+            return 0.5 * ep + 0.5 * norm(e[..., 3:], axis=-1) / math.pi
 
         return _io(err, q, x)
 
@@ -229,73 +317,76 @@ class DHChain:
         shift[..., n-1] = psi.
         """
 
-        def canon(xt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        def canon(xt: Any) -> tuple[Any, Any]:
             xt = self._x(xt)
-            phi = torch.atan2(xt[..., 1], xt[..., 0])
-            rho = torch.hypot(xt[..., 0], xt[..., 1])
-            shift = torch.zeros(*xt.shape[:-1], self.n, dtype=xt.dtype, device=xt.device)
+            xp = xp_of(xt)
+            phi = xp.atan2(xt[..., 1], xt[..., 0])
+            rho = xp.hypot(xt[..., 0], xt[..., 1])
+            shift = xp.zeros((*xt.shape[:-1], self.n), dtype=xt.dtype, device=_device(xt))
             shift[..., 0] = phi
             if self.space == "xy":
                 return rho[..., None], shift
             if self.space == "xyz":
-                return torch.stack([rho, xt[..., 2]], -1), shift
+                return xp.stack([rho, xt[..., 2]], axis=-1), shift
             rc = rot_z(-phi) @ rot_from_vec(xt[..., 3:])
             if not self.tool_roll:
-                return torch.cat([torch.stack([rho, xt[..., 2]], -1), vec_from_rot(rc)], -1), shift
+                return xp.concat([xp.stack([rho, xt[..., 2]], axis=-1), vec_from_rot(rc)], axis=-1), shift
             axis = rc[..., :, 2]
-            polar = torch.acos(axis[..., 2].clamp(-1.0, 1.0))
-            azimuth = torch.atan2(axis[..., 1], axis[..., 0])
-            roll = (rot_z(azimuth) @ rot_y(polar)).transpose(-1, -2) @ rc  # Rz(psi)
-            shift[..., -1] = torch.atan2(roll[..., 1, 0], roll[..., 0, 0])
-            return torch.stack([rho, xt[..., 2], polar, azimuth], -1), shift
+            polar = xp.acos(xp.clip(axis[..., 2], -1.0, 1.0))
+            azimuth = xp.atan2(axis[..., 1], axis[..., 0])
+            roll = (rot_z(azimuth) @ rot_y(polar)).mT @ rc  # Rz(psi)
+            shift[..., -1] = xp.atan2(roll[..., 1, 0], roll[..., 0, 0])
+            return xp.stack([rho, xt[..., 2], polar, azimuth], axis=-1), shift
 
-        if isinstance(x, np.ndarray):
-            c, p = canon(torch.as_tensor(x, dtype=torch.float64))
-            return c.numpy(), p.numpy()
-        return canon(x)
+        return _io(canon, x)
 
     def uncanonical(self, c: A, shift: A | None = None) -> A:
         """The location whose canonical form is (c, shift); shift None: all zeros."""
 
-        def unc(ct: torch.Tensor, *sh: torch.Tensor) -> torch.Tensor:
+        def unc(ct: Any, *sh: Any) -> Any:
             if ct.shape[-1] != self.c_dim:
                 raise ArmbridgeError(
                     f"robot {self.name!r}: canonical locations have {self.c_dim} numbers, got shape {tuple(ct.shape)}"
                 )
-            st = sh[0] if sh else torch.zeros(*ct.shape[:-1], self.n, dtype=ct.dtype, device=ct.device)
+            xp = xp_of(ct)
+            st = sh[0] if sh else xp.zeros((*ct.shape[:-1], self.n), dtype=ct.dtype, device=_device(ct))
             if st.shape[-1] != self.n:
                 raise ArmbridgeError(f"robot {self.name!r}: shift needs one offset per joint ({self.n}), "
                                      f"got shape {tuple(st.shape)}")
             rho, pt = ct[..., 0], st[..., 0]
-            xy = torch.stack([rho * torch.cos(pt), rho * torch.sin(pt)], -1)
+            xy = xp.stack([rho * xp.cos(pt), rho * xp.sin(pt)], axis=-1)
             if self.space == "xy":
                 return xy
             if self.space == "xyz":
-                return torch.cat([xy, ct[..., 1:2]], -1)
+                return xp.concat([xy, ct[..., 1:2]], axis=-1)
             if self.tool_roll:
                 r = rot_z(ct[..., 3]) @ rot_y(ct[..., 2]) @ rot_z(st[..., -1])
             else:
                 r = rot_from_vec(ct[..., 2:])
-            return torch.cat([xy, ct[..., 1:2], vec_from_rot(rot_z(pt) @ r)], -1)
+            return xp.concat([xy, ct[..., 1:2], vec_from_rot(rot_z(pt) @ r)], axis=-1)
 
         return _io(unc, c) if shift is None else _io(unc, c, shift)
 
     # -- description -------------------------------------------------------
     @classmethod
     def from_planar(cls, chain: PlanarChain) -> DHChain:
-        """The 'xy' DH chain of a planar chain (a = link lengths, the rest 0);
-        its joint limits are dropped (SMMs ignore them)."""
+        """The 'xy' DH chain of a planar chain (a = link lengths, the rest 0), with
+        its limits and joint names (SMMs ignore the limits)."""
         zeros = np.zeros(chain.n)
-        return cls(name=chain.name, a=chain.link_lengths.copy(), alpha=zeros, d=zeros, theta=zeros, space="xy")
+        return cls(name=chain.name, a=chain.link_lengths.copy(), alpha=zeros, d=zeros, theta=zeros, space="xy",
+                   q_min=chain.q_min, q_max=chain.q_max, v_max=chain.v_max, joint_names=chain.joint_names)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description; from_dict(to_dict()) gives an equal chain."""
-        return {"name": self.name, **{f: getattr(self, f).tolist() for f in _DH_FIELDS}, "space": self.space}
+        d = {"name": self.name, **{f: getattr(self, f).tolist() for f in _DH_FIELDS}, "space": self.space}
+        d.update({f: getattr(self, f).tolist() for f in _LIMIT_FIELDS[:3]})
+        d["joint_names"] = list(self.joint_names)
+        return d
 
     @classmethod
     def from_dict(cls, d: Any) -> DHChain:
-        """Build from a JSON description with exactly the keys of to_dict()."""
-        return cls(**description_fields(d, _FIELDS, "DH chain description"))
+        """Build from a JSON description with the keys of to_dict() (the limit keys may be left out)."""
+        return cls(**description_fields(d, _FIELDS, "DH chain description", optional=_LIMIT_FIELDS))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, DHChain) and self.to_dict() == other.to_dict()
@@ -303,11 +394,13 @@ class DHChain:
     def __hash__(self) -> int:
         return hash(json.dumps(self.to_dict()))
 
-    # -- internals (tensor in, tensor out) ---------------------------------
-    def _params(self, device: torch.device) -> tuple[torch.Tensor, ...]:
-        """(E C, P_c C, P_s C, theta offsets) per joint on device, cached."""
+    # -- internals (array in, array of the same kind out) ---------------------
+    def _params(self, like: Any) -> tuple[Any, ...]:
+        """(E C, P_c C, P_s C, theta offsets) per joint, arrays of like's kind on its device, cached."""
         cache = self._cache
-        if device not in cache:
+        xp, dev = xp_of(like), _device(like)
+        key = (xp.__name__, str(dev))
+        if key not in cache:
             c = np.zeros((self.n, 4, 4))
             ca, sa = np.cos(self.alpha), np.sin(self.alpha)
             c[:, 0, 0], c[:, 0, 3] = 1.0, self.a
@@ -317,99 +410,121 @@ class DHChain:
             e, pc, ps = np.diag([0.0, 0, 1, 1]), np.diag([1.0, 1, 0, 0]), np.zeros((4, 4))
             ps[0, 1], ps[1, 0] = -1.0, 1.0
             mats = [e @ c, pc @ c, ps @ c, self.theta]
-            cache[device] = tuple(torch.tensor(v, dtype=torch.float64, device=device) for v in mats)
-        return cache[device]
+            cache[key] = tuple(xp.asarray(np.array(v), dtype=xp.float64, device=dev) for v in mats)  # writable copies
+        return cache[key]
 
-    def _q(self, q: torch.Tensor) -> torch.Tensor:
+    def _q(self, q: A) -> A:
         if q.ndim == 0 or q.shape[-1] != self.n:
             raise ArmbridgeError(f"robot {self.name!r}: q must have shape (..., {self.n}), got {tuple(q.shape)}")
-        return q.to(torch.float64)
+        xp = xp_of(q)
+        return xp.astype(q, xp.float64, copy=False)
 
-    def _x(self, x: torch.Tensor) -> torch.Tensor:
+    def _x(self, x: A) -> A:
         if x.ndim == 0 or x.shape[-1] != self.m:
             raise ArmbridgeError(
                 f"robot {self.name!r}: a location has {self.m} numbers ({self.space}), got shape {tuple(x.shape)}"
             )
-        return x.to(torch.float64)
+        xp = xp_of(x)
+        return xp.astype(x, xp.float64, copy=False)
 
-    def _task_of(self, rot: torch.Tensor, tip: torch.Tensor) -> torch.Tensor:
+    def _task_of(self, rot: A, tip: A) -> A:
         if self.space == "pose":
-            return torch.cat([tip, vec_from_rot(rot)], -1)
+            return xp_of(tip).concat([tip, vec_from_rot(rot)], axis=-1)
         return tip[..., : self.m]
 
-    def tip_error(self, rot: torch.Tensor, tip: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    def tip_error(self, rot: A, tip: A, x: A) -> A:
         """Delta x_e from a tip (rotation, position) to x: position difference, then ('pose') the
         rotation vector of R_x R^T (world frame)."""
         x = self._x(x)
         if self.space != "pose":
             return x - tip[..., : self.m]
-        r_err = rot_from_vec(x[..., 3:]) @ rot.transpose(-1, -2)
-        return torch.cat([x[..., :3] - tip, vec_from_rot(r_err)], -1)
+        r_err = rot_from_vec(x[..., 3:]) @ rot.mT
+        return xp_of(x).concat([x[..., :3] - tip, vec_from_rot(r_err)], axis=-1)
 
 
-def rot_z(phi: torch.Tensor) -> torch.Tensor:
+def rot_z(phi: A) -> A:
     """Rotations about z by phi, shape (..., 3, 3)."""
-    c, s = torch.cos(phi), torch.sin(phi)
-    z, o = torch.zeros_like(c), torch.ones_like(c)
-    return torch.stack([torch.stack([c, -s, z], -1), torch.stack([s, c, z], -1), torch.stack([z, z, o], -1)], -2)
+    xp = xp_of(phi)
+    c, s = xp.cos(phi), xp.sin(phi)
+    z, o = xp.zeros_like(c), xp.ones_like(c)
+    return xp.stack([xp.stack([c, -s, z], axis=-1), xp.stack([s, c, z], axis=-1), xp.stack([z, z, o], axis=-1)],
+                    axis=-2)
 
 
-def rot_y(angle: torch.Tensor) -> torch.Tensor:
+def rot_y(angle: A) -> A:
     """Rotations about y by angle, shape (..., 3, 3)."""
-    c, s = torch.cos(angle), torch.sin(angle)
-    z, o = torch.zeros_like(c), torch.ones_like(c)
-    return torch.stack([torch.stack([c, z, s], -1), torch.stack([z, o, z], -1), torch.stack([-s, z, c], -1)], -2)
+    xp = xp_of(angle)
+    c, s = xp.cos(angle), xp.sin(angle)
+    z, o = xp.zeros_like(c), xp.ones_like(c)
+    return xp.stack([xp.stack([c, z, s], axis=-1), xp.stack([z, o, z], axis=-1), xp.stack([-s, z, c], axis=-1)],
+                    axis=-2)
 
 
-def rot_from_vec(v: torch.Tensor) -> torch.Tensor:
+def rot_from_vec(v: A) -> A:
     """Rodrigues: rotation vector (..., 3) -> rotation matrix (..., 3, 3)."""
-    th2 = (v * v).sum(-1)
-    th = torch.sqrt(th2)
+    xp = xp_of(v)
+    th2 = xp.sum(v * v, axis=-1)
+    th = xp.sqrt(th2)
     small = th2 < 1e-12
     # sin(th)/th and (1-cos th)/th^2 with their series near 0.
-    a = torch.where(small, 1 - th2 / 6, torch.sin(th) / torch.where(small, 1.0, th))
-    b = torch.where(small, 0.5 - th2 / 24, (1 - torch.cos(th)) / torch.where(small, 1.0, th2))
+    a = xp.where(small, 1 - th2 / 6, xp.sin(th) / xp.where(small, 1.0, th))
+    b = xp.where(small, 0.5 - th2 / 24, (1 - xp.cos(th)) / xp.where(small, 1.0, th2))
     k = _skew(v)
-    eye = torch.eye(3, dtype=v.dtype, device=v.device)
+    eye = xp.eye(3, dtype=v.dtype, device=_device(v))
     return eye + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
-def vec_from_rot(r: torch.Tensor) -> torch.Tensor:
+def vec_from_rot(r: A) -> A:
     """Log map: rotation matrix (..., 3, 3) -> rotation vector (..., 3), angle in [0, pi].
 
     Near pi the skew part vanishes, so the axis comes from the symmetric part.
     """
-    w = torch.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1) / 2
-    s = torch.linalg.vector_norm(w, dim=-1)
+    xp = xp_of(r)
+    w = xp.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], axis=-1) / 2
+    s = xp.linalg.vector_norm(w, axis=-1)
     c = ((r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]) - 1) / 2
-    th = torch.atan2(s, c)
+    th = xp.atan2(s, c)
     small = s < 1e-9
-    scale = torch.where(small, 1 + th * th / 6, th / torch.where(small, 1.0, s))
+    scale = xp.where(small, 1 + th * th / 6, th / xp.where(small, 1.0, s))
     v = scale[..., None] * w
     # Near pi: u u^T = (sym(R) - cos(th) I) / (1 - cos(th)); u from its largest
     # column, sign taken from w.
-    eye = torch.eye(3, dtype=r.dtype, device=r.device)
-    b = (r + r.transpose(-1, -2)) / 2 - c[..., None, None] * eye
-    diag = torch.diagonal(b, dim1=-2, dim2=-1)
-    col = torch.take_along_dim(b, diag.argmax(-1)[..., None, None].expand(*b.shape[:-2], 3, 1), -1)[..., 0]
-    u = col / torch.linalg.vector_norm(col, dim=-1, keepdim=True).clamp_min(1e-300)
-    sign = torch.where((u * w).sum(-1) < 0, -1.0, 1.0)
+    eye = xp.eye(3, dtype=r.dtype, device=_device(r))
+    b = (r + r.mT) / 2 - c[..., None, None] * eye
+    pick = xp.argmax(xp.linalg.diagonal(b), axis=-1)[..., None, None]
+    col = xp.take_along_axis(b, xp.broadcast_to(pick, (*b.shape[:-2], 3, 1)), axis=-1)[..., 0]
+    u = col / xp.clip(xp.linalg.vector_norm(col, axis=-1, keepdims=True), min=1e-300)
+    sign = xp.where(xp.sum(u * w, axis=-1) < 0, -1.0, 1.0)
     v_pi = (sign * th)[..., None] * u
-    return torch.where((c < -0.99)[..., None], v_pi, v)
+    return xp.where((c < -0.99)[..., None], v_pi, v)
 
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    z = torch.zeros_like(v[..., 0])
+def _skew(v: A) -> A:
+    xp = xp_of(v)
+    z = xp.zeros_like(v[..., 0])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return torch.stack([torch.stack([z, -w, y], -1), torch.stack([w, z, -x], -1), torch.stack([-y, x, z], -1)], -2)
+    return xp.stack([xp.stack([z, -w, y], axis=-1), xp.stack([w, z, -x], axis=-1), xp.stack([-y, x, z], axis=-1)],
+                    axis=-2)
+
+
+def xp_of(x: Any) -> Any:
+    """The array-API namespace of x: torch's for a tensor (imported only then), else numpy's."""
+    if is_torch_array(x):
+        import array_api_compat.torch as torch_ns
+
+        return torch_ns
+    return _np_ns
 
 
 def _io(f: Callable[..., Any], *args: Any) -> Any:
-    """Call f on tensors; numpy arguments give a numpy result (on the CPU)."""
-    if isinstance(args[0], np.ndarray):
-        out = f(*(torch.as_tensor(np.asarray(a), dtype=torch.float64) for a in args))
-        return out.numpy()
-    return f(*(torch.as_tensor(a, dtype=torch.float64, device=args[0].device) for a in args))
+    """Call f on float64 arrays of the first argument's kind: a tensor gives tensors on its device,
+    anything else numpy arrays."""
+    first = args[0]
+    if is_torch_array(first):
+        import torch
+
+        return f(*(torch.as_tensor(a, dtype=torch.float64, device=first.device) for a in args))
+    return f(*(np.asarray(a, dtype=np.float64) for a in args))
 
 
 def _finite_vector(where: str, field: str, value: Any) -> np.ndarray:

@@ -19,6 +19,11 @@ Conventions (see docs/masr.md for the reasoning):
 
 Every numeric method takes batches (..., n+1) and broadcasts q_c against q_d,
 so a planner can price one node against thousands of candidates at once.
+
+A MasrArm is a `robots.base.Robot` (kind "masr"): its configuration has
+dof = n + 1 coordinates, theta_1..theta_n (rad, limits +-theta_b, speed
+joint_speed) and d (m, limits [0, l], speed ma_speed); `n` stays the paper's
+joint count.
 """
 from __future__ import annotations
 
@@ -26,12 +31,14 @@ import json
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Union
+from typing import Any, ClassVar, Union
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.planar import description_fields, wrap_angle
+from armbridge.geometry import wrap_angle
+from armbridge.robots.base import readonly
+from armbridge.robots.planar import description_fields
 
 _ARRAY_FIELDS = ("link_lengths", "theta_b")
 _SCALAR_FIELDS = ("ma_speed", "joint_speed", "link_width")
@@ -59,6 +66,7 @@ class MasrArm:
     used to inflate obstacles by 0.5 w (paper Fig. 3a); 0 means a line arm.
     """
 
+    kind: ClassVar[str] = "masr"
     name: str
     link_lengths: np.ndarray
     theta_b: np.ndarray
@@ -112,6 +120,51 @@ class MasrArm:
     def l(self) -> float:  # noqa: E743 - the paper's name
         """Alias of total_length (the paper's l)."""
         return self.total_length
+
+    # ------------------------------------------- the robot interface (base.Robot)
+    @property
+    def dof(self) -> int:
+        """Coordinates of q: the n joint angles and d."""
+        return self.n + 1
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """theta_1 .. theta_n, d (the paper's names)."""
+        return (*(f"theta_{j + 1}" for j in range(self.n)), "d")
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """rad for the joints, m for d."""
+        return ("rad",) * self.n + ("m",)
+
+    @cached_property
+    def q_min(self) -> np.ndarray:
+        """(n+1,) -theta_b, then 0 for d."""
+        return readonly(np.r_[-self.theta_b, 0.0])
+
+    @cached_property
+    def q_max(self) -> np.ndarray:
+        """(n+1,) theta_b, then l for d."""
+        return readonly(np.r_[self.theta_b, self.total_length])
+
+    @cached_property
+    def v_max(self) -> np.ndarray:
+        """(n+1,) joint_speed (rad/s) per joint, then ma_speed (m/s) for d."""
+        return readonly(np.r_[np.full(self.n, self.joint_speed), self.ma_speed])
+
+    @property
+    def reach(self) -> float:
+        """l: the arm's length (m)."""
+        return self.total_length
+
+    @property
+    def draw_dim(self) -> int:
+        """2: a planar arm."""
+        return 2
+
+    def ee_point(self, q: Any) -> np.ndarray:
+        """The MA (the gripper), (..., 2): ma_point."""
+        return self.ma_point(q)
 
     @cached_property
     def r(self) -> np.ndarray:
@@ -188,12 +241,12 @@ class MasrArm:
         """MA pose (x, y, phi), shape (..., 3): eq. (2)-(4).
 
         phi = theta_1 + ... + theta_{j_d}, the heading of the link the MA is on
-        (see locate for joints and the tip), wrapped to (-pi, pi].
+        (see locate for joints and the tip), wrapped to [-pi, pi).
         """
         p, phi = self._ma(self._q(q))
         return np.concatenate([p, wrap_angle(phi)[..., None]], axis=-1)
 
-    def feasible(self, q: Any) -> np.ndarray:
+    def within_limits(self, q: Any) -> np.ndarray:
         """True where q is in C_f, eq. (5): |theta_j| <= theta_b_j and 0 <= d <= l (bounds included)."""
         q = self._q(q)
         joints_ok = np.all(np.abs(q[..., :-1]) <= self.theta_b, axis=-1)

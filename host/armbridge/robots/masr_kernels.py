@@ -11,13 +11,11 @@ import math
 
 from numba import njit
 
+from armbridge.geometry import wrap_angle_scalar
 from armbridge.robots.masr import ANGLE_TOL, POS_TOL
 
-
-@njit(cache=True)
-def wrap(a):
-    """a wrapped to [-pi, pi)."""
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+#: geometry.wrap_angle's formula compiled for the kernels: a wrapped to [-pi, pi).
+wrap = njit(cache=True)(wrap_angle_scalar)
 
 
 @njit(cache=True)

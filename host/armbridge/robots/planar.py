@@ -2,31 +2,29 @@
 
 Every method takes q of shape (n,) or (..., n) and works on the whole batch
 at once; angles are relative (joint i turns link i against link i-1) and the
-base sits at the origin with joint 1's zero along +x.
+base sits at the origin with joint 1's zero along +x. A PlanarChain is a
+`robots.base.Robot` (kind "planar"): its configuration is its n joints.
 """
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle
 
 _ARRAY_FIELDS = ("link_lengths", "q_min", "q_max", "v_max")
 _FIELDS = ("name", *_ARRAY_FIELDS, "joint_names")
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
 
 
 @dataclass(frozen=True, eq=False)
 class PlanarChain:
     """A planar chain: link lengths in m, joint limits in rad, speed limits in rad/s."""
 
+    kind: ClassVar[str] = "planar"
     name: str
     link_lengths: np.ndarray
     q_min: np.ndarray
@@ -70,13 +68,33 @@ class PlanarChain:
         """Number of joints."""
         return int(self.link_lengths.size)
 
+    @property
+    def dof(self) -> int:
+        """Coordinates of q: the n joints."""
+        return self.n
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """Every joint is in rad."""
+        return ("rad",) * self.n
+
+    @property
+    def reach(self) -> float:
+        """The sum of the link lengths (m)."""
+        return float(np.sum(self.link_lengths))
+
+    @property
+    def draw_dim(self) -> int:
+        """2: drawn in its plane."""
+        return 2
+
     def _q(self, q: Any) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         if q.ndim == 0 or q.shape[-1] != self.n:
             raise ArmbridgeError(f"robot {self.name!r}: q must have shape (..., {self.n}), got {q.shape}")
         return q
 
-    def joint_positions(self, q: Any) -> np.ndarray:
+    def joint_points(self, q: Any) -> np.ndarray:
         """Base, every joint and the tip: shape (..., n+1, 2)."""
         theta = np.cumsum(self._q(q), axis=-1)
         steps = self.link_lengths[:, None] * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
@@ -84,10 +102,14 @@ class PlanarChain:
         return np.concatenate([zero, np.cumsum(steps, axis=-2)], axis=-2)
 
     def fk(self, q: Any) -> np.ndarray:
-        """End-effector pose (x, y, phi), shape (..., 3); phi = sum(q) wrapped to (-pi, pi]."""
+        """End-effector pose (x, y, phi), shape (..., 3); phi = sum(q) wrapped to [-pi, pi)."""
         q = self._q(q)
-        tip = self.joint_positions(q)[..., -1, :]
+        tip = self.joint_points(q)[..., -1, :]
         return np.concatenate([tip, wrap_angle(q.sum(axis=-1))[..., None]], axis=-1)
+
+    def ee_point(self, q: Any) -> np.ndarray:
+        """The tip (x, y), shape (..., 2)."""
+        return self.joint_points(q)[..., -1, :]
 
     def jacobian(self, q: Any) -> np.ndarray:
         """d(x, y, phi)/dq, shape (..., 3, n).
@@ -130,16 +152,19 @@ class PlanarChain:
         return hash(json.dumps(self.to_dict()))
 
 
-def description_fields(d: Any, fields: tuple[str, ...], what: str) -> dict[str, Any]:
-    """The values of a JSON robot description that has exactly `fields`."""
+def description_fields(d: Any, fields: tuple[str, ...], what: str,
+                       optional: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The values of a JSON robot description that has exactly `fields`, and any of `optional`."""
     if not isinstance(d, dict):
         raise ArmbridgeError(f"{what} must be a JSON object, got {type(d).__name__}")
     missing = [k for k in fields if k not in d]
-    unknown = sorted(set(d) - set(fields))
+    unknown = sorted(set(d) - set(fields) - set(optional))
     if missing or unknown:
         problems = ([f"missing keys {missing}"] if missing else []) + ([f"unknown keys {unknown}"] if unknown else [])
-        raise ArmbridgeError(f"{what} {d.get('name', '?')!r}: {'; '.join(problems)} (expected keys {list(fields)})")
-    return {k: d[k] for k in fields}
+        extra = f", optional {list(optional)}" if optional else ""
+        raise ArmbridgeError(f"{what} {d.get('name', '?')!r}: {'; '.join(problems)} "
+                             f"(expected keys {list(fields)}{extra})")
+    return {k: d[k] for k in (*fields, *optional) if k in d}
 
 
 def _float_vector(name: str, field: str, value: Any) -> np.ndarray:

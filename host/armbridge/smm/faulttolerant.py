@@ -27,17 +27,13 @@ from itertools import product
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle as wrap  # angles in [-pi, pi), as in SmmSet
 from armbridge.smm.manifold import SmmSet
 
 TWO_PI = 2.0 * np.pi
 _EPS = 1e-9  # rad: slack of the containment and limit tests
 
 Limits = tuple[np.ndarray, np.ndarray]  # (lo, hi) per joint, rad
-
-
-def wrap(a) -> np.ndarray:
-    """Angles wrapped to (-pi, pi], as in SmmSet."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), TWO_PI)
 
 
 def _ccw(a) -> np.ndarray:
@@ -56,7 +52,7 @@ class Box:
     SMMs of a task point; a joint locked inside it can still reach the point.
     """
 
-    lo: np.ndarray  # (n,) wrapped to (-pi, pi]
+    lo: np.ndarray  # (n,) wrapped to [-pi, pi)
     width: np.ndarray  # (n,) in [0, 2 pi]
 
     @property

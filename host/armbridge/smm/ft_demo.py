@@ -252,7 +252,7 @@ class _Log:
         s, robot = self.stream, self.robot
         s.log("task/target", rr.Points2D([self.sc.x], colors=[(0, 200, 0)], radii=0.006), static=True)
         curves = ft.smm_curves(self.sc.smm, 0, self.lims)
-        arms = [robot.joint_positions(c[i]) for c in curves for i in np.linspace(0, len(c) - 1, 6).astype(int)]
+        arms = [robot.joint_points(c[i]) for c in curves for i in np.linspace(0, len(c) - 1, 6).astype(int)]
         s.log("task/smm", rr.LineStrips2D(arms, colors=[(200, 160, 255)], radii=0.0006), static=True)
         for a, b in self.PAIRS:
             strips = []
@@ -291,7 +291,7 @@ class _Log:
 
     def recovery(self, t: float, q_goal: np.ndarray, plan: Plan) -> None:
         self.at(t)
-        self.stream.log("task/recovery", rr.LineStrips2D([self.robot.joint_positions(q_goal)], colors=[(255, 60, 60)],
+        self.stream.log("task/recovery", rr.LineStrips2D([self.robot.joint_points(q_goal)], colors=[(255, 60, 60)],
                                                          radii=0.002))
         self.stream.log("recovery/path", rr.LineStrips2D([plan.ee_path()], colors=[(255, 60, 60)], radii=0.001))
 

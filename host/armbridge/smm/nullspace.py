@@ -22,7 +22,7 @@ of a location is a closed loop in joint space. compute() finds them all:
    every converged seed is passed.
 4. Each loop is resampled to n_points uniformly in arc length (traces are
    unwrapped by construction: angles are wrapped only at the end), corrected
-   by a few J^+ steps (eq. 18) and wrapped to (-pi, pi]. It starts at its
+   by a few J^+ steps (eq. 18) and wrapped to [-pi, pi) (geometry.wrap_angle). It starts at its
    seed and runs along +n, the orientation the Fourier phase rule expects.
 
 Speed: the step solves one n x n system [W J; u^T] y = [W dx_e, e_n] per
@@ -58,8 +58,9 @@ import numpy as np
 import torch
 
 from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle
 from armbridge.robots.dh import DHChain, rot_from_vec
-from armbridge.smm.correction import correct, wrap
+from armbridge.smm.correction import correct
 from armbridge.smm.manifold import SmmSet, concat
 
 _SING_EVERY = 4
@@ -354,7 +355,7 @@ def resample(points: torch.Tensor, length: torch.Tensor, closed: torch.Tensor, n
     t_count, k, n = points.shape
     idx = torch.arange(k, device=points.device)
     last = points[torch.arange(t_count, device=points.device), length - 1]
-    end = torch.where(closed[:, None], last + wrap(points[:, 0] - last), last)
+    end = torch.where(closed[:, None], last + wrap_angle(points[:, 0] - last), last)
     pts = torch.where((idx[None, :] < length[:, None])[..., None], points, end[:, None, :])
     pts = torch.cat([pts, end[:, None, :]], 1)
     seg = torch.linalg.vector_norm(pts[:, 1:] - pts[:, :-1], dim=-1)
@@ -401,7 +402,7 @@ def _branches(ctx: _Ctx, x: torch.Tensor, seeds: torch.Tensor, conv: torch.Tenso
     for w in waves:
         branch = resample(w.points, w.length, w.closed, n_points)
         target = x[w.loc][:, None, :].expand(-1, n_points, -1).reshape(-1, x.shape[-1])
-        branch = wrap(correct(ctx.arm, branch.reshape(-1, n), target, correct_iters).reshape(branch.shape))
+        branch = wrap_angle(correct(ctx.arm, branch.reshape(-1, n), target, correct_iters).reshape(branch.shape))
         singular[w.loc[w.singular]] = True
         # Slot within the location: traces of one wave are in seed order per location.
         order = torch.argsort(w.loc, stable=True)

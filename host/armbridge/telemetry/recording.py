@@ -7,14 +7,20 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
     joints/<joint>/error      target - q (rad)                 Scalars
     joints/<joint>/effort     output, [-1, 1]                  Scalars
     board/done                last completed waypoint id       Scalars
-    arm/links                 the measured arm, base to tip    LineStrips2D
-    arm/target                the arm at the set point         LineStrips2D
-    arm/tip                   measured tip position            Points2D
-    plan/path                 planned tip path (static)        LineStrips2D
-    plan/waypoints            planned tip at each waypoint     Points2D (static)
-    trace/tip                 the whole measured tip trace     LineStrips2D (static, at close)
+    arm/links                 the measured arm, base to tip    LineStrips2D (3D)
+    arm/target                the arm at the set point         LineStrips2D (3D)
+    arm/tip                   measured end effector            Points2D (3D)
+    plan/path                 planned end-effector path        LineStrips2D (3D), static
+    plan/waypoints            planned end effector per waypoint Points2D (3D), static
+    trace/tip                 the whole measured tip trace     LineStrips2D (3D), static, at close
     events                    board events, state changes      TextLog
     errors                    link errors, refusals, resyncs   TextLog
+
+Any robot of the robot interface (robots/base.py) is drawn the same way: the
+arm is `robot.joint_points(q)` (one strip per sample), the tip is
+`robot.ee_point(q)` (a MASR's MA, a chain's last frame), in 2-D or, for a
+spatial chain (`draw_dim` 3), as the 3-D archetypes. `joints/<joint>` are the
+robot's coordinate names (a MASR's d is in m).
 
 Telemetry is buffered and sent in columns (`send_columns`) every `flush_every`
 samples, so recording costs little time in the executor's loop; events and
@@ -56,6 +62,9 @@ class Recording:
         self.plan = plan
         self.flush_every = int(flush_every)
         self.joint_names = list(robot.joint_names)
+        self._dim = int(robot.draw_dim)
+        self._strips = rr.LineStrips2D if self._dim == 2 else rr.LineStrips3D
+        self._points = rr.Points2D if self._dim == 2 else rr.Points3D
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -81,15 +90,15 @@ class Recording:
             for series in ("q", "target", "error", "effort"):
                 rec.log(f"joints/{name}/{series}", rr.SeriesLines(names=f"{name} {series}"), static=True)
         rec.log("board/done", rr.SeriesLines(names="done"), static=True)
-        reach = float(np.sum(self.robot.link_lengths))
-        # The workspace circle as a light reference.
+        reach = float(self.robot.reach)
+        # The workspace circle (in the base x-y plane) as a light reference.
         a = np.linspace(0, 2 * np.pi, 97)
-        rec.log("workspace", rr.LineStrips2D([np.c_[reach * np.cos(a), reach * np.sin(a)]],
-                                             colors=[(90, 90, 90)], radii=0.0005), static=True)
+        circle = np.c_[reach * np.cos(a), reach * np.sin(a), np.zeros_like(a)][:, : self._dim]
+        rec.log("workspace", self._strips([circle], colors=[(90, 90, 90)], radii=0.0005), static=True)
         if self.plan is not None:
             tips = np.asarray(self.plan.ee_path())
-            rec.log("plan/path", rr.LineStrips2D([tips], colors=[(80, 160, 255)], radii=0.001), static=True)
-            rec.log("plan/waypoints", rr.Points2D(tips, colors=[(80, 160, 255)], radii=0.0015), static=True)
+            rec.log("plan/path", self._strips([tips], colors=[(80, 160, 255)], radii=0.001), static=True)
+            rec.log("plan/waypoints", self._points(tips, colors=[(80, 160, 255)], radii=0.0015), static=True)
             prov = self.plan.provenance or {}
             text = [f"plan: {self.plan.source or '(in memory)'}", f"robot: {self.robot.name}",
                     f"waypoints: {self.plan.k}, planned duration {self.plan.total_duration:.3f} s"]
@@ -152,12 +161,13 @@ class Recording:
         if have.any():
             send("board/done", indexes=[rr.TimeColumn(TIMELINE, duration=t[have])],
                  columns=rr.Scalars.columns(scalars=done[have]))
-        arm = np.asarray(self.robot.joint_positions(q))  # (m, n+1, 2)
-        arm_t = np.asarray(self.robot.joint_positions(tg))
-        send("arm/links", indexes=idx, columns=rr.LineStrips2D.columns(strips=list(arm)))
-        send("arm/target", indexes=idx, columns=rr.LineStrips2D.columns(strips=list(arm_t)))
-        send("arm/tip", indexes=idx, columns=rr.Points2D.columns(positions=arm[:, -1, :]))
-        self._tip_trace.append(arm[:, -1, :])
+        arm = np.asarray(self.robot.joint_points(q))  # (m, points, draw_dim)
+        arm_t = np.asarray(self.robot.joint_points(tg))
+        tip = np.asarray(self.robot.ee_point(q))
+        send("arm/links", indexes=idx, columns=self._strips.columns(strips=list(arm)))
+        send("arm/target", indexes=idx, columns=self._strips.columns(strips=list(arm_t)))
+        send("arm/tip", indexes=idx, columns=self._points.columns(positions=tip))
+        self._tip_trace.append(tip)
 
     def close(self) -> Path:
         """Flush, log the measured tip trace and close the file. Idempotent."""
@@ -167,7 +177,7 @@ class Recording:
             self.flush()
             if self._tip_trace:
                 trace = np.concatenate(self._tip_trace)
-                self.rec.log("trace/tip", rr.LineStrips2D([trace], colors=[(255, 140, 0)], radii=0.0008),
+                self.rec.log("trace/tip", self._strips([trace], colors=[(255, 140, 0)], radii=0.0008),
                              static=True)
             self.rec.flush()
         finally:
