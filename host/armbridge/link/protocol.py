@@ -91,6 +91,11 @@ def decode(line: bytes, max_len: int = MAX_BOARD_LINE, epoch: int = 0) -> Line:
     want = crc32(body, D.HELLO_EPOCH if is_hello(body) else epoch)
     if want != int(crc_field, 16):
         raise ProtocolError(CRC, f"got {crc_field.decode()}, computed {want:08X}")
+    return parse_body(body)
+
+
+def parse_body(body: bytes) -> Line:
+    """The grammar of a body whose frame and CRC were checked: 'SEQ VERB ARGS'."""
     match = _BODY.fullmatch(body.decode("ascii"))
     if match is None or int(match.group(1)) >= SEQ_MOD:
         raise ProtocolError(PARSE, "body is not 'SEQ VERB ARGS'")
