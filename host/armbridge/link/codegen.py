@@ -77,7 +77,7 @@ def render_c_header() -> str:
             "typedef struct {",
             "    const char *verb; const ab_arg_spec *args; uint8_t n_args; uint8_t read_only;",
             "    int8_t min_arg; int8_t max_arg;", "} ab_command;", ""]
-    rows = []
+    rows: list[str] = []
     for verb, specs in D.COMMANDS.items():
         out.append(f"#define AB_VERB_{verb} {len(rows)}")
         if specs:
@@ -95,8 +95,8 @@ def render_c_header() -> str:
         rows.append(f'    {{"{verb}", {args}, {len(specs)}, {int(verb in D.READ_ONLY)}, {lo_i}, {hi_i}}},')
     out += [f"#define AB_N_COMMANDS {len(rows)}",
             "static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {", *rows, "};", ""]
-    names = ", ".join(['""'] + [f'"{name}"' for name, _ in _errors()])
-    out += [f"static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {{{names}}};", "",
+    errors = ", ".join(['""'] + [f'"{name}"' for name, _ in _errors()])
+    out += [f"static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {{{errors}}};", "",
             "#endif", ""]
     return "\n".join(out)
 
