@@ -75,10 +75,8 @@ def test_command_vectors_cover_every_verb_and_bound():
 
 
 def test_example_session_lines_decode():
-    epoch = 1
-    for side, text in VECTORS["example"]:
-        line = p.decode(raw(text), p.MAX_HOST_LINE if side == "host" else p.MAX_BOARD_LINE,
-                        epoch=epoch if side == "host" else 0)
+    for side, text, epoch in VECTORS["example"]:
+        line = p.decode(raw(text), p.MAX_HOST_LINE if side == "host" else p.MAX_BOARD_LINE, epoch=epoch)
         if side == "host":
             p.parse_command(line.verb, line.args, 3)
         else:

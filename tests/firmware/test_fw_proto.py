@@ -71,9 +71,9 @@ def test_commands_vectors():
 
 
 def test_example_session_vectors():
-    for side, text in V["example"]:
+    for side, text, epoch in V["example"]:
         if side == "host":
-            seq, verb, args = proto.decode(latin1(text), proto.MAX_HOST_LINE, 1)
+            seq, verb, args = proto.decode(latin1(text), proto.MAX_HOST_LINE, epoch)
             proto.parse_command(verb, args, 3)
         else:
             proto.decode(latin1(text), proto.MAX_BOARD_LINE)

@@ -246,17 +246,30 @@ streams = [
      "why": "empty lines are errors"},
 ]
 
-# Docs/protocol.md §11, the example session, with real CRCs (epoch 1).
+# docs/protocol.md §12, the example session, with real CRCs: [side, line, the
+# epoch its receiver checks it with]. A second host process then connects with
+# a new session: its first HELLO's epoch (1) is not newer than the board's, the
+# board answers STALE with its epoch, the host retries at once with epoch 2.
 example = [
-    ["host", line("1 HELLO 2 4242 1")],
-    ["board", line("1 OK 1 32 arm3r 0.2.0 2 3 32 25 1000 - - IDLE")],
-    ["host", line("2 LIM 1", 1)],
-    ["board", line("2 OK 2 32 1 0 3142 3000")],
-    ["host", line("5 W 0 500 1571 -1571 0", 1)],
-    ["board", line("5 OK 5 31")],
-    ["board", line("6 EV 10532 START 0")],
-    ["board", line("7 T 10560 RUN - 32 1500 -1500 10 1520 -1520 8 300 -300 20")],
-    ["board", line("8 EV 11032 DONE 0 32")],
+    ["host", line("1 HELLO 2 4242 1"), 1],
+    ["board", line("1 OK 1 32 arm3r 0.2.0 2 3 32 25 1000 - - IDLE"), 0],
+    ["host", line("2 LIM 1", 1), 1],
+    ["board", line("2 OK 2 32 1 -3142 3142 3000"), 0],
+    ["host", line("3 LIM 2", 1), 1],
+    ["board", line("3 OK 3 32 2 -2618 2618 3000"), 0],
+    ["host", line("4 LIM 3", 1), 1],
+    ["board", line("4 OK 4 32 3 -2618 2618 3000"), 0],
+    ["host", line("5 W 0 500 1571 -1571 0", 1), 1],
+    ["board", line("5 OK 5 31"), 0],
+    ["board", line("6 EV 10532 START 0"), 0],
+    ["board", line("7 T 10560 RUN - 32 1500 -1500 10 1520 -1520 8 300 -300 20"), 0],
+    ["board", line("8 EV 11032 DONE 0 32"), 0],
+    ["host", line("1 HELLO 2 777 1"), 2],
+    ["board", line("9 ER 1 11 STALE 1"), 0],
+    ["host", line("2 HELLO 2 777 2"), 2],
+    ["board", line("10 OK 2 32 arm3r 0.2.0 2 3 32 25 1000 - - IDLE"), 0],
+    ["host", line("3 PING", 2), 2],
+    ["board", line("11 OK 3 32 12007"), 0],
 ]
 
 out = {"version": 2, "max_host_line": 96, "max_board_line": 192, "estop_byte": 0x98,
