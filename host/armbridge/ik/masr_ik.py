@@ -95,13 +95,6 @@ _SNAP_ITERS = 3
 
 
 @njit(cache=True)
-def _score(xg, q, lengths, rj, total, jp, e_p, e_phi):
-    """max(dp / e_p, |dphi| / e_phi): <= 1 exactly when the goal is reached (eq. 9)."""
-    px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
-    return max(math.hypot(xg[0] - px, xg[1] - py) / e_p, abs(wrap(xg[2] - phi)) / e_phi)
-
-
-@njit(cache=True)
 def _solve_damped(J, lam2, e0, e1, e2):
     """(J J^T + lam2 I)^-1 e for a 3-row J, by cofactors (no allocation: the hot loop)."""
     a = b = c = d = f = g = 0.0  # the symmetric matrix [[a, b, c], [b, d, f], [c, f, g]]

@@ -490,16 +490,6 @@ def _train(arm: Any, poses: np.ndarray, cfg: TrainConfig, checkpoint: Path | Non
     return TrainResult(model, history, step, time.perf_counter() - t0)
 
 
-def load_checkpoint_model(arm: Any, checkpoint: Path) -> tuple[MasrIKNet, TrainConfig, dict[str, Any]]:
-    """The model, settings and raw checkpoint saved by `train`."""
-    ck = torch.load(checkpoint, weights_only=False)
-    cfg = TrainConfig(**ck["config"])
-    model = MasrIKNet(ArmParams.of(arm), cfg.hidden, cfg.activation)
-    model.load_state_dict(ck["model"])
-    model.eval()
-    return model, cfg, ck
-
-
 def finetune_int8(arm: Any, model: MasrIKNet, poses: np.ndarray, cfg: TrainConfig, epochs: int, lr: float,
                   progress: bool = False, log: Callable[[str], None] | None = None) -> TrainResult:
     """Quantisation-aware fine-tuning of a copy of `model` for the int8 export.

@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
@@ -456,7 +456,3 @@ def random_environment(arm: MasrArm | None = None, seed: int = 0, *, max_obstacl
         env.known_path = res.path
         return env
     raise ArmbridgeError(f"random_environment: no solvable environment after {max_tries} tries (seed {seed})")
-
-
-def obstacle_polygons(env: Environment) -> Sequence[np.ndarray]:
-    return env.obstacles

@@ -71,15 +71,6 @@ _WARM = False  # kernels loaded in this process (see plan)
 
 # --------------------------------------------------------------------- kernels
 @njit(cache=True)
-def costs_to(Q, count, q, rj, inv_ms, inv_js):
-    """c(Q[i] -> q) for i < count."""
-    out = np.empty(count)
-    for i in range(count):
-        out[i] = action_cost(Q[i], q, rj, inv_ms, inv_js)
-    return out
-
-
-@njit(cache=True)
 def _steer_linear(qa, qb, inv_ms, inv_js, delta, out):
     """The paper's Steer: q_a + s (q_b - q_a), s = min(1, delta / |q_b - q_a|_t)."""
     n = qa.size - 1
@@ -564,13 +555,6 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
 
 
 # ------------------------------------------------------------------ benchmarks
-def run_trials(env: Any, planner: str, iterations: int, seeds: Any, goal_ik: Optional[GoalIK] = None,
-               **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
-    """best_costs of one run per seed: ((len(seeds), iterations) in s, inf before a solution; (len(seeds),) times)."""
-    runs = [plan(env, planner=planner, iterations=iterations, goal_ik=goal_ik, seed=int(s), **kwargs) for s in seeds]
-    return np.array([r.best_costs for r in runs]), np.array([r.time_s for r in runs])
-
-
 def percentile_success(costs: dict[str, np.ndarray], levels: tuple[float, ...] = (0.15, 0.25)) -> dict:
     """Fig. 7's measure: the share of trials whose best cost is below each level of the cost range.
 

@@ -34,7 +34,11 @@ class Robot(Protocol):
     """What a plan, the executor and the recording use of a robot."""
 
     kind: ClassVar[str]  # the registry's name for the model: "planar", "masr", "dh"
-    name: str
+
+    @property
+    def name(self) -> str:
+        """The registry name (a file names the robot by it)."""
+        ...
 
     @property
     def dof(self) -> int:

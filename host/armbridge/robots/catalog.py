@@ -152,7 +152,7 @@ def is_registered(robot: Any) -> bool:
         return False
 
 
-def robot_class(kind: Any) -> type:
+def robot_class(kind: Any) -> Any:
     """The model class of a kind; a missing optional dependency is one line naming its extra."""
     if kind not in KINDS:
         raise ArmbridgeError(f"unknown robot kind {kind!r}; known kinds: {', '.join(KINDS)}")
