@@ -147,6 +147,40 @@ def test_a_new_epoch_before_seqs_would_repeat_mid_plan():
         assert len(seqs) <= 16 and len(set(seqs)) == len(seqs), epoch  # the HELLO included
 
 
+def test_a_done_read_with_the_hello_reply_is_not_taken_back():
+    """The board answers a resync HELLO (done = d) and completes d + 1 right after;
+    both arrive in one read, so the host learns d + 1 before it reads the reply."""
+
+    class Busy(Peer):
+        def _hello(self, seq, args):
+            super()._hello(seq, args)
+            if self.session is not None and self.epoch > 1:
+                self.step()
+
+        def _execute(self, seq, verb, args):
+            ans = super()._execute(seq, verb, args)
+            if verb == "W" and len(self.queue) > 2:
+                self.step()
+            return ans
+
+    clock = FakeClock()
+    peer = Busy(clock)
+    peer.auto_complete = False
+    c = client_for(peer, max_epoch_commands=6)
+    durs, q = plan(40)
+    orig = peer.read
+
+    def read(n=1):  # an idle host drains the queue, as time passes on a real board
+        if not peer.rx and peer.queue:
+            peer.step()
+        return orig(n)
+
+    peer.read = read
+    c.execute(durs, q)
+    assert peer.executed == [(i, tuple(q[i])) for i in range(40)]
+    assert c.stats.epoch_renewals >= 5 and c.stats.resyncs == 0
+
+
 def test_stale_epoch_second_client_with_the_same_session():
     clock = FakeClock()
     peer = Peer(clock)

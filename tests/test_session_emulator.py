@@ -109,3 +109,25 @@ def test_open_session_latch_policies_across_sessions_and_a_reset():
                 pass
     finally:
         emu.stop()
+
+
+@pytest.mark.hil
+def test_a_fault_is_named_in_the_run_and_in_the_next_session():
+    """The shoulder seizes; the board latches FAULT (following error): the run's
+    error names the joint and the error, and a later session, which never saw the
+    event, still names the joint from STAT's latch reason."""
+    emu = EmulatedBoard("esp32", speed=1).start()
+    try:
+        with open_session(emu.port, ARM3R, rate_hz=10) as c:
+            emu.schedule_stall(1, emu.now())
+            durs, q = wave(60)
+            q = [[v + 400 * (i + 1) // 60 if j == 0 else v for j, v in enumerate(row)] for i, row in enumerate(q)]
+            with pytest.raises(ArmbridgeError, match=r"FAULT latched, joint 1 \(shoulder\): following error \d+ mrad"):
+                c.execute(durs, q)
+        assert emu.state == "FAULT"
+        with pytest.raises(ArmbridgeError, match=r"latched in FAULT \(joint 1 \(shoulder\): following error\) from "
+                                                 r"before.*--clear"):
+            with open_session(emu.port, ARM3R):
+                pass
+    finally:
+        emu.stop()

@@ -178,9 +178,19 @@ class BoardClient:
             j, err = int(args[0]), int(args[1])
         except (IndexError, ValueError):
             return "FAULT " + " ".join(args)
+        return f"{self._joint(j)}: following error {err} mrad"
+
+    def _joint(self, j: int) -> str:
+        """'joint 2 (elbow)', or 'joint 2' without a robot."""
         names = list(self.robot.joint_names) if self.robot is not None else []
-        name = f" ({names[j - 1]})" if 1 <= j <= len(names) else ""
-        return f"joint {j}{name}: following error {err} mrad"
+        return f"joint {j} ({names[j - 1]})" if 1 <= j <= len(names) else f"joint {j}"
+
+    def _latch_reason_text(self, token: str) -> str | None:
+        """STAT's latch reason token ("FOLLOW:2": joint 2's following error)."""
+        kind, _, j = token.partition(":")
+        if kind == "FOLLOW" and j.isdigit():
+            return f"{self._joint(int(j))}: following error"
+        return None if token == "-" else token
 
     # ------------------------------------------------------------------ connect
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -281,9 +291,12 @@ class BoardClient:
         self._rate = int(hz)
 
     def stat(self) -> tuple[str, int | None, int | None, float]:
-        """STAT -> (state, done id, queued id, board time s)."""
+        """STAT -> (state, done id, queued id, board time s); a latched FAULT's
+        reason (STAT's fifth field) lands in `fault_reason`."""
         p = self.command("STAT").payload
         self.state = p[0]
+        if p[0] == "FAULT" and len(p) > 4 and self.fault_reason is None:
+            self.fault_reason = self._latch_reason_text(p[4])  # latched before this session saw EV FAULT
         done = None if p[1] == "-" else int(p[1])
         queued = None if p[2] == "-" else int(p[2])
         return p[0], done, queued, self.board_clock(int(p[3]))

@@ -94,7 +94,6 @@ class Stream:
         where the plan stands; the rest is resent from there. `done` = `-` after
         waypoints had completed means the board lost its persisted memory (a power
         cycle): where the arm is in the plan is unknown, so stop."""
-        lo = max(self.done, 0)
         if done is None:
             if self.completed_any:
                 raise ArmbridgeError(
@@ -104,7 +103,9 @@ class Stream:
                 )
             done_idx = -1
         else:
-            found = self.index_of(done, lo, self.next_wp - 1)
+            # Any index sent (the newest 65535 are unambiguous): the reply may be
+            # older news than a DONE read with it in the same batch of bytes.
+            found = self.index_of(done, max(0, self.next_wp - ID_MOD + 1), self.next_wp - 1)
             if found is not None:
                 done_idx = found
             elif done == self.wid(self.done):

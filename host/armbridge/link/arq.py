@@ -141,6 +141,7 @@ class Arq:
         self._credit = 0  # FREE of that OK
         self._w_sent_n: list[int] = []  # command numbers of W lines after _credit_n
         self._answers: dict[int, P.Ok | P.Er] = {}  # answers of keep commands
+        self._pending: list = []  # split lines not yet dispatched (after a HELLO answer)
         self._sent_wp: set[int] = set()  # waypoint keys sent / answered OK at least once
         self._acked_wp: set[int] = set()
 
@@ -305,13 +306,21 @@ class Arq:
 
     # ------------------------------------------------------------------ receiving
     def pump(self, timeout: float) -> None:
-        """Read what arrives within `timeout` and dispatch every complete line."""
-        data = self._read_some(timeout)
-        if not data:
-            return
-        self._last_bytes = self.now()
+        """Read what arrives within `timeout` and dispatch every complete line.
+
+        Dispatch stops after the answer to a HELLO: the lines after it (a DONE
+        the board sent right after its reply) wait for the next call, so the
+        handshake judges the reply's `done` before it learns of later news."""
+        if self._pending:
+            items, self._pending = self._pending, []
+        else:
+            data = self._read_some(timeout)
+            if not data:
+                return
+            self._last_bytes = self.now()
+            items = self._splitter.feed(data)
         st = self.stats
-        for item in self._splitter.feed(data):
+        for k, item in enumerate(items):
             if isinstance(item, P.ProtocolError):
                 st.host_line_errors += 1
                 self.note(f"board line dropped: {item}")
@@ -334,7 +343,9 @@ class Arq:
                     st.board_lines_lost += gap
             self._bseq = line.seq
             if isinstance(msg, P.Ok):
-                self._on_answer(msg)
+                if self._on_answer(msg) == "HELLO":
+                    self._pending = items[k + 1:]
+                    return
             elif isinstance(msg, P.Er):
                 self._on_er(msg)
             else:
@@ -349,10 +360,11 @@ class Arq:
         if cmd.tx == 1:  # Karn: an answer to a retransmitted line cannot be timed
             self.timer.sample(max(0.0, self.now() - cmd.arrive_at))
 
-    def _on_answer(self, ok: P.Ok) -> None:
+    def _on_answer(self, ok: P.Ok) -> str | None:
+        """Settle the command `ok` answers; returns its verb (None: no such command)."""
         cmd = self._find(ok.seq)
         if cmd is None:
-            return  # a late duplicate of an answer we already have
+            return None  # a late duplicate of an answer we already have
         self._rtt_sample(cmd)
         self._settle(cmd, ok)
         if cmd.n > self._credit_n:
@@ -365,6 +377,7 @@ class Arq:
         if cmd.tx == 1 or cmd.verb != "W":
             self.cwnd = min(float(MAX_WINDOW), self.cwnd + 1.0 / self.cwnd)
         self._lost_answers_before(cmd)
+        return cmd.verb
 
     def _settle(self, cmd: Cmd, answer) -> None:
         self.timer.answered()
@@ -441,7 +454,7 @@ class Arq:
         self._send_due()
         now = self.now()
         try:
-            waiting = self.port.in_waiting
+            waiting = len(self._pending) or self.port.in_waiting
         except OSError:
             waiting = 0
         for cmd in self.out if not waiting else ():  # read what has arrived before timing out
