@@ -7,7 +7,8 @@ Node, through bridge.mjs) and under CPython (the firmware modules loaded as the
 emulator loads them). Each item is `reps` calls of `board.poll()` timed inside
 the interpreter: one line of each verb (and a line failing its CRC, and one
 answered ER SEQ) with the clock held still, and one control tick (idle, RUN,
-RUN with a T line every tick) with no line.
+RUN with a T line every tick) with no line; and the codec's share of a W line
+(crc32, decode, parse_command, encoding the reply) called directly.
 
 What this does not show: a real ESP32 runs MicroPython slower again than
 WebAssembly on a desktop CPU; and the WebAssembly port collects garbage only
@@ -58,6 +59,7 @@ def under_micropython(device: str = "esp32", reps: int = REPS, timeout: float = 
         raise ArmbridgeError(f"the MicroPython bench failed (status {proc.returncode}): "
                              f"{(proc.stderr or proc.stdout).strip()[-2000:]}")
     result: dict[str, Any] = json.loads(lines[-1])
+    check(result)
     return result
 
 
@@ -73,7 +75,20 @@ def under_cpython(device: str = "esp32", reps: int = REPS) -> dict[str, Any]:
         fwcost.run(name)
     result = dict(fwcost.result())
     result["interpreter"] = f"CPython {platform.python_version()}"
+    check(result)
     return result
+
+
+def check(r: dict[str, Any]) -> None:
+    """Every item got the answer it is meant to measure (fwcost.EXPECT), or the
+    numbers would time another path: ArmbridgeError naming the item."""
+    for group in ("lines", "ticks", "codec"):
+        for name, st in r[group].items():
+            want = fwcost.EXPECT[name]
+            if st["answers"] != {want: st["n"]}:
+                raise ArmbridgeError(f"bench firmware under {r['interpreter']}: the {name} item was answered "
+                                     f"{st['answers']}, expected {want} every time; the bench does not match "
+                                     "this firmware")
 
 
 def tick_budget(r: dict[str, Any], period_ms: int, lines_per_s: int = LINES_PER_S) -> dict[str, Any]:
@@ -102,7 +117,7 @@ def run(device: str = "esp32", reps: int = REPS, progress=lambda text: None) -> 
     progress(f"CPython, {reps} repetitions per item")
     cp = under_cpython(device, reps)
     ratio = {}
-    for group in ("lines", "ticks"):
+    for group in ("lines", "ticks", "codec"):
         for name, st in mp[group].items():
             base = cp[group][name]["median_us"]
             ratio[name] = round(st["median_us"] / base, 1) if base > 0 else None
@@ -114,3 +129,27 @@ def run(device: str = "esp32", reps: int = REPS, progress=lambda text: None) -> 
         "median_ratio_micropython_over_cpython": ratio,
         "tick_budget": {"micropython": tick_budget(mp, period_ms), "cpython": tick_budget(cp, period_ms)},
     }
+
+
+def print_result(r: dict[str, Any], console: Any) -> None:
+    """The tables of `armbridge bench firmware` (rich console)."""
+    from rich.table import Table
+
+    mp, cp = r["micropython"], r["cpython"]
+    table = Table(title=f"firmware cost per poll ({r['device']}, {r['reps']} repetitions, microseconds)",
+                  caption=f"MicroPython: {mp['interpreter']}; CPython: {cp['interpreter']}; "
+                          "alloc: heap bytes allocated per poll under MicroPython")
+    for col in ("item", "MicroPython median", "p99", "alloc", "CPython median", "ratio"):
+        table.add_column(col, justify="left" if col == "item" else "right")
+    for group, label in (("lines", "line"), ("ticks", "tick"), ("codec", "codec")):
+        for name, st in mp[group].items():
+            table.add_row(f"{label}: {name}", f"{st['median_us']:.1f}", f"{st['p99_us']:.0f}",
+                          str(st.get("alloc_bytes", "-")), f"{cp[group][name]['median_us']:.1f}",
+                          f"{r['median_ratio_micropython_over_cpython'][name]:.1f}x")
+    console.print(table)
+    for who in ("micropython", "cpython"):
+        b = r["tick_budget"][who]
+        console.print(f"{r[who]['interpreter']}: {b['lines_per_s']} W lines/s = {b['w_lines_per_tick']:g} per "
+                      f"{b['period_ms']} ms tick: {b['w_us_per_tick']:.0f} us, {b['w_share_of_tick']:.1%} of the "
+                      f"tick; with the control tick (RUN + telemetry) {b['with_tick_share']:.1%}")
+    console.print(f"live heap under MicroPython after the bench: {mp['heap_live_after_bench']} bytes")

@@ -22,6 +22,16 @@ try:
 except ImportError:  # CPython: the package's module
     from armbridge.emulator.mpbridge import bridgehal
 
+# The answer each item must get (fwcost measures nothing else).
+EXPECT = {"W": "OK", "PING": "OK", "STAT": "OK", "HOLD": "OK", "RESUME": "OK", "RATE": "OK", "LIM": "OK",
+          "HELLO": "OK", "CRC error": "ER 2", "ER SEQ": "ER 7", "idle": "-", "RUN": "-", "RUN + telemetry": "T",
+          "crc32 of a W line": "int", "decode W": "W", "parse_command W": "list", "encode an OK reply": "bytes"}
+LINES = ("W", "PING", "STAT", "HOLD", "RESUME", "RATE", "LIM", "HELLO", "CRC error", "ER SEQ")
+TICKS = {"idle": (0, False), "RUN": (0, True), "RUN + telemetry": (100, True)}  # (rate, moving)
+CODEC_INNER = 20
+CODEC = ("crc32 of a W line", "decode W", "parse_command W", "encode an OK reply")
+ITEMS = LINES + tuple(TICKS) + CODEC
+
 
 def _stats(xs, overhead):
     xs = sorted([x - overhead for x in xs])
@@ -78,6 +88,7 @@ class Bench:
         self._poll(None)  # the first control tick is due at boot
         self.send(self.host.hello(True))
         self.send(self.host.line("RATE", (0,)))
+        self.oh = self.overhead()  # the median cost of reading the clock, us
 
     # ------------------------------------------------------------ plumbing
 
@@ -97,8 +108,6 @@ class Bench:
         ops = self._poll(data)[1]
         return b"".join([v for k, v in ops if k == bridgehal.TX])
 
-    def timed(self, data):
-        return self._poll(data)[0]
 
     def advance(self):
         self.hal.ms += self.period
@@ -127,18 +136,65 @@ class Bench:
     # ------------------------------------------------------------ items
 
     def series(self, make, before=None):
-        """Times `reps` polls of make(i)'s bytes (None: a tick) ->
-        (microseconds each, bytes allocated per poll, untimed)."""
+        """Times `reps` polls of make(i)'s bytes (None: a tick), before(i) untimed
+        -> (microseconds each, bytes allocated per poll, {answer: count}); the
+        answer is the kind of the first line the board wrote ("OK", "ER 2", "T",
+        "-" for none), so that a bench that measures the wrong path shows it."""
         xs = []
-        timed = self.timed
+        answers = {}
+        poll = self._poll
+        tx = bridgehal.TX
         alloc0 = _alloc()
         for i in range(self.reps):
             if before is not None:
                 before(i)
-            xs.append(timed(make(i)))
-        return xs, (_alloc() - alloc0) / self.reps
+            dt, ops = poll(make(i))
+            xs.append(dt)
+            out = [v for k, v in ops if k == tx]
+            a = _answer(out[0]) if out else "-"
+            answers[a] = answers.get(a, 0) + 1
+        return xs, (_alloc() - alloc0) / self.reps, answers
+
+    def series_fn(self, fn, inner=CODEC_INNER):
+        """Times `reps` samples of `inner` calls fn(i) -> like series(), per call
+        and less the clock's cost already; the answer is a name for what fn
+        returned (_result_name). Some codec calls take about as long as
+        reading the clock: hence the inner loop."""
+        xs = []
+        answers = {}
+        clock = self.clock
+        oh = self.oh
+        alloc0 = _alloc()
+        for i in range(self.reps):
+            t0 = clock()
+            for _ in range(inner):
+                r = fn(i)
+            t1 = clock()
+            xs.append((t1 - t0 - oh) / inner)
+            a = _result_name(r)
+            answers[a] = answers.get(a, 0) + 1
+        return xs, (_alloc() - alloc0) / (self.reps * inner), answers
+
+    def codec_item(self, name):
+        """The codec's share of a W line: firmware/common/proto.py alone."""
+        proto = self.host.proto
+        line = self.w_line(1000, 10)
+        body = line[:line.rfind(b"*")]
+        epoch = self.host.epoch
+        if name == "crc32 of a W line":
+            return self.series_fn(lambda i: proto.crc32(body, epoch))
+        if name == "decode W":
+            return self.series_fn(lambda i: proto.decode(line[:-1], proto.MAX_HOST_LINE, epoch))
+        seq, verb, args = proto.decode(line[:-1], proto.MAX_HOST_LINE, epoch)
+        if name == "parse_command W":
+            return self.series_fn(lambda i: proto.parse_command(verb, args, self.n))
+        if name == "encode an OK reply":
+            return self.series_fn(lambda i: proto.encode(i, "OK", [seq, 31]))
+        raise ValueError("unknown item %r" % name)
 
     def run_item(self, name):
+        if name in CODEC:
+            return self.codec_item(name)
         host = self.host
         qsize = self.cfg.QSIZE
         if name in TICKS:
@@ -148,6 +204,8 @@ class Bench:
                 # one long move, small enough that the still arm stays inside the
                 # following-error limit: the trajectory and the PIDs run every tick
                 self.send(self.w_line(60000, 250))
+                self.advance()
+                self.send(None)  # the tick that starts it (EV START), untimed
 
             def tick(i):
                 if i % 20 == 19:
@@ -187,9 +245,17 @@ class Bench:
         raise ValueError("unknown item %r" % name)
 
 
-LINES = ("W", "PING", "STAT", "HOLD", "RESUME", "RATE", "LIM", "HELLO", "CRC error", "ER SEQ")
-TICKS = {"idle": (0, False), "RUN": (0, True), "RUN + telemetry": (100, True)}  # (rate, moving)
-ITEMS = LINES + tuple(TICKS)
+def _answer(data):
+    f = data.split(b" ", 4)
+    if len(f) > 3 and f[1] == b"ER":
+        return "ER " + f[3].decode()
+    return f[1].decode() if len(f) > 1 else "?"
+
+
+def _result_name(r):
+    if isinstance(r, tuple):
+        return r[1]  # decode: the verb
+    return type(r).__name__
 
 
 def _alloc():
@@ -207,7 +273,7 @@ def start(board_cls, cfg, proto, version, clock, reps):
     """A board booted for the bench -> the names of the items to run()."""
     global _bench, _result
     _bench = Bench(board_cls, cfg, proto, version, clock, reps)
-    _result = {"reps": reps, "clock_overhead_us": round(_bench.overhead(), 3), "lines": {}, "ticks": {}}
+    _result = {"reps": reps, "clock_overhead_us": round(_bench.oh, 3), "lines": {}, "ticks": {}, "codec": {}}
     return ITEMS
 
 
@@ -215,13 +281,16 @@ def run(name):
     """One item (its own call from the host, so that garbage is collected between
     items; the WebAssembly port collects only when control is back in JS)."""
     b = _bench
-    xs, alloc = b.run_item(name)
-    st = _stats(xs, _result["clock_overhead_us"])
+    xs, alloc, answers = b.run_item(name)
+    st = _stats(xs, 0.0 if name in CODEC else b.oh)
+    st["answers"] = answers
     if alloc:
         st["alloc_bytes"] = round(alloc)
     if name in TICKS:
         st["state"] = b.board.state
         _result["ticks"][name] = st
+    elif name in CODEC:
+        _result["codec"][name] = st
     else:
         _result["lines"][name] = st
 

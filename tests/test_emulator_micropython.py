@@ -1,0 +1,304 @@
+"""The firmware under the real MicroPython interpreter (`interpreter=micropython`).
+
+The emulator boots the same firmware files in the MicroPython WebAssembly port
+(npm @micropython/micropython-webassembly-pyscript, run by Node), bridged to
+the emulator's plant and UART one round trip per tick
+(armbridge.emulator.micropython). Here the executor streams plans to it, with
+and without link faults and a reset, and the e-stop byte stops it; the checks
+read the board's own log (`executed`: board ms, id, the values the W line
+carried), never the wall clock. The paced runs use speed 1: the bridge costs
+about 0.3 ms of CPU per millisecond of board time, which a busy 2-core machine
+still keeps up with.
+
+Without node or the package these tests skip, or fail under
+ARMBRIDGE_REQUIRE_HIL=1 (tests/require.py); the clear errors a user gets then
+are tested without either.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import armbridge.link.transport as transport
+from armbridge.emulator.board import EmulatedBoard
+from armbridge.emulator.micropython import ENV_PACKAGE, find_micropython
+from armbridge.errors import ArmbridgeError
+from armbridge.link.protocol import to_milli
+from armbridge.plans.format import make_plan
+from armbridge.resources import firmware_dir
+from armbridge.robots import ARM3R
+from emu_host import Codec, is_reply
+from require import missing
+
+MID = np.array([math.pi / 2, -math.pi / 2, 0.0])  # the emulator's start pose: mid-range
+ARMBRIDGE = Path(sys.executable).with_name("armbridge")
+
+
+@pytest.fixture
+def micropython():
+    """Node and the npm package, or skip (fail under ARMBRIDGE_REQUIRE_HIL=1)."""
+    if shutil.which("node") is None:
+        missing("node is not installed (the MicroPython interpreter mode needs Node.js)")
+    try:
+        find_micropython()
+    except ArmbridgeError as exc:
+        missing(str(exc))
+
+
+@pytest.fixture
+def ports(monkeypatch):
+    """Record the ports run_plan opens, so a test can look at the emulator afterwards."""
+    opened = []
+    real = transport.open_port
+
+    def spy(url, *a, **kw):
+        port = real(url, *a, **kw)
+        opened.append(port)
+        return port
+
+    monkeypatch.setattr(transport, "open_port", spy)
+    yield opened
+    for p in opened:
+        p.close()
+
+
+def wave_plan(k: int, dt: float = 0.05, amp=(0.4, 0.3, 0.4), freq: float = 0.5):
+    """k waypoints dt apart on q = MID + amp (1 - cos(2 pi f t)) / 2: starts at rest at MID."""
+    t = dt * np.arange(1, k + 1)
+    q = MID + np.outer((1 - np.cos(2 * np.pi * freq * t)) / 2, amp)
+    return make_plan(ARM3R, q, dt, {"tool": "tests/test_emulator_micropython.py", "shape": "wave"})
+
+
+def assert_executed_once_with_values(emu, plan):
+    """Every waypoint exactly once, in order, with the values the host sent."""
+    ids = [wid for _, wid, _ in emu.executed]
+    assert ids == list(range(len(plan.q))), ids
+    for (_, wid, values), q in zip(emu.executed, plan.q):
+        assert list(values) == to_milli(q), (wid, values)
+
+
+class Host:
+    """A v2 host over the lockstep emulator's inject()/read_output()."""
+
+    def __init__(self, emu):
+        self.emu = emu
+        self.codec = Codec()
+        self.lines: list[tuple] = []
+
+    def pump(self):
+        self.lines += self.codec.feed(self.emu.read_output())
+
+    def wait(self, pred, max_s=2.0):
+        found = []
+
+        def check():
+            self.pump()
+            found[:] = [line for line in self.lines if pred(line)]
+            return bool(found)
+
+        assert self.emu.run_until(check, max_s), self.lines[-5:]
+        return found[0]
+
+    def request(self, verb, *args):
+        data = self.codec.hello(*args) if verb == "HELLO" else self.codec.line(verb, *args)
+        self.emu.inject(data)
+        seq = self.codec.seq
+        return self.wait(lambda line: is_reply(line, seq))
+
+
+# ---------------------------------------------------------------- without node or the package
+
+def test_a_missing_package_is_one_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setenv(ENV_PACKAGE, str(tmp_path / "nowhere"))
+    with pytest.raises(ArmbridgeError, match=f"{ENV_PACKAGE}=.*nowhere.*make setup"):
+        EmulatedBoard("esp32", speed=0, interpreter="micropython")
+
+
+def test_missing_node_is_one_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(ArmbridgeError, match="needs Node.js.*make setup"):
+        EmulatedBoard("esp32", speed=0, interpreter="micropython")
+
+
+def test_emulate_cli_says_what_to_install_in_one_line(tmp_path):
+    env = dict(os.environ, **{ENV_PACKAGE: str(tmp_path / "nowhere")})
+    proc = subprocess.run([str(ARMBRIDGE), "emulate", "esp32", "--interpreter", "micropython", "--for", "1"],
+                          capture_output=True, text=True, timeout=60, env=env, cwd=tmp_path)
+    assert proc.returncode != 0
+    err = proc.stderr.strip().splitlines()
+    assert len(err) == 1 and "make setup" in err[0] and "Traceback" not in proc.stderr, proc.stderr
+    assert "emulator on" not in proc.stdout  # no pty was offered
+
+
+# ---------------------------------------------------------------- lockstep, under MicroPython
+
+def test_the_firmware_runs_in_the_micropython_interpreter(micropython):
+    emu = EmulatedBoard("esp32", speed=0, interpreter="micropython")
+    try:
+        h = Host(emu)
+        boot = h.wait(lambda line: line[1] == "BOOT")
+        assert boot[2][:3] == ["arm3r", emu.cfg.FW_VERSION, "2"]
+        assert emu.interpreter == "micropython" and emu.modules == {}  # nothing of it in this process
+        assert emu.runner.version.startswith("1.")  # sys.implementation.version, in there
+        assert h.request("HELLO", 7)[1] == "OK"
+        target = [1771, -1471, 100]
+        assert h.request("W", 0, 200, *target)[1] == "OK"
+        h.wait(lambda line: line[1] == "EV" and line[2][1] == "DONE" and line[2][2] == "0")
+        assert [(wid, list(v)) for _, wid, v in emu.executed] == [(0, target)]
+        emu.run_for(0.5)
+        assert np.allclose(emu.positions(), np.array(target) / 1000.0, atol=0.02)  # the plant followed
+    finally:
+        emu.stop()
+
+
+def test_estop_byte_turns_the_outputs_off_and_the_latch_survives_a_reset(micropython):
+    emu = EmulatedBoard("esp32", speed=0, interpreter="micropython")
+    try:
+        h = Host(emu)
+        h.request("HELLO", 5)
+        free = int(h.request("STAT")[2][1])
+        for i in range(free):
+            assert h.request("W", i, 2000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0)[1] == "OK"
+        emu.run_for(0.05)
+        assert emu.state == "RUN" and emu.hal.outputs_enabled
+        emu.inject(b"\x98")
+        h.wait(lambda line: line[1] == "EV" and line[2][1] == "ESTOP")
+        assert len(emu.estop_byte_at) == 1
+        latency = emu.outputs_off_at[-1] - emu.estop_byte_at[-1]
+        assert 0 <= latency <= 0.002  # sim time: the board polls every millisecond
+        n_eff = len(emu.hal.efforts)
+        emu.run_for(0.3)
+        assert emu.state == "ESTOP" and not emu.hal.outputs_enabled and len(emu.hal.efforts) == n_eff
+        refused = h.request("W", 99, 100, 1571, -1571, 0)
+        assert refused[1] == "ER" and refused[2][2] == "LATCHED"
+
+        emu.reset()  # a fresh interpreter boots from the persisted memory
+        h.wait(lambda line: line[1] == "BOOT" and line[2][3] == "ESTOP")
+        assert len(emu.boots) == 2 and emu.state == "ESTOP"
+        assert h.request("HELLO", 5)[2][-1] == "ESTOP"  # no HELLO releases a latch
+        emu.run_for(0.2)
+        assert not emu.hal.outputs_enabled and len(emu.hal.efforts) == n_eff
+        assert h.request("CLR")[1] == "OK"
+        emu.run_for(0.05)
+        assert emu.state == "IDLE" and emu.hal.outputs_enabled
+    finally:
+        emu.stop()
+
+
+def test_a_firmware_exception_shows_the_micropython_traceback(micropython, tmp_path):
+    (tmp_path / "esp32").mkdir()
+    shutil.copytree(firmware_dir() / "common", tmp_path / "common")
+    shutil.copy(firmware_dir() / "esp32" / "config.py", tmp_path / "esp32")
+    (tmp_path / "esp32" / "arm.py").write_text(
+        "class Board:\n"
+        "    def __init__(self, hal, cfg):\n"
+        "        self.state = 'IDLE'\n"
+        "        self.polls = 0\n"
+        "    def poll(self):\n"
+        "        self.polls += 1\n"
+        "        if self.polls > 5:\n"
+        "            raise RuntimeError('boom')\n"
+    )
+    emu = EmulatedBoard("esp32", speed=0, firmware_root=tmp_path, interpreter="micropython")
+    try:
+        with pytest.raises(RuntimeError, match="boom"):
+            emu.step(1)
+        assert emu.state == "CRASHED"
+        assert "under MicroPython" in emu.crash and "arm.py" in emu.crash and "boom" in emu.crash
+        emu.reset()
+        emu.run_for(0.255)
+        assert emu.state == "IDLE" and len(emu.boots) == 2
+    finally:
+        emu.stop()
+
+
+# ---------------------------------------------------------------- the executor, paced
+
+@pytest.mark.hil
+def test_a_plan_runs_every_waypoint_once_with_its_values(micropython, tmp_path, ports):
+    from armbridge.executor.run import run_plan
+
+    plan = wave_plan(40)
+    s = run_plan(plan, "emu:esp32?interpreter=micropython&speed=1&seed=3", tmp_path / "mp.rrd", progress=False)
+    emu = ports[0].emulator
+    assert emu.interpreter == "micropython" and emu.crash is None
+    assert s.completed and s.final_state == "IDLE", s
+    assert (s.waypoints_done, s.waypoints_sent, s.waypoints_acked) == (40, 40, 40)
+    assert_executed_once_with_values(emu, plan)
+
+
+def reset_after(ports, n: int, stop: threading.Event) -> threading.Thread:
+    """Resets the board of the first port opened once its own log holds n
+    completed waypoints: mid-plan whatever the handshake took on a busy machine."""
+    def watch():
+        while not stop.wait(0.005):
+            if ports and len(ports[0].emulator.executed) >= n:
+                ports[0].emulator.reset()
+                return
+
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    return t
+
+
+@pytest.mark.hil
+def test_link_faults_and_a_reset_every_waypoint_once_in_order(micropython, tmp_path, ports):
+    """1% of bytes dropped, 1% with a bit flipped, 1% doubled, both directions, and
+    a board reset (a fresh MicroPython interpreter) mid-plan."""
+    from armbridge.executor.run import run_plan
+
+    plan = wave_plan(60)
+    url = "emu:esp32?interpreter=micropython&speed=1&drop=0.01&corrupt=0.01&dup=0.01&seed=11"
+    stop = threading.Event()
+    watcher = reset_after(ports, 20, stop)
+    try:
+        s = run_plan(plan, url, tmp_path / "faults.rrd", progress=False)
+    finally:
+        stop.set()
+        watcher.join()
+    emu = ports[0].emulator
+    assert emu.crash is None
+    assert s.completed and s.waypoints_done == 60, s
+    assert_executed_once_with_values(emu, plan)
+    assert emu.counters["resets"] == 1 and len(emu.boots) == 2 and s.resyncs >= 1
+    before = [wid for ms, wid, _ in emu.executed if ms < emu.resets[0] * 1000]
+    assert 0 < len(before) < 60  # the reset fell mid-plan
+    c = emu.counters
+    assert c["rx"]["corrupt"] > 0 and c["rx"]["drop"] > 0 and c["tx"]["dup"] > 0
+    assert s.waypoints_retransmitted > 0 and s.line_errors > 0
+
+
+# ---------------------------------------------------------------- the cost bench
+
+def test_bench_firmware_measures_every_item_in_both_interpreters(micropython, tmp_path):
+    from armbridge.emulator.mpbridge import fwcost
+
+    out = tmp_path / "bench.json"
+    proc = subprocess.run([str(ARMBRIDGE), "bench", "firmware", "--reps", "30", "--json", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    r = json.loads(out.read_text())
+    for who in ("micropython", "cpython"):
+        res = r[who]
+        for group, names in (("lines", fwcost.LINES), ("ticks", tuple(fwcost.TICKS)), ("codec", fwcost.CODEC)):
+            assert set(res[group]) == set(names)
+            for name, st in res[group].items():
+                assert st["n"] == 30 and st["answers"] == {fwcost.EXPECT[name]: 30}, (who, name, st)
+                assert st["median_us"] <= st["p99_us"]
+        assert res["ticks"]["idle"]["state"] == "IDLE" and res["ticks"]["RUN"]["state"] == "RUN"
+        b = r["tick_budget"][who]
+        assert b["w_lines_per_tick"] == 3.0
+        assert b["w_us_per_tick"] == pytest.approx(3 * res["lines"]["W"]["median_us"], abs=0.1)
+    assert r["micropython"]["interpreter"].startswith("MicroPython")
+    assert r["micropython"]["lines"]["W"]["alloc_bytes"] > 0  # the heap a W line costs
+    assert r["micropython"]["heap_live_after_bench"] > 0
+    assert "W lines/s" in proc.stdout
