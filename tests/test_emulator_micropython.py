@@ -277,6 +277,26 @@ def test_link_faults_and_a_reset_every_waypoint_once_in_order(micropython, tmp_p
     assert s.waypoints_retransmitted > 0 and s.line_errors > 0
 
 
+@pytest.mark.hil
+def test_the_hosts_estop_stops_a_moving_board(micropython, ports):
+    from armbridge.executor.session import open_session
+
+    with open_session("emu:esp32?interpreter=micropython&speed=1", ARM3R) as client:
+        emu = ports[0].emulator
+        client.command("W", 0, 3000, 2471, -1171, 400)  # a 3 s move
+        assert client.stat()[0] == "RUN" and emu.hal.outputs_enabled
+        client.estop()
+        state = client.stat()[0]
+        for _ in range(20):
+            if state == "ESTOP":
+                break
+            state = client.stat()[0]
+        assert state == "ESTOP" and emu.state == "ESTOP"
+        assert len(emu.estop_byte_at) == 1 and not emu.hal.outputs_enabled
+        assert 0 <= emu.outputs_off_at[-1] - emu.estop_byte_at[0] <= 0.002  # sim time
+        assert emu.executed == []  # the move never finished
+
+
 # ---------------------------------------------------------------- the cost bench
 
 def test_bench_firmware_measures_every_item_in_both_interpreters(micropython, tmp_path):
