@@ -270,3 +270,24 @@ def smm_cmd(
     console.print(f"wrote {json_out}")
     if png is not None:
         console.print(f"wrote {smm.fig3_png(result, png)}")
+
+
+@bench_app.command("firmware")
+def firmware_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 200 repetitions per item."),
+    reps: int = typer.Option(None, "--reps", min=10, help="Repetitions per item (full run: 2000)."),
+    device: str = typer.Option("esp32", "--device", help="A MicroPython board of the emulator."),
+    json_out: Path = typer.Option(Path("runs/bench-firmware.json"), "--json", help="Where to write the results."),
+) -> None:
+    """The firmware's cost per received line (each verb) and per control tick under
+    the real MicroPython interpreter (WebAssembly, by Node) and under CPython."""
+    from rich.console import Console
+
+    from armbridge.bench import firmware_cost as fc
+
+    console = Console()
+    n = reps if reps is not None else (fc.QUICK_REPS if quick else fc.REPS)
+    result = fc.run(device, n, progress=lambda text: console.print(f"[dim]bench firmware: {text}[/]"))
+    write_json(result, json_out)
+    fc.print_result(result, console)
+    console.print(f"wrote {json_out}")
