@@ -44,8 +44,6 @@ class ProtocolError(Exception):
         self.detail = detail
 
 
-ProtoError = ProtocolError  # the v1 name, until every firmware file says ProtocolError
-
 
 def crc32(data, epoch: int = 0) -> int:
     """CRC-32/ISO-HDLC of bytes/bytearray, started from the link epoch."""

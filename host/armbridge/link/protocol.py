@@ -20,7 +20,6 @@ from armbridge.link.protodef import (  # noqa: F401  (re-exported: the codes use
 
 PROTOCOL_VERSION = D.PROTOCOL_VERSION
 MAX_HOST_LINE = D.MAX_HOST_LINE
-MAX_COMMAND_LINE = MAX_HOST_LINE  # the v1 name, kept while callers move to MAX_HOST_LINE
 MAX_BOARD_LINE = D.MAX_BOARD_LINE
 ESTOP_BYTE = bytes([D.ESTOP_BYTE])
 SEQ_MOD = D.SEQ_MOD
