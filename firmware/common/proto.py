@@ -44,7 +44,6 @@ class ProtocolError(Exception):
         self.detail = detail
 
 
-
 def crc32(data, epoch: int = 0) -> int:
     """CRC-32/ISO-HDLC of bytes/bytearray, started from the link epoch."""
     return binascii.crc32(data, epoch)
