@@ -14,6 +14,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from armbridge.executor.signals import holding
 from armbridge.link import protocol as P
 from armbridge.link.protodef import LATCHED_STATES
 
@@ -52,7 +53,9 @@ class Monitor:
             self._line(text)
 
     def _line(self, text: str) -> None:
-        self.console.print(text, highlight=False, markup=False, soft_wrap=True)
+        # Ctrl-C waits for the line: rich would write a line cut short by it twice.
+        with holding():
+            self.console.print(text, highlight=False, markup=False, soft_wrap=True)
 
     # ------------------------------------------------------------ view
     def render(self) -> Group:
