@@ -14,7 +14,10 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from armbridge import resources
 from armbridge.errors import ArmbridgeError
+from armbridge.extras import require
+from armbridge.geometry import wrap_angle
 
 METHODS = ("nullspace", "learned")
 
@@ -24,7 +27,7 @@ def smm_cmd(
     at: str = typer.Option(..., "--at", help="Task location: x,y (planar), x,y,z (4R) or x,y,z,rx,ry,rz (7R: "
                            "position in m and rotation vector in rad)."),
     method: str = typer.Option("nullspace", "--method", help="nullspace (ground truth) or learned (ONNX networks)."),
-    model: Path | None = typer.Option(None, "--model", help="Learned model folder [default: models/onnx/smm-ROBOT]."),
+    model: Path | None = typer.Option(None, "--model", help="Learned model folder [default: the shipped smm-ROBOT]."),
     correct: int = typer.Option(0, "--correct", min=0, help="Eq. (18) correction steps for --method learned."),
     png: Path | None = typer.Option(None, "--png", help="Write the branches projected on joint planes to this PNG."),
 ) -> None:
@@ -41,8 +44,7 @@ def smm_cmd(
         raise ArmbridgeError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     t0 = time.perf_counter()
     if method == "nullspace":
-        import torch
-
+        torch = require("torch", "train", "--method nullspace")
         from armbridge.smm.nullspace import compute
 
         torch.set_num_threads(1)  # small ops: threads only add hand-offs (see nullspace)
@@ -50,7 +52,7 @@ def smm_cmd(
     else:
         from armbridge.smm.learned import LearnedSmm
 
-        smm = LearnedSmm.load(model or Path("models/onnx") / f"smm-{arm.name}", robot=arm.name).compute(
+        smm = LearnedSmm.load(model or resources.model_dir(f"smm-{arm.name}"), robot=arm.name).compute(
             x[None, :], correct_iters=correct
         )
     elapsed = time.perf_counter() - t0
@@ -68,7 +70,7 @@ def smm_cmd(
         table.add_column(f"theta{j + 1}")
     table.add_column("FK error %")
     for b, (box, branch) in enumerate(zip(branch_boxes(smm, 0), smm.branches(0))):
-        cells = ["full" if full else f"{math.degrees(lo):.1f} .. {math.degrees(_wrap(lo + w)):.1f}"
+        cells = ["full" if full else f"{math.degrees(lo):.1f} .. {math.degrees(wrap_angle(lo + w)):.1f}"
                  for lo, w, full in zip(box.lo, box.width, box.full)]
         err = arm.fk_error(branch, np.broadcast_to(x, (branch.shape[0], arm.m)).copy())
         table.add_row(str(b + 1), *cells, f"{100 * float(np.mean(err)):.2g}")
@@ -128,10 +130,6 @@ def plot_branches(branches: list[np.ndarray], path: Path, title: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-def _wrap(a: float) -> float:
-    return math.pi - (math.pi - a) % (2 * math.pi)
 
 
 def _fmt(x: np.ndarray) -> str:

@@ -190,6 +190,20 @@ def orient(points: np.ndarray, null: np.ndarray) -> np.ndarray:
     return np.where((tangent_sign(pts, null) < 0)[..., None, None], rev, pts)
 
 
+# The regressors' output layout (armbridge.smm.networks): (branch, joint, k, [re, im]) flattened.
+def coeffs_to_target(coeffs: np.ndarray) -> np.ndarray:
+    """(M, B, n, K) complex -> (M, B*n*K*2) float: real and imaginary parts, flattened."""
+    c = np.asarray(coeffs)
+    return np.stack([c.real, c.imag], axis=-1).reshape(c.shape[0], -1)
+
+
+def target_to_coeffs(y: np.ndarray, branches: int, n: int, k: int) -> np.ndarray:
+    """Inverse of coeffs_to_target: (M, B*n*K*2) -> (M, B, n, K), complex64 for float32 y
+    (a view, no copy: the network's output as is), else complex128."""
+    y = np.ascontiguousarray(y, dtype=np.float32 if np.asarray(y).dtype == np.float32 else np.float64)
+    return y.reshape(-1, branches, n, 2 * k).view(np.complex64 if y.dtype == np.float32 else np.complex128)
+
+
 def _points(points: np.ndarray) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim < 2 or pts.shape[-2] < 3:

@@ -10,8 +10,9 @@ the 7R: a phase factor on those joints' series) -> inverse transform (eq. 10).
 Clusters with no branches (out of reach) give count 0. Then, optionally, a few
 steps of q += J^+ Delta x_e (eq. 18) on every point of every branch at once.
 
-The networks run in onnxruntime (CPU); the kinematics in torch float64. The
-learned method cannot see singular configurations, so `singular` is all False.
+The networks run in onnxruntime (CPU), the kinematics and the correction in
+numpy float64: inference needs no torch (the `train` extra). The learned
+method cannot see singular configurations, so `singular` is all False.
 """
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm, get_smm_arm
@@ -104,9 +104,8 @@ class LearnedSmm:
     def load(cls, folder: str | Path, robot: str | None = None, threads: int = 1, verify: bool = True) -> LearnedSmm:
         """Read FOLDER/card.json and its ONNX files.
 
-        `threads`: onnxruntime intra-op threads, and torch's threads during
-        compute (restored afterwards). 1 is fastest on a busy 2-core machine:
-        torch's small ops stall when a second thread has to wait for a core.
+        `threads`: onnxruntime intra-op threads. 1 is fastest on a busy 2-core
+        machine: small ops stall when a second thread has to wait for a core.
         """
         folder = Path(folder)
         if threads < 1:
@@ -132,21 +131,13 @@ class LearnedSmm:
 
     def coefficients(self, cluster: int, canon: np.ndarray) -> np.ndarray:
         """Fourier coefficients (M, B, n, K) complex of the branches of locations in `cluster`."""
-        from armbridge.smm.networks import target_to_coeffs
+        from armbridge.smm.fourier import target_to_coeffs
 
         return target_to_coeffs(_run(self.regressors[cluster], canon), int(self.branches[cluster]), self.arm.n,
                                 int(self.card["fourier"]["K"]))
 
     def compute(self, x: Any, n_points: int = 128, correct_iters: int = 0) -> SmmSet:
         """SMMs of the locations x (L, m), each branch sampled at n_points configurations."""
-        saved = torch.get_num_threads()
-        torch.set_num_threads(self.threads)
-        try:
-            return self._compute(x, n_points, correct_iters)
-        finally:
-            torch.set_num_threads(saved)
-
-    def _compute(self, x: Any, n_points: int, correct_iters: int) -> SmmSet:
         from armbridge.smm.fourier import decode
 
         arm = self.arm
@@ -157,9 +148,7 @@ class LearnedSmm:
             raise ArmbridgeError(f"locations for {arm.name} must be finite numbers")
         if n_points < 2 or correct_iters < 0:
             raise ArmbridgeError(f"n_points must be >= 2 and correct_iters >= 0, got {n_points} and {correct_iters}")
-        xt = torch.as_tensor(x)
-        canon_t, shift_t = arm.canonical(xt)
-        canon, shift = canon_t.numpy(), shift_t.numpy()
+        canon, shift = arm.canonical(x)
         cluster = self.classify(canon)
         count = self.branches[cluster]
         parts = []
@@ -173,7 +162,7 @@ class LearnedSmm:
         points = scatter(parts, count, int(self.branches.max(initial=0)), n_points, arm.n)
         if correct_iters > 0 and count.any():
             valid = np.arange(points.shape[1])[None, :] < count[:, None]  # (L, Bmax)
-            q = torch.as_tensor(points[valid].reshape(-1, arm.n))
-            target = xt[np.nonzero(valid)[0]].repeat_interleave(n_points, dim=0)
-            points[valid] = correct(arm, q, target, correct_iters).numpy().reshape(-1, n_points, arm.n)
+            q = points[valid].reshape(-1, arm.n)
+            target = np.repeat(x[np.nonzero(valid)[0]], n_points, axis=0)
+            points[valid] = correct(arm, q, target, correct_iters).reshape(-1, n_points, arm.n)
         return SmmSet(points=points, count=count, singular=np.zeros(len(x), dtype=bool))

@@ -9,7 +9,8 @@ ONNX graph takes raw canonical coordinates and returns raw coefficients.
 Regressor targets are the real and imaginary parts of the K Fourier
 coefficients of every branch of the cluster (eq. 8 after the low-pass filter),
 flattened in the order (branch, joint, k, [re, im]); `coeffs_to_target` and
-`target_to_coeffs` are the two directions of that layout.
+`target_to_coeffs` (in armbridge.smm.fourier: inference needs them without
+torch) are the two directions of that layout.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import torch
 from torch import nn
 
 from armbridge.errors import ArmbridgeError
+from armbridge.smm.fourier import coeffs_to_target, target_to_coeffs  # noqa: F401 (the layout, re-exported)
 
 LEAKY_SLOPE = 0.01  # torch's default LeakyReLU slope; the paper gives none
 
@@ -127,19 +129,6 @@ def output_scaling(target: np.ndarray) -> tuple[np.ndarray, float]:
     mean = target.mean(axis=0)
     scale = float(np.sqrt(np.mean((target - mean) ** 2)))
     return mean, scale if scale > 1e-12 else 1.0
-
-
-def coeffs_to_target(coeffs: np.ndarray) -> np.ndarray:
-    """(M, B, n, K) complex -> (M, B*n*K*2) float: real and imaginary parts, flattened."""
-    c = np.asarray(coeffs)
-    return np.stack([c.real, c.imag], axis=-1).reshape(c.shape[0], -1)
-
-
-def target_to_coeffs(y: np.ndarray, branches: int, n: int, k: int) -> np.ndarray:
-    """Inverse of coeffs_to_target: (M, B*n*K*2) -> (M, B, n, K), complex64 for float32 y
-    (a view, no copy: the network's output as is), else complex128."""
-    y = np.ascontiguousarray(y, dtype=np.float32 if np.asarray(y).dtype == np.float32 else np.float64)
-    return y.reshape(-1, branches, n, 2 * k).view(np.complex64 if y.dtype == np.float32 else np.complex128)
 
 
 def classifier_loss(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:

@@ -35,11 +35,14 @@ def _require_train_extra() -> None:
         require(module, "train", "`armbridge train`")
 
 
-def check_output(card: Path, force: bool) -> None:
-    """Refuse to write a model whose card already exists (a shipped one above all) unless force."""
+def check_output(card: Path, force: bool, resume: bool) -> None:
+    """Refuse to write a model whose card already exists unless force; --resume may finish
+    its own run's model again, never a shipped one (resources.models_dir())."""
     if force or not card.exists():
         return
     shipped = card.resolve().is_relative_to(resources.models_dir().resolve())
+    if resume and not shipped:
+        return
     what = "a shipped model" if shipped else "a model"
     raise ArmbridgeError(f"{card} exists ({what}); pass --force to overwrite it, or choose another --out")
 
@@ -103,7 +106,7 @@ def masr_iknn_cmd(
                          out=out or work_dir / "model", work_dir=work_dir, eval_trials=eval_trials, nr_trials=nr_trials, train=tcfg,
                          int8_epochs=int8_epochs, int8_lr=int8_lr,
                          command=_command_line())
-    check_output(cfg.out / f"{cfg.model_name}-card.json", force)
+    check_output(cfg.out / f"{cfg.model_name}-card.json", force, resume)
     console = Console(stderr=True)
     card = run(cfg, resume=resume, progress=progress, log=lambda s: console.print(s, highlight=False))
     acc = card["accuracy"]
@@ -172,7 +175,7 @@ def smm_cmd(
     work = work_dir or Path("runs") / f"smm-{arm.name}"
     data_path = dataset or work / "dataset.npz"
     model_dir = out or work / "model"
-    check_output(model_dir / tr.CARD_NAME, force)
+    check_output(model_dir / tr.CARD_NAME, force, resume)
     console = Console(stderr=True)
 
     def log(s: str) -> None:
