@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armbridge.demo import square_plan
+from armbridge.demos.arm3r import square_plan
 from armbridge.plans.format import load_plan
 from armbridge.robots.catalog import get_robot
 

@@ -1,4 +1,4 @@
-"""`armbridge demo --robot arm3r --fault-tolerant` (smm/ft_demo.py): a joint of the
+"""`armbridge demo --robot arm3r --fault-tolerant` (demos/arm3r_ft.py): a joint of the
 emulated plant stalls on the way to the target; the host detects it, recovers with
 the other joints, and the tip still reaches the target. The recording is read back."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
 from armbridge.robots.catalog import ARM3R
 from armbridge.smm import faulttolerant as ft
-from armbridge.smm import ft_demo
+from armbridge.demos import arm3r_ft as ft_demo
 
 torch.set_num_threads(1)
 ARMBRIDGE = Path(sys.executable).with_name("armbridge")
@@ -52,13 +52,16 @@ def test_the_scenario_stalls_a_joint_inside_its_box(scenario):
     assert move is not None and ARM3R.within_limits(move.goal)
 
 
+EPOCH = 1  # the epoch the test's HELLO opens: every later line is framed with it (protocol v2)
+
+
 def _host(emu):
     """A minimal lockstep host: send(verb, args) and the board's decoded lines."""
     state = {"seq": 0, "buf": b"", "lines": []}
 
     def send(verb, *args):
         state["seq"] += 1
-        emu.inject(P.encode(state["seq"], verb, *args))
+        emu.inject(P.encode(state["seq"], verb, *args, epoch=EPOCH))
 
     def lines():
         *done, state["buf"] = (state["buf"] + emu.read_output()).split(b"\n")
@@ -73,7 +76,7 @@ def test_a_stalled_joint_faults_then_the_others_run_on_after_clr():
     point to the measured position and waypoints that hold the stalled joint run."""
     emu = EmulatedBoard("esp32", speed=0)
     send, lines = _host(emu)
-    send("HELLO", 5)
+    send("HELLO", P.PROTOCOL_VERSION, 5, EPOCH)
     q0 = emu.positions()
     emu.schedule_stall(1, 0.3)
     send("W", 0, 1000, *P.to_milli(q0 + [1.0, 0.0, 0.0]))
@@ -153,7 +156,7 @@ def test_demo_command_fault_tolerant(tmp_path):
 def test_demo_command_refuses_other_robots_and_ports():
     run = subprocess.run([ARMBRIDGE, "demo", "--robot", "planar3r", "--fault-tolerant"], capture_output=True,
                          text=True, timeout=60)
-    assert run.returncode != 0 and "arm3r only" in run.stdout + run.stderr
+    assert run.returncode != 0 and "--robot 'planar3r': no demo for that robot; demos: arm3r" in run.stdout + run.stderr
     with pytest.raises(ArmbridgeError, match="needs an emu: port"):
         ft_demo.run_ft_demo("/dev/ttyUSB0")
     with pytest.raises(ArmbridgeError, match="choose learned or nullspace"):

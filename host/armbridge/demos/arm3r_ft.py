@@ -7,7 +7,8 @@ faulttolerant.branch_boxes):
 
 1. A target appears (FK of a random configuration within the limits, drawn
    from `seed`). Its SMMs are computed ('arm3r' SmmArm; by default by the
-   shipped learned model models/onnx/smm-arm3r, or by the nullspace method)
+   shipped learned model smm-arm3r, found through armbridge.resources, or by
+   the nullspace method)
    and the time that takes is the latency.
 2. The plan: damped least squares toward the target for the latency (the arm
    does not wait for the SMMs, Fig. 15c), then into the SMM bounding box
@@ -19,7 +20,9 @@ faulttolerant.branch_boxes):
    MIN_TRAVEL to go (a stall nobody would notice) is skipped for the next one.
 4. The plan is streamed through the executor's BoardClient. The host watches
    the telemetry: a joint whose set point runs more than STALL_RAD ahead of its
-   measured position while the others follow is stalled. The host sends the
+   measured position while the others follow is stalled. The session is opened
+   with `open_session` like every run: a board latched from before is refused
+   unless the user passed `--clear`. The host sends the
    e-stop byte (the board's own following-error FAULT, 350 mrad for 300 ms,
    would come later and is handled the same way), lets the arm come to rest,
    clears the latch (CLR: set point = measured position) and reads the locked
@@ -50,6 +53,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from armbridge import resources
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, make_plan
@@ -75,7 +79,7 @@ START_S = 0.02  # s for the first waypoint of a plan: where the arm already is
 SmmMethod = Callable[[DHChain, np.ndarray], SmmSet]
 
 
-MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "onnx" / "smm-arm3r"
+MODEL = "smm-arm3r"  # the shipped learned model (armbridge.resources.model_dir)
 CORRECT_ITERS = 3  # eq. (18) steps on the learned SMMs
 
 
@@ -86,10 +90,12 @@ def nullspace_method(arm: DHChain, x: np.ndarray) -> SmmSet:
     return nullspace.compute(arm, x)
 
 
-def learned_method(folder: Path = MODEL_DIR) -> SmmMethod:
-    """The shipped learned model (loaded here, once, outside the timed call): milliseconds, Fig. 15."""
+def learned_method(folder: Path | None = None) -> SmmMethod:
+    """The learned model in folder (None: the shipped one), loaded here, once, outside the timed
+    call: milliseconds, Fig. 15."""
     from armbridge.smm.learned import LearnedSmm
 
+    folder = resources.model_dir(MODEL) if folder is None else folder
     if not (folder / "card.json").is_file():
         raise ArmbridgeError(f"no learned SMM model at {folder}; train it with "
                              "`armbridge train smm-3r --robot arm3r`, or use --smm nullspace")
@@ -318,21 +324,39 @@ def plan_recovery(sc: FtScenario, q_lock: np.ndarray, j: int, robot: PlanarChain
                       "locked_value_rad": float(q_lock[j])})
 
 
-def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed: int = 0,
-                method: SmmMethod | None = None, latency: float | None = None, console=None) -> FtResult:
-    """Run the scenario (module docstring) on an emulated board and record it; method None: the learned model."""
-    import torch
+def run_cli(opts: Any, console: Any) -> None:
+    """`armbridge demo --robot arm3r --fault-tolerant` (opts: demos.DemoOptions): run, show, judge."""
+    result = run_ft_demo(opts.port, opts.rrd, opts.seed, smm_method(opts.smm), console=console, clear=opts.clear)
+    console.print(result.table())
+    console.print(f"recording: {result.rrd}   view it with: armbridge view {result.rrd}")
+    if not result.reached:
+        raise ArmbridgeError("the fault-tolerant demo did not reach its target (see the table above)")
 
-    from armbridge.executor.client import LATCHED_STATES, BoardClient
-    from armbridge.link.transport import open_port
+
+def _one_thread() -> None:
+    """One location's SMMs are a small batch: a second torch thread only fights the
+    emulator for the CPU (2 threads: 2-8 s per location here, 1 thread: 0.3 s).
+    Without torch (the runtime needs none) there is nothing to set."""
+    import sys
+
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
+def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed: int = 0,
+                method: SmmMethod | None = None, latency: float | None = None, console=None,
+                clear: bool = False) -> FtResult:
+    """Run the scenario (module docstring) on an emulated board and record it; method None: the
+    learned model. A board latched from before is refused unless `clear` (then CLR first)."""
+    from armbridge.executor.client import LATCHED_STATES
+    from armbridge.executor.session import open_session
     from armbridge.telemetry.recording import Recording, default_rrd_path
 
     if not port_url.startswith("emu:"):
         raise ArmbridgeError(f"port {port_url!r}: the fault-tolerant demo stalls a joint of the emulated plant, "
                              "so it needs an emu: port (e.g. emu:esp32?speed=4)")
-    # One location's SMMs are a small batch: a second thread only fights the
-    # emulator for the CPU (2 threads: 2-8 s per location here, 1 thread: 0.3 s).
-    torch.set_num_threads(1)
+    _one_thread()
     robot = ARM3R
     sc = choose_scenario(seed, method or learned_method(), latency, robot)
     res = FtResult(target=sc.x, latency=sc.latency, stalled_joint=sc.joint + 1)
@@ -343,8 +367,6 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
 
     with ExitStack() as stack:
         rec = stack.enter_context(Recording(res.rrd, robot, sc.plan))
-        port = stack.enter_context(open_port(port_url))
-        emu = port.emulator
         log = _Log(rec, robot, sc)
 
         def note(t: float | None, text: str, level: str = "info") -> None:
@@ -368,7 +390,7 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
 
         def settle() -> np.ndarray:
             """Let the arm come to rest: the mean measured q over the last 0.1 s."""
-            client.drain(SETTLE_S / client.speed)
+            client.drain(SETTLE_S)
             return np.mean([q for t, q in samples if t >= samples[-1][0] - 0.1], axis=0)
 
         def finish(q_end: np.ndarray) -> FtResult:
@@ -379,13 +401,11 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
                  "info" if res.reached else "error")
             return res
 
-        client = BoardClient(port, robot, on_telemetry=on_telemetry, on_event=on_event,
-                             on_error=lambda t, text: rec.error(t, text))
-        client.connect()
-        if client.stat()[0] in LATCHED_STATES:
-            client.command("CLR")
-        client.set_rate(RATE_HZ)
-        client.drain(0.1 / client.speed)
+        client = stack.enter_context(open_session(
+            port_url, robot, latched="clear" if clear else "refuse", rate_hz=RATE_HZ, on_telemetry=on_telemetry,
+            on_event=on_event, on_error=lambda t, text: rec.error(t, text)))
+        emu = client.port.emulator
+        client.drain(0.1)
         t0 = samples[-1][0]
         note(t0, f"target appears at ({sc.x[0]:.3f}, {sc.x[1]:.3f}) m; SMMs take {sc.latency:.3f} s, "
                  f"damped least squares meanwhile")
@@ -407,7 +427,7 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
         log.box(stall["t"], on=True)
         note(stall["t"], f"joint {j + 1} ({robot.joint_names[j]}) stalled (detected by {stall['by']}); arm stopped",
              "error")
-        client.drain(SETTLE_S / client.speed, until=lambda: client.state in LATCHED_STATES)
+        client.drain(SETTLE_S, until=lambda: client.state in LATCHED_STATES)
         settle()
         client.command("CLR")  # set point = measured position; the other joints can drive again
         client.stat()
