@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
-MODELS = Path(__file__).resolve().parents[3] / "models" / "onnx"
+from armbridge import resources
+
+MODELS = resources.models_dir()
 CARD_12 = MODELS / "masr5-iknn-card.json"
 CARD_11 = MODELS / "masr5-iknn-reg11-card.json"
 

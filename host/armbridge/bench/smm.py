@@ -34,7 +34,9 @@ from typing import Any
 
 import numpy as np
 
-MODELS = Path(__file__).resolve().parents[3] / "models" / "onnx"
+from armbridge import resources
+
+MODELS = resources.models_dir()
 CORRECT_ITERS = 3  # the paper's "three inverse kinematics iterations"
 # Table III of the paper: (FK error % before, after correction, branch-count mismatch %).
 PAPER = {"planar3r": (0.29, 7.3e-5, 0.70), "spatial4r": (0.66, 0.0011, 2.16), "spatial7r": (2.07, 0.016, 6.02)}
