@@ -2,6 +2,7 @@
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,36 @@ def test_demo_runs_to_the_end_and_records(tmp_path):
     assert rrd.stat().st_size > 10_000
     verify = subprocess.run([ARMBRIDGE.with_name("rerun"), "rrd", "verify", rrd], capture_output=True, timeout=60)
     assert verify.returncode == 0, verify.stderr
+
+
+@pytest.mark.hil
+def test_demo_refuses_a_latched_board_unless_clear(tmp_path):
+    """The demo opens its session like `armbridge run`: a board latched from before
+    is refused (nothing moves) unless the user passes --clear."""
+    import serial
+
+    from armbridge.emulator.board import EmulatedBoard
+    from armbridge.link import protocol as P
+
+    emu = EmulatedBoard("esp32").start()  # real time: a host on a pty runs on the wall clock
+    try:
+        with serial.Serial(emu.port, timeout=0.1) as s:  # the e-stop byte, as a panicking user would send it
+            s.write(P.ESTOP_BYTE)
+        for _ in range(200):  # the emulator thread reads the pty
+            if emu.state == "ESTOP":
+                break
+            time.sleep(0.02)
+        assert emu.state == "ESTOP"
+        q0 = emu.positions()
+        env = dict(os.environ, COLUMNS="120")
+        cmd = [ARMBRIDGE, "demo", "--port", emu.port, "--rrd", tmp_path / "a.rrd"]
+        refused = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+        assert refused.returncode == 1, refused.stdout + refused.stderr
+        assert "latched in ESTOP" in refused.stdout + refused.stderr and "--clear" in refused.stdout + refused.stderr
+        np.testing.assert_array_equal(emu.positions(), q0)  # nothing moved
+        assert emu.state == "ESTOP"
+        cleared = subprocess.run([*cmd, "--clear"], capture_output=True, text=True, timeout=120, env=env)
+        assert cleared.returncode == 0, cleared.stdout + cleared.stderr
+        assert "83 / 83" in cleared.stdout
+    finally:
+        emu.stop()
