@@ -272,6 +272,10 @@ class BoardLink:
         try:
             v = proto.parse_command("HELLO", args, self.board.n)
         except proto.ProtocolError as e:
+            if args and args[0] != str(P.PROTOCOL_VERSION):
+                # Another version's HELLO may take other arguments: its first, the
+                # version, still gets the answer that names both versions.
+                return "ER", [seq, P.PROTO, "PROTO", P.PROTOCOL_VERSION]
             return "ER", _er_fields(seq, e)
         what = s.classify(seq, "HELLO", v)
         if what == sess.BADPROTO:

@@ -39,6 +39,11 @@ def test_wrong_proto_refused_naming_the_board_version():
     for v in (1, 3):
         ans = host.answer(3, "HELLO", v, 4242, 9)
         assert ans[1] == "ER" and ans[2] == ["3", "12", "PROTO", "2"]
+    # Another version's HELLO may take other arguments: still PROTO, naming 2.
+    for args in ((1, 4242), (3, 4242, 9, 1), (3,)):
+        ans = host.answer(3, "HELLO", *args)
+        assert ans[1] == "ER" and ans[2] == ["3", "12", "PROTO", "2"], args
+    assert host.answer(3, "HELLO", 2, 4242)[2][:3] == ["3", "5", "ARGS"]
     assert board.link.session.epoch == 1 and board.traj.busy()
     assert host.answer(3, "PING")[1] == "OK"           # expect untouched
 
