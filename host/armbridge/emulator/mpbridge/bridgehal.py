@@ -25,7 +25,8 @@ import json
 import sys
 
 try:
-    from time import ticks_diff as _ticks_diff, ticks_add as _ticks_add
+    from time import ticks_add as _ticks_add  # type: ignore[attr-defined]
+    from time import ticks_diff as _ticks_diff  # type: ignore[attr-defined]
 except ImportError:  # CPython (fwcost.py's comparison run): MicroPython's semantics
     def _ticks_diff(a, b):
         return ((a - b + 0x20000000) & 0x3FFFFFFF) - 0x20000000
