@@ -139,11 +139,11 @@ def print_result(r: dict[str, Any], console: Any) -> None:
     table = Table(title=f"firmware cost per poll ({r['device']}, {r['reps']} repetitions, microseconds)",
                   caption=f"MicroPython: {mp['interpreter']}; CPython: {cp['interpreter']}; "
                           "alloc: heap bytes allocated per poll under MicroPython")
-    for col in ("item", "MicroPython median", "p99", "alloc", "CPython median", "ratio"):
+    for col in ("item", "MicroPython min", "median", "p99", "alloc", "CPython median", "ratio"):
         table.add_column(col, justify="left" if col == "item" else "right")
     for group, label in (("lines", "line"), ("ticks", "tick"), ("codec", "codec")):
         for name, st in mp[group].items():
-            table.add_row(f"{label}: {name}", f"{st['median_us']:.1f}", f"{st['p99_us']:.0f}",
+            table.add_row(f"{label}: {name}", f"{st['min_us']:.1f}", f"{st['median_us']:.1f}", f"{st['p99_us']:.0f}",
                           str(st.get("alloc_bytes", "-")), f"{cp[group][name]['median_us']:.1f}",
                           f"{r['median_ratio_micropython_over_cpython'][name]:.1f}x")
     console.print(table)
