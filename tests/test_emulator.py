@@ -519,6 +519,9 @@ def test_load_firmware_restores_sys_path_and_modules():
     (["esp32", "--corrupt", "-0.1"], ["--corrupt", "[0, 1]"]),
     (["esp32", "--delay", "0.5"], ["--delay", "RATE:MS"]),
     (["esp32", "--stall", "x"], ["--stall"]),
+    (["esp32", "--lanes", "rx,up"], ["--lanes", "'up'"]),
+    (["esp32", "--reset-at", "-1"], ["--reset-at", ">= 0"]),
+    (["esp32", "--interpreter", "pypy"], ["--interpreter", "cpython, micropython"]),
 ])
 def test_cli_refuses_bad_arguments(args, words):
     from armbridge.emulator.command import emulate_cmd

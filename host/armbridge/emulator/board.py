@@ -123,10 +123,10 @@ class EmulatedBoard:
         self.crash: str | None = None               # traceback if the firmware raised
         self._reset_times = sorted(float(t) for t in self.faults.reset_at)
         self._boot_at: float | None = None
-        self._counters = {"resets": 0, "lost_in_reset": 0, "pty_dropped": 0, "overruns": 0}
+        self._counters = {"resets": 0, "lost_in_reset": 0, "overruns": 0}
         self._out = bytearray()          # bytes to the host when there is no pty
-        self._pty_pending = bytearray()  # bytes the pty could not take yet
         self._pty: Pty | None = None
+        self._pty_dropped = 0            # bytes nobody read, on ptys already closed
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -179,7 +179,9 @@ class EmulatedBoard:
             self._reset_times.pop(0)
             self._begin_reset()
         if self._pty is not None and read_host:
-            self._pty_in(now)
+            data = self._pty.read()
+            if data:
+                self.uart.host_write(data, now)
         if self.board is None and self._boot_at is not None and now >= self._boot_at:
             self._boot()
         if self.board is not None:
@@ -197,11 +199,11 @@ class EmulatedBoard:
         out = self.uart.host_read(now + 1e-9)
         if out:
             if self._pty is not None:
-                self._pty_pending += out
+                self._pty.pending += out
             else:
                 self._out += out
-        if self._pty is not None and self._pty_pending:
-            self._pty_out()
+        if self._pty is not None and self._pty.pending:
+            self._pty.flush()
         self.plant.advance_to(now)
 
     def _next_due(self, limit_us: int) -> int:
@@ -222,35 +224,6 @@ class EmulatedBoard:
     def _advance_to(self, target_us: int) -> None:
         while self.clock.us < target_us:
             self._tick(self._next_due(min(target_us, self.clock.us + self.tick_us)) - self.clock.us)
-
-    def _pty_in(self, now: float) -> None:
-        assert self._pty is not None
-        while True:
-            try:
-                data = os.read(self._pty.master, 4096)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                return
-            if not data:
-                return
-            self.uart.host_write(data, now)
-            if len(data) < 4096:
-                return
-
-    def _pty_out(self) -> None:
-        assert self._pty is not None
-        try:
-            n = os.write(self._pty.master, bytes(self._pty_pending))
-        except (BlockingIOError, InterruptedError):
-            n = 0
-        except OSError:
-            n = len(self._pty_pending)
-        del self._pty_pending[:n]
-        over = len(self._pty_pending) - 65536
-        if over > 0:  # nobody reads the port: bytes fall on the floor like on a real UART
-            del self._pty_pending[:over]
-            self._counters["pty_dropped"] += over
 
     # ------------------------------------------------------------ lockstep helpers
     def _check_not_running(self) -> None:
@@ -361,6 +334,7 @@ class EmulatedBoard:
         corrupt, dup, delay) and resets, lost_in_reset, pty_dropped, overruns."""
         c: dict = dict(self.uart.counters)
         c.update(self._counters)
+        c["pty_dropped"] = self._pty_dropped + (self._pty.dropped if self._pty is not None else 0)
         return c
 
     def positions(self) -> np.ndarray:
@@ -381,7 +355,7 @@ class EmulatedBoard:
                 self._pty = open_pty(self.link)
             except OSError as exc:
                 raise ArmbridgeError(f"cannot open a pseudo-terminal for the emulator: {exc}") from exc
-            self._pty_pending += self._out  # BOOT written before the pty existed
+            self._pty.pending += self._out  # BOOT written before the pty existed
             self._out.clear()
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"emulator-{self.device}", daemon=True)
@@ -398,6 +372,7 @@ class EmulatedBoard:
             self._thread = None
         if self._pty is not None:
             self._pty.close()
+            self._pty_dropped += self._pty.dropped
             self._pty = None
         if not self._closed:
             self._closed = True

@@ -40,7 +40,38 @@ class Pty:
     link: str | None = None
     lock_fd: int | None = None
     note: str | None = None  # e.g. that a dead owner's link was taken over
+    pending: bytearray = field(default_factory=bytearray)  # bytes for the host the pty could not take yet
+    dropped: int = 0         # bytes nobody read (over MAX_PENDING waiting), as on a real UART
     _closed: bool = field(default=False, repr=False)
+
+    MAX_PENDING = 65536
+
+    def read(self) -> bytes:
+        """What the host has written, without waiting (b"" when nothing)."""
+        out = b""
+        while True:
+            try:
+                data = os.read(self.master, 4096)
+            except OSError:  # nothing there (EAGAIN), or no host (EIO)
+                return out
+            out += data
+            if len(data) < 4096:
+                return out
+
+    def flush(self) -> None:
+        """Hand `pending` to the host as far as the pty takes it; beyond
+        MAX_PENDING waiting, the oldest bytes fall on the floor."""
+        try:
+            n = os.write(self.master, bytes(self.pending))
+        except (BlockingIOError, InterruptedError):
+            n = 0
+        except OSError:
+            n = len(self.pending)
+        del self.pending[:n]
+        over = len(self.pending) - self.MAX_PENDING
+        if over > 0:
+            del self.pending[:over]
+            self.dropped += over
 
     def close(self) -> None:
         if self._closed:
