@@ -36,7 +36,7 @@ def format_counters(counters: dict) -> str:
 
 def emulate_cmd(
     device: str = typer.Argument(..., help=f"Board to emulate: {_DEVICES}."),
-    link: Optional[str] = typer.Option(None, "--link", metavar="PATH", help="Also make PATH a symlink to the pty."),
+    link: Optional[str] = typer.Option(None, "--link", metavar="PATH", help="Also make PATH a symlink to the pty, owned while this runs (refused if another emulator owns it)."),
     speed: float = typer.Option(1.0, "--speed", help="Sim time per wall time: 1 real time, K faster, 0 as fast as it goes."),
     interpreter: Optional[str] = typer.Option(None, "--interpreter", metavar="NAME",
                                               help="Run the firmware under cpython (default) or micropython "

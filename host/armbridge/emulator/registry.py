@@ -113,7 +113,7 @@ BOARDS: dict[str, BoardSpec] = {
     for spec in (
         BoardSpec(
             name="esp32",
-            description="3R servo arm (ESP32, MicroPython)",
+            description="3R servo arm, ESP32, MicroPython",
             identity="arm3r",
             firmware=MicroPythonFirmware(dirs=("esp32", "common")),
         ),
