@@ -315,9 +315,11 @@ def test_dh_limits_are_data():
     np.testing.assert_allclose(arm.joint_points([0.3, -0.4, 0.2]), ARM3R.joint_points([0.3, -0.4, 0.2]), atol=1e-15)
 
 
-def test_registry_register_and_kinds():
-    from armbridge.robots import names, register, robot_from_dict
+def test_registry_register_and_kinds(monkeypatch):
+    from armbridge.robots import catalog, names, register, robot_from_dict
     from armbridge.robots.catalog import get_masr
+
+    monkeypatch.setattr(catalog, "_BUILT", dict(catalog._BUILT))  # the robot registered here stays here
 
     assert names() == sorted(names()) and {"arm3r", "masr5", "spatial7r"} <= set(names())
     two = register(chain(name="test-registered"))
