@@ -128,8 +128,8 @@ def check_identity(info: BoardInfo, robot) -> None:
     if info.fw != robot.name:
         raise ArmbridgeError(f"the board runs firmware {info.fw!r} {info.version}, the plan is for robot "
                              f"{robot.name!r}")
-    if info.n != robot.n:
-        raise ArmbridgeError(f"the board has {info.n} joints, robot {robot.name} has {robot.n}")
+    if info.n != robot.dof:
+        raise ArmbridgeError(f"the board has {info.n} joints, robot {robot.name} has {robot.dof}")
 
 
 def read_limits(command: Callable[..., P.Ok], n: int) -> list[tuple[int, int, int]]:
