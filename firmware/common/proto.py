@@ -28,8 +28,6 @@ _HELLO_EPOCH = const(0)
 _LF = const(0x0A)
 _CR = const(0x0D)
 _STAR = const(0x2A)
-_HEX = "0123456789ABCDEF"
-_MAX_DIGITS = const(10)  # len("1073741823"): no range in the table needs more
 
 
 class ProtocolError(Exception):
@@ -69,24 +67,27 @@ def encode(seq, verb: str, args=(), epoch: int = 0) -> bytes:
     return body + ("*%08X\n" % binascii.crc32(body, epoch)).encode()
 
 
+def _canonical_int(s: str, base: int = 10):
+    """int(s) when s is exactly how the protocol writes that number (decimal:
+    no "+", no leading zeros, no "-0", no spaces or "_"; hex: 8 upper-case
+    digits), else None. The round trip through C's int() and str() replaces a
+    Python loop over the characters (the hot path of every line)."""
+    try:
+        v = int(s, base)
+    except ValueError:
+        return None
+    if base == 16:
+        return v if "%08X" % v == s else None
+    return v if str(v) == s else None
+
+
 def _parse_seq(s: str) -> int:
-    n = len(s)
-    if n == 0 or n > 5 or (n > 1 and s[0] == "0"):
-        return -1
-    for c in s:
-        if not "0" <= c <= "9":
-            return -1
-    v = int(s)
-    return v if v <= 0xFFFF else -1
+    v = _canonical_int(s) if len(s) <= 5 else None
+    return v if v is not None and 0 <= v <= 0xFFFF else -1
 
 
 def _is_upper_word(s: str) -> bool:
-    if not 1 <= len(s) <= 8:
-        return False
-    for c in s:
-        if not "A" <= c <= "Z":
-            return False
-    return True
+    return 1 <= len(s) <= 8 and s.isalpha() and s.isupper()
 
 
 def decode(line, max_len: int = MAX_HOST_LINE, epoch: int = 0):
@@ -111,13 +112,12 @@ def decode(line, max_len: int = MAX_HOST_LINE, epoch: int = 0):
     if min(data) < 0x20 or max(data) > 0x7E:
         raise ProtocolError(PARSE)
     body = data[:n - 9]
-    field = data[n - 8:].decode()
-    for c in field:
-        if c not in _HEX:
-            raise ProtocolError(PARSE)
+    want = _canonical_int(data[n - 8:].decode(), 16)
+    if want is None:
+        raise ProtocolError(PARSE)
     if is_hello(body):
         epoch = _HELLO_EPOCH
-    if binascii.crc32(body, epoch) != int(field, 16):
+    if binascii.crc32(body, epoch) != want:
         raise ProtocolError(CRC)
     parts = body.decode().split(" ")
     if len(parts) < 2:
@@ -206,20 +206,6 @@ class LineReader:
 
 # ---------------------------------------------------------------- command arguments
 
-def _is_int_form(s: str) -> bool:
-    """Decimal integer: optional "-", no "+", no leading zeros, no "-0"."""
-    if s and s[0] == "-":
-        s = s[1:]
-        if s == "0":
-            return False
-    if not s:
-        return False
-    for c in s:
-        if not "0" <= c <= "9":
-            return False
-    return s == "0" or s[0] != "0"
-
-
 def _ranges(verb: str, n_joints: int) -> list:
     """[(name, lo, hi)] of verb's arguments for an n-joint board: "q" expanded
     to n joint values, "joint" bounded by n."""
@@ -245,18 +231,16 @@ def parse_command(verb: str, args, n_joints: int) -> list:
     ranges = _ranges(verb, n_joints)
     if len(args) != len(ranges):
         raise ProtocolError(ARGS)
-    for a in args:
-        if not _is_int_form(a):
-            raise ProtocolError(ARGS)
     values = []
-    for i in range(len(args)):
-        a = args[i]
-        spec = ranges[i]
-        # more digits than any range needs: out of range, without making a big int
-        v = int(a) if len(a) - (a[0] == "-") <= _MAX_DIGITS else spec[2] + 1
-        if v < spec[1] or v > spec[2]:
-            raise ProtocolError(RANGE, "", _arg_name(verb, i))
+    for a in args:
+        v = _canonical_int(a)
+        if v is None:
+            raise ProtocolError(ARGS)
         values.append(v)
+    for i in range(len(values)):
+        spec = ranges[i]
+        if values[i] < spec[1] or values[i] > spec[2]:
+            raise ProtocolError(RANGE, "", _arg_name(verb, i))
     rules = protodef.ORDERED.get(verb)
     if rules:
         for low, high in rules:
