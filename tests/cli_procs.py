@@ -26,9 +26,9 @@ def default_signals() -> None:
 class Proc:
     """A child process whose stdout lines are collected by a thread."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(self, *args: str, preexec=default_signals) -> None:
         self.p = subprocess.Popen([ARMBRIDGE, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                  preexec_fn=default_signals)
+                                  preexec_fn=preexec)
         self.lines: list[str] = []
         self._q: queue.Queue[str | None] = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()

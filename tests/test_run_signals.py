@@ -7,7 +7,7 @@ Every case checks what the issue asks of a stop: the e-stop byte reached the
 board (the emulator prints its ESTOP event and `armbridge board state` says
 ESTOP afterwards), `rerun rrd verify` passes, the JSON summary exists with
 `error` and `final_state`, and the exit code is the documented one
-(docs/formats.md §5).
+(docs/formats.md §7).
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from cli_procs import ARMBRIDGE, RERUN, Proc, emulated_board
+from cli_procs import ARMBRIDGE, RERUN, Proc, default_signals, emulated_board
 
 from armbridge.plans.format import make_plan, save_plan
 from armbridge.robots import get_robot
@@ -39,9 +39,10 @@ def plan_file(tmp_path: Path, k: int, duration: float, name: str = "plan", shoul
     return path
 
 
-def run(tmp_path: Path, plan: Path, link: str, tag: str, *extra: str) -> tuple[Proc, Path, Path]:
+def run(tmp_path: Path, plan: Path, link: str, tag: str, *extra: str, **kw) -> tuple[Proc, Path, Path]:
     js, rrd = tmp_path / f"{tag}.json", tmp_path / f"{tag}.rrd"
-    return Proc("run", str(plan), "--port", link, "--json", str(js), "--rrd", str(rrd), "--no-progress", *extra), js, rrd
+    argv = ("run", str(plan), "--port", link, "--json", str(js), "--rrd", str(rrd), "--no-progress", *extra)
+    return Proc(*argv, **kw), js, rrd
 
 
 def verify(rrd: Path) -> None:
@@ -76,6 +77,24 @@ def test_a_stop_signal_mid_run_estops_and_leaves_complete_files(tmp_path, board,
     verify(rrd)
     st = board_state(link)
     assert st["state"] == "ESTOP" and st["latched"]
+
+
+def test_under_nohup_a_hangup_does_not_stop_the_run(tmp_path, board):
+    """SIGHUP ignored at start (nohup) stays ignored: the run goes on and completes."""
+    emu, link = board
+
+    def nohup() -> None:
+        default_signals()
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    proc, js, rrd = run(tmp_path, plan_file(tmp_path, 8, 0.25), link, "nohup", preexec=nohup)
+    emu.wait_for(" DONE 1 ")
+    proc.p.send_signal(signal.SIGHUP)
+    rc, err = proc.finish()
+    assert rc == 0, err
+    s = json.loads(js.read_text())
+    assert s["completed"] and not s["estop_sent"] and s["stopped_by"] is None
+    verify(rrd)
 
 
 def test_a_latched_board_refuses_the_next_run_until_clear(tmp_path, board):
@@ -155,21 +174,27 @@ def test_a_port_that_goes_away_mid_run_says_unplugged(tmp_path, board):
 
 def test_a_second_run_on_a_busy_port_is_told_who_holds_it(tmp_path, board):
     emu, link = board
-    plan = plan_file(tmp_path, 20, 0.3)
+    plan = plan_file(tmp_path, 80, 0.25)  # 20 s: far longer than this test lets it run
     first, js1, rrd1 = run(tmp_path, plan, link, "first")
     emu.wait_for(" DONE 1 ")
     second, js2, rrd2 = run(tmp_path, plan, link, "second")
     rc2, err2 = second.finish()
+    assert first.p.poll() is None  # the first held the port all along
     assert rc2 == 1, err2
     last = err2.strip().splitlines()[-1]
-    assert last.startswith(f"error: port {link} is busy: 'armbridge run {plan} --port {link}") , last
+    assert last.startswith(f"error: port {link} is busy: 'armbridge run {plan} --port {link}"), last
     assert f"(pid {first.p.pid}) holds it" in last
-    assert "busy" in json.loads(js2.read_text())["error"]
-    # The first run is unharmed: it completes, with a clean link.
+    s2 = json.loads(js2.read_text())
+    assert "busy" in s2["error"] and s2["waypoints_sent"] == 0 and s2["fw"] is None
+    # The first run is unharmed: it goes on streaming on a clean link.
+    done = max(int(line.split(" DONE ")[1].split()[0]) for line in emu.lines if " DONE " in line)
+    emu.wait_for(f" DONE {done + 3} ")
+    first.p.send_signal(signal.SIGTERM)
     rc1, err1 = first.finish()
-    assert rc1 == 0, err1
+    assert rc1 == 143, err1
     s = json.loads(js1.read_text())
-    assert s["completed"] and s["resyncs"] == 0 and s["line_errors"] == 0
+    assert s["error"] is None and s["waypoints_done"] >= done + 4
+    assert s["resyncs"] == 0 and s["line_errors"] == 0 and s["seq_errors"] == 0
     verify(rrd1)
 
 
@@ -188,6 +213,8 @@ def test_json_dash_writes_the_summary_to_stdout_alone(tmp_path, board):
 @pytest.mark.parametrize("args, code, words", [
     (["run", "missing.json", "--port", "emu:esp32"], 2, "no such plan file"),
     (["run", "PLAN", "--port", "/dev/does-not-exist-armbridge"], 2, "no such device"),
+    (["run", "PLAN", "--port", "emu:esp99"], 2, "esp99"),
+    (["run", "PLAN", "--port", "/etc/passwd"], 2, "not a serial device"),
     (["run", "PLAN", "--port", "emu:esp32", "--rate", "500"], 2, "outside [1, 100]"),
     (["run", "PLAN", "--bogus"], 2, "No such option"),
 ])

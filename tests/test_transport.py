@@ -179,8 +179,9 @@ def test_a_port_that_goes_away_mid_run_says_unplugged(pty_name):
     ("emu:esp32?lanes=up", ["lanes", "up"]),
 ])
 def test_bad_emu_urls(url, words):
-    with pytest.raises(ArmbridgeError) as err:
+    with pytest.raises(PortError) as err:
         open_port(url)
+    assert err.value.usage  # the url is wrong: bad input, nothing ran
     text = one_line(err.value)
     for w in words:
         assert w in text

@@ -237,7 +237,7 @@ def run_plan(
     last_state: list[str | None] = [None]
 
     def on_telemetry(t: float, m: P.Telemetry) -> None:
-        if m.q.shape != (robot.n,):
+        if m.q.shape != (robot.dof,):
             return  # not this robot's board (connect() is about to say so)
         active = client.done_index + 1 if client is not None else 0
         samples.append((t, m.state, m.q, m.target, active))
@@ -272,7 +272,7 @@ def run_plan(
                 try:
                     c.execute(durs_ms, q_milli, on_progress=bar.update if bar else None, timeout=timeout)
                     # Let the last samples (the arm settling on the final waypoint) arrive.
-                    c.drain(min(0.2, 2.0 / rate_hz) / c.speed)
+                    c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
                     summary.final_state = c.stat()[0]
                 except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
                     _stop(c, summary, rec, stop)
@@ -353,7 +353,7 @@ def _stop(client: BoardClient, summary: Summary, rec, stop: KeyboardInterrupt) -
         rec.error(None, f"stopped by {summary.stopped_by}" + (", e-stop sent" if summary.estop_sent else
                                                               ", e-stop could not be sent"), "error")
     try:
-        client.drain(1.0 / client.speed, until=lambda: client.state == "ESTOP")
+        client.drain(1.0, until=lambda: client.state == "ESTOP")
     except (ArmbridgeError, KeyboardInterrupt):
         pass
     summary.final_state = client.state

@@ -47,7 +47,9 @@ from armbridge.errors import ArmbridgeError
 DEFAULT_BAUD = 115200
 PORT_KINDS = "a serial device (/dev/ttyUSB0), a pyserial URL (socket://, rfc2217://, loop://) or emu:DEVICE"
 
-# scheme -> "module:function" of opener(url, baud, timeout) -> Port.
+# scheme -> "module:function" of opener(url, baud, timeout) -> Port. An opener
+# raises PortError for trouble with the port itself (busy, gone: exit 1); any
+# other ArmbridgeError it raises says the url is wrong (bad input: exit 2).
 SCHEMES: dict[str, str] = {
     "emu": "armbridge.emulator.url:open_emu_port",
 }
@@ -64,6 +66,7 @@ class PortError(ArmbridgeError):
     def __init__(self, message: str, *, usage: bool = False) -> None:
         super().__init__(message)
         self.usage = usage
+        self.exit_code = 2 if usage else 1
 
 
 class PortGone(PortError):
@@ -228,12 +231,7 @@ def _read_holder(fd: int) -> str:
 # ---------------------------------------------------------------------- openers
 def _load_opener(target: str) -> Callable[..., Port]:
     module, _, name = target.partition(":")
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ModuleNotFoundError, AttributeError):
-        if target == SCHEMES["emu"]:  # TRANSITION: until emulator/url.py lands
-            return _open_emulator
-        raise
+    return getattr(importlib.import_module(module), name)
 
 
 def port_scheme(url: str) -> str | None:
@@ -249,7 +247,13 @@ def open_port(url: str, baud: int = DEFAULT_BAUD, timeout: float | None = 0.1) -
     url = url.strip()
     scheme = port_scheme(url)
     if scheme in SCHEMES:
-        return _load_opener(SCHEMES[scheme])(url, baud, timeout)
+        opener = _load_opener(SCHEMES[scheme])
+        try:
+            return opener(url, baud, timeout)
+        except PortError:
+            raise
+        except ArmbridgeError as exc:
+            raise PortError(str(exc), usage=True) from None
     if "://" in url:
         return open_url(url, baud, timeout)
     if scheme is not None:
@@ -315,82 +319,3 @@ def _device_error(path: str, exc: Exception) -> PortError:
                          "e.g. /dev/ttyUSB0", usage=True)
     return PortError(f"cannot open port {path}: {_strip_errno(exc)}")
 
-
-# TRANSITION: moves to armbridge.emulator.url
-from urllib.parse import parse_qsl, urlsplit  # noqa: E402
-
-
-def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
-    """'emu:esp32?speed=4&drop=0.01' -> ('esp32', {EmulatedBoard keyword arguments})."""
-    from armbridge.emulator.board import Faults, device_spec, parse_delay, parse_rate, parse_stall
-
-    parts = urlsplit(url)
-    device = parts.path or parts.netloc
-    if not device:
-        raise ArmbridgeError(f"bad port {url!r}: expected emu:DEVICE[?key=value&...]")
-    device_spec(device)  # unknown device -> ArmbridgeError naming the known ones
-    try:
-        params = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
-    except ValueError as exc:
-        raise ArmbridgeError(f"bad port {url!r}: {exc}") from exc
-    kw: dict[str, Any] = {}
-    fk: dict[str, Any] = {}
-    for key, value in params:
-        where = f"port {url!r}, parameter {key}"
-        try:
-            if key == "speed":
-                kw["speed"] = float(value)
-                if kw["speed"] < 0:
-                    raise ValueError("must be >= 0")
-            elif key == "seed":
-                kw["seed"] = int(value)
-            elif key == "link":
-                kw["link"] = value
-            elif key in ("drop", "corrupt", "dup"):
-                fk[key] = parse_rate(key, value)
-            elif key == "delay":
-                if ":" in value:
-                    fk["delay"], fk["delay_ms"] = parse_delay(value)
-                else:
-                    fk["delay"] = parse_rate(key, value)
-            elif key == "delay_ms":
-                fk["delay_ms"] = float(value)
-                if fk["delay_ms"] < 0:
-                    raise ValueError("must be >= 0")
-            elif key == "lanes":
-                fk["lanes"] = tuple(x for x in value.split(",") if x)
-            elif key == "reset_at":
-                fk["reset_at"] = tuple(float(x) for x in value.split(",") if x)
-            elif key == "stall":
-                fk["stall"] = tuple(parse_stall(x) for x in value.split(",") if x)
-            else:
-                raise ArmbridgeError(
-                    f"bad {where}: unknown; known: speed, seed, link, drop, corrupt, dup, delay, "
-                    "delay_ms, lanes, reset_at, stall"
-                )
-        except ArmbridgeError as exc:
-            if str(exc).startswith("bad "):
-                raise
-            raise ArmbridgeError(f"bad {where}: {exc}") from None
-        except ValueError as exc:
-            raise ArmbridgeError(f"bad {where}={value!r}: {exc}") from None
-    if fk:
-        try:
-            kw["faults"] = Faults(**fk)
-        except ArmbridgeError as exc:
-            raise ArmbridgeError(f"bad port {url!r}: {exc}") from None
-    return device, kw
-
-
-def _open_emulator(url: str, baud: int, timeout: float | None) -> Port:
-    from armbridge.emulator.board import EmulatedBoard
-
-    device, kw = parse_emu_url(url)
-    emu = EmulatedBoard(device, **kw)
-    emu.start()
-    try:
-        ser = serial.Serial(emu.port, baudrate=baud, timeout=timeout)
-    except (serial.SerialException, OSError) as exc:
-        emu.stop()
-        raise ArmbridgeError(f"cannot open port {url!r}: emulator pty {emu.port}: {exc}") from exc
-    return Port(ser, url, emulator=emu, clock=getattr(emu, 'now', None))
