@@ -4,7 +4,7 @@ SHELL := bash
 VENV := .venv
 PYTEST_ARGS ?=
 
-.PHONY: setup test demo bench lint distclean
+.PHONY: setup test demo bench lint dist distclean
 
 setup:
 	@scripts/setup.sh
@@ -21,6 +21,10 @@ bench: setup
 lint: setup
 	$(VENV)/bin/python -m mypy host/armbridge
 
+# The sdist and the wheel (with firmware, models, environments, vectors) in dist/.
+dist: setup
+	$(VENV)/bin/python -m build --outdir dist .
+
 # Removes everything `make setup` builds (not the apt packages).
 distclean:
-	rm -rf $(VENV) node_modules typings .stamp-*
+	rm -rf $(VENV) node_modules typings dist .stamp-*

@@ -236,7 +236,7 @@ class DHChain:
         """
         q = self._q(q)
         xp, dev = xp_of(q), _device(q)
-        lead = tuple(q.shape[:-1])
+        lead: tuple[int, ...] = tuple(q.shape[:-1])
         if math.prod(q.shape) <= _SMALL_BATCH * self.n:
             return self._chain_small(q, jacobian)
         th = (xp.reshape(q, (-1, self.n)) + self._params(q)[3]).T  # (n, P)
@@ -490,7 +490,7 @@ def vec_from_rot(r: A) -> A:
     # Near pi: u u^T = (sym(R) - cos(th) I) / (1 - cos(th)); u from its largest
     # column, sign taken from w.
     eye = xp.eye(3, dtype=r.dtype, device=_device(r))
-    b = (r + r.mT) / 2 - c[..., None, None] * eye
+    b: Any = (r + r.mT) / 2 - c[..., None, None] * eye
     pick = xp.argmax(xp.linalg.diagonal(b), axis=-1)[..., None, None]
     col = xp.take_along_axis(b, xp.broadcast_to(pick, (*b.shape[:-2], 3, 1)), axis=-1)[..., 0]
     u = col / xp.clip(xp.linalg.vector_norm(col, axis=-1, keepdims=True), min=1e-300)
