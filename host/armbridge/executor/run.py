@@ -17,160 +17,20 @@ carries the Summary (`error`, `final_state`, and `fault` for a FAULT).
 """
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.signals import holding, stop_on_signals
+from armbridge.executor.summary import JointTracking, Summary, fill, plan_error
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, load_plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
 
-
-@dataclass
-class JointTracking:
-    rms: float = math.nan  # rad
-    max: float = math.nan  # rad, largest |error|
-    samples: int = 0
-
-
-@dataclass
-class Summary:
-    """What a run did. Errors are in rad; times in s of board time."""
-
-    plan: str
-    port: str
-    rrd: str | None
-    robot: str
-    waypoints_total: int
-    waypoints_done: int = 0
-    waypoints_sent: int = 0  # distinct waypoints sent at least once
-    waypoints_acked: int = 0  # distinct waypoints the board answered OK
-    waypoints_retransmitted: int = 0  # W lines sent beyond the first of each waypoint
-    lines_sent: int = 0
-    line_errors: int = 0  # damaged lines, both directions (board ER framing + host decode errors)
-    board_lines_lost: int = 0  # gaps in the board's line counter
-    timeouts: int = 0
-    seq_errors: int = 0
-    resyncs: int = 0
-    slow_events: int = 0
-    telemetry_samples: int = 0
-    events: int = 0
-    planned_duration_s: float = math.nan
-    measured_duration_s: float = math.nan
-    tracking_setpoint: dict[str, JointTracking] = field(default_factory=dict)  # q vs board set point, RUN
-    tracking_plan: dict[str, JointTracking] = field(default_factory=dict)  # q vs the plan's linear path
-    final_state: str | None = None
-    stopped_by_user: bool = False
-    stopped_by: str | None = None  # SIGINT, SIGTERM or SIGHUP
-    estop_sent: bool = False
-    error: str | None = None
-    fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
-    fw: str | None = None
-    fw_version: str | None = None
-
-    @property
-    def completed(self) -> bool:
-        return self.waypoints_done == self.waypoints_total and not self.stopped_by_user and self.error is None
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["completed"] = self.completed
-
-        def clean(x):
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            if isinstance(x, dict):
-                return {k: clean(v) for k, v in x.items()}
-            if isinstance(x, list):
-                return [clean(v) for v in x]
-            return x
-
-        return clean(d)
-
-    def table(self):
-        """The summary as a rich Table."""
-        from rich.table import Table
-
-        t = Table(title=f"run of {self.plan}", show_header=True, header_style="bold")
-        t.add_column("", style="bold")
-        t.add_column("value", justify="right")
-        status = "completed" if self.completed else (f"stopped by {self.stopped_by or 'user'}" if
-                                                      self.stopped_by_user else
-                                                      f"failed: {self.error}" if self.error else "incomplete")
-        t.add_row("status", status)
-        if self.final_state:
-            t.add_row("final board state", self.final_state + (", e-stop sent" if self.estop_sent else ""))
-        if self.fault:
-            t.add_row("fault", self.fault)
-        t.add_row("board", f"{self.fw} {self.fw_version}" if self.fw else "-")
-        t.add_row("waypoints done / total", f"{self.waypoints_done} / {self.waypoints_total}")
-        t.add_row("waypoints sent / acknowledged", f"{self.waypoints_sent} / {self.waypoints_acked}")
-        t.add_row("waypoints retransmitted", str(self.waypoints_retransmitted))
-        t.add_row("line errors (damaged lines)", str(self.line_errors))
-        t.add_row("board lines lost", str(self.board_lines_lost))
-        t.add_row("timeouts / ER SEQ", f"{self.timeouts} / {self.seq_errors}")
-        t.add_row("resyncs", str(self.resyncs))
-        if self.slow_events:
-            t.add_row("segments slowed by the board", str(self.slow_events))
-        t.add_row("duration planned / measured", f"{_f(self.planned_duration_s, 3)} s / {_f(self.measured_duration_s, 3)} s")
-        for name, tr in self.tracking_setpoint.items():
-            tp = self.tracking_plan.get(name, JointTracking())
-            t.add_row(
-                f"tracking {name} (rms / max)",
-                f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} mrad",
-            )
-        t.add_row("telemetry samples", str(self.telemetry_samples))
-        if self.rrd:
-            t.add_row("recording", self.rrd)
-        return t
-
-
-def _f(x: float, nd: int) -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{x:.{nd}f}"
-
-
-def _mrad(x: float) -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{x * 1000:.1f}"
-
-
-def _tracking(err: np.ndarray, names: list[str]) -> dict[str, JointTracking]:
-    out = {}
-    for j, name in enumerate(names):
-        e = err[:, j] if err.size else np.zeros(0)
-        if e.size:
-            out[name] = JointTracking(float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), int(e.size))
-        else:
-            out[name] = JointTracking()
-    return out
-
-
-def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_start: dict[int, float]) -> np.ndarray:
-    """q minus the plan's piecewise-linear path, for samples in segments >= 1 whose
-    start on the board's clock is known; rows of other samples are dropped.
-
-    seg[s]: the plan index of the segment active at sample s. seg_start[i]: board
-    time at which segment i began (the DONE of waypoint i-1, else the START of i;
-    both are stamped at the control tick, so the anchor is within one control
-    period of the true start). Within segment i the plan moves linearly from
-    q[i-1] to q[i] over durations[i] and then holds q[i] (a segment the board
-    stretched shows as error).
-    """
-    rows = []
-    for s in range(len(t)):
-        i = int(seg[s])
-        if i < 1 or i >= plan.k or i not in seg_start:
-            continue
-        f = min(1.0, max(0.0, (t[s] - seg_start[i]) / plan.durations[i]))
-        want = plan.q[i - 1] + f * (plan.q[i] - plan.q[i - 1])
-        rows.append(q[s] - want)
-    return np.array(rows).reshape(-1, plan.n)
+__all__ = ["RATE_MAX", "RATE_MIN", "JointTracking", "RunFailed", "Summary", "plan_error", "run_plan"]
 
 
 class RunFailed(BoardFailure):
@@ -267,6 +127,7 @@ def run_plan(
                               session=session, on_telemetry=on_telemetry, on_event=on_event,
                               on_error=on_error) as c:
                 client = c
+                assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
                 bar = _progress_bar(plan, console) if progress else None
                 try:
@@ -282,7 +143,7 @@ def run_plan(
                 finally:
                     if bar is not None:
                         bar.stop()
-                    _fill(summary, c, plan, samples, names)
+                    fill(summary, c, plan, samples, names)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)
@@ -379,46 +240,3 @@ def _discard(rec, path: Path) -> None:
         path.unlink()
     except OSError:
         pass
-
-
-def _fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> None:
-    s = client.stats
-    summary.waypoints_done = client.done_index + 1
-    summary.waypoints_sent = s.waypoints_sent
-    summary.waypoints_acked = s.waypoints_acked
-    summary.waypoints_retransmitted = s.waypoints_retransmitted
-    summary.lines_sent = s.lines_sent
-    summary.line_errors = s.line_errors
-    summary.board_lines_lost = s.board_lines_lost
-    summary.timeouts = s.timeouts
-    summary.seq_errors = s.seq_errors
-    summary.resyncs = s.resyncs
-    summary.slow_events = s.slow_events
-    summary.telemetry_samples = len(samples)
-    # Duration on the board's clock: START of waypoint 0 to DONE of the last one.
-    last = plan.k - 1
-    t0 = client.start_times.get(0)
-    if t0 is None and client.done_times:  # START 0 was lost: back from the first DONE seen
-        i = min(client.done_times)
-        t0 = client.done_times[i] - float(np.sum(plan.durations[: i + 1]))
-    t1 = client.done_times.get(last) if client.done_index >= last else None
-    if t0 is not None and t1 is not None:
-        summary.measured_duration_s = float(t1 - t0)
-    run = [x for x in samples if x[1] == "RUN"]
-    if run:
-        t = np.array([x[0] for x in run])
-        q = np.stack([x[2] for x in run])
-        tg = np.stack([x[3] for x in run])
-        seg = np.array([x[4] for x in run])
-        summary.tracking_setpoint = _tracking(tg - q, names)
-        # Segment i begins at the DONE of i-1 when the board went straight on
-        # (same control tick as the START of i), at the START of i after a pause.
-        seg_start = dict(client.start_times)
-        for i, td in client.done_times.items():
-            ts = client.start_times.get(i + 1)
-            if ts is None or ts - td <= 0.011:
-                seg_start[i + 1] = td
-        summary.tracking_plan = _tracking(plan_error(plan, t, q, seg, seg_start), names)
-    else:
-        summary.tracking_setpoint = _tracking(np.zeros((0, len(names))), names)
-        summary.tracking_plan = _tracking(np.zeros((0, len(names))), names)

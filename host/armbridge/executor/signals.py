@@ -26,6 +26,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -48,7 +49,7 @@ class _State:
     fired: int | None = None  # the signal that raised Stopped
     hold = 0
     pending: int | None = None  # a signal that arrived while holding
-    old: dict[int, object] = {}
+    old: dict[signal.Signals, Any] = {}  # handlers as signal.getsignal gave them
 
 
 def _handler(signum: int, frame: object) -> None:
@@ -83,8 +84,8 @@ def stop_on_signals() -> Iterator[None]:
     finally:
         _State.depth -= 1
         if _State.depth == 0:
-            for sig, old in _State.old.items():
-                signal.signal(sig, old)  # type: ignore[arg-type]
+            for sig, handler in _State.old.items():
+                signal.signal(sig, handler)
             _State.old = {}
 
 
