@@ -15,7 +15,8 @@ from armbridge.emulator.simhal import PersistentMemory, SimClock, SimHal, ticks_
 from armbridge.emulator.uart import LinkFaults, PacedUart
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir
-from emu_host import Codec, done_ev, is_reply
+from plan_runs import crashing_firmware
+from emu_host import Codec, is_reply
 
 BT = 1.0 / 11520.0  # one byte at 115200 8N1
 
@@ -538,21 +539,7 @@ def test_cli_refuses_bad_arguments(args, words):
 
 
 def test_firmware_exception_stops_the_board_until_reset(tmp_path):
-    import shutil
-
-    (tmp_path / "esp32").mkdir()
-    shutil.copytree(firmware_dir() / "common", tmp_path / "common")
-    shutil.copy(firmware_dir() / "esp32" / "config.py", tmp_path / "esp32")
-    (tmp_path / "esp32" / "arm.py").write_text(
-        "class Board:\n"
-        "    def __init__(self, hal, cfg):\n"
-        "        self.state = 'IDLE'\n"
-        "        self.polls = 0\n"
-        "    def poll(self):\n"
-        "        self.polls += 1\n"
-        "        if self.polls > 5:\n"
-        "            raise RuntimeError('boom')\n"
-    )
+    crashing_firmware(tmp_path)
     e = EmulatedBoard("esp32", speed=0, firmware_root=tmp_path)
     with pytest.raises(RuntimeError, match="boom"):
         e.step(1)

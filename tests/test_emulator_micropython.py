@@ -17,7 +17,6 @@ are tested without either.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -28,18 +27,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import armbridge.link.transport as transport
 from armbridge.emulator.board import EmulatedBoard
 from armbridge.emulator.micropython import ENV_PACKAGE, find_micropython
 from armbridge.errors import ArmbridgeError
-from armbridge.link.protocol import to_milli
-from armbridge.plans.format import make_plan
-from armbridge.resources import firmware_dir
 from armbridge.robots import ARM3R
 from emu_host import Codec, is_reply
+from plan_runs import assert_executed_once_with_values, crashing_firmware, wave_plan
 from require import missing
 
-MID = np.array([math.pi / 2, -math.pi / 2, 0.0])  # the emulator's start pose: mid-range
 ARMBRIDGE = Path(sys.executable).with_name("armbridge")
 
 
@@ -52,38 +47,6 @@ def micropython():
         find_micropython()
     except ArmbridgeError as exc:
         missing(str(exc))
-
-
-@pytest.fixture
-def ports(monkeypatch):
-    """Record the ports run_plan opens, so a test can look at the emulator afterwards."""
-    opened = []
-    real = transport.open_port
-
-    def spy(url, *a, **kw):
-        port = real(url, *a, **kw)
-        opened.append(port)
-        return port
-
-    monkeypatch.setattr(transport, "open_port", spy)
-    yield opened
-    for p in opened:
-        p.close()
-
-
-def wave_plan(k: int, dt: float = 0.05, amp=(0.4, 0.3, 0.4), freq: float = 0.5):
-    """k waypoints dt apart on q = MID + amp (1 - cos(2 pi f t)) / 2: starts at rest at MID."""
-    t = dt * np.arange(1, k + 1)
-    q = MID + np.outer((1 - np.cos(2 * np.pi * freq * t)) / 2, amp)
-    return make_plan(ARM3R, q, dt, {"tool": "tests/test_emulator_micropython.py", "shape": "wave"})
-
-
-def assert_executed_once_with_values(emu, plan):
-    """Every waypoint exactly once, in order, with the values the host sent."""
-    ids = [wid for _, wid, _ in emu.executed]
-    assert ids == list(range(len(plan.q))), ids
-    for (_, wid, values), q in zip(emu.executed, plan.q):
-        assert list(values) == to_milli(q), (wid, values)
 
 
 class Host:
@@ -195,19 +158,7 @@ def test_estop_byte_turns_the_outputs_off_and_the_latch_survives_a_reset(micropy
 
 
 def test_a_firmware_exception_shows_the_micropython_traceback(micropython, tmp_path):
-    (tmp_path / "esp32").mkdir()
-    shutil.copytree(firmware_dir() / "common", tmp_path / "common")
-    shutil.copy(firmware_dir() / "esp32" / "config.py", tmp_path / "esp32")
-    (tmp_path / "esp32" / "arm.py").write_text(
-        "class Board:\n"
-        "    def __init__(self, hal, cfg):\n"
-        "        self.state = 'IDLE'\n"
-        "        self.polls = 0\n"
-        "    def poll(self):\n"
-        "        self.polls += 1\n"
-        "        if self.polls > 5:\n"
-        "            raise RuntimeError('boom')\n"
-    )
+    crashing_firmware(tmp_path)
     emu = EmulatedBoard("esp32", speed=0, firmware_root=tmp_path, interpreter="micropython")
     try:
         with pytest.raises(RuntimeError, match="boom"):

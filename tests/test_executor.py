@@ -27,35 +27,9 @@ from armbridge.executor.run import Summary, plan_error, run_plan
 from armbridge.link.protocol import to_milli
 from armbridge.plans.format import make_plan, save_plan
 from armbridge.robots import ARM3R, PlanarChain
+from plan_runs import MID, sent_values, wave_plan
 
-MID = np.array([math.pi / 2, -math.pi / 2, 0.0])  # the emulator's start pose: mid-range
 SPEED = 2
-
-
-def wave_plan(k: int = 200, dt: float = 0.05, amp=(0.4, 0.3, 0.4), freq: float = 0.5):
-    """k waypoints dt apart on q = MID + amp (1 - cos(2 pi f t)) / 2: starts at rest at MID.
-
-    Peak joint speed amp * pi * f (0.63 rad/s for 0.4 rad at 0.5 Hz)."""
-    t = dt * np.arange(1, k + 1)
-    q = MID + np.outer((1 - np.cos(2 * np.pi * freq * t)) / 2, amp)
-    return make_plan(ARM3R, q, dt, {"tool": "tests/test_executor.py", "shape": "wave"})
-
-
-@pytest.fixture
-def ports(monkeypatch):
-    """Record the ports run_plan opens, so a test can look at the emulator afterwards."""
-    opened = []
-    real = transport.open_port
-
-    def spy(url, *a, **kw):
-        port = real(url, *a, **kw)
-        opened.append(port)
-        return port
-
-    monkeypatch.setattr(transport, "open_port", spy)
-    yield opened
-    for p in opened:
-        p.close()
 
 
 def executed_ids(port) -> list[int]:
@@ -65,10 +39,6 @@ def executed_ids(port) -> list[int]:
 def executed_values(port) -> list[tuple[int, ...]]:
     """The targets (mrad) of every waypoint the board completed, from its own log."""
     return [values for _, _, values in port.emulator.executed]
-
-
-def sent_values(plan) -> list[tuple[int, ...]]:
-    return [tuple(to_milli(row)) for row in plan.q]
 
 
 def tracking_bound(peak_v: float, period_s: float) -> float:

@@ -4,21 +4,12 @@ WebAssembly interpreter (tests/mpy/run_tests.mjs), so no pytest here."""
 
 import proto
 import protodef
-from fwutil import latin1, load_vectors
+from fwutil import latin1, load_vectors, raises
 
 V = load_vectors()
 CODES = {}
 for _code in proto.ERROR_NAMES:
     CODES[proto.ERROR_NAMES[_code]] = _code
-
-
-def raises(fn, *args):
-    """fn(*args) -> the ProtocolError it raised, or None."""
-    try:
-        fn(*args)
-    except proto.ProtocolError as e:
-        return e
-    return None
 
 
 def test_vectors_version():
