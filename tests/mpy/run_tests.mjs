@@ -17,32 +17,15 @@ import fs from "node:fs";
 import path from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
 
+import { copyPy, mkdirs } from "../../host/armbridge/emulator/mpbridge/mpfs.mjs";
+
 const here = path.dirname(fileURLToPath(import.meta.url));
 const root = path.resolve(process.argv[2] || path.join(here, "..", ".."));
 const pkg = path.join(root, "node_modules", "@micropython",
   "micropython-webassembly-pyscript", "micropython.mjs");
 
-function mkdirs(FS, dir) {
-  let cur = "";
-  for (const part of dir.split("/").filter(Boolean)) {
-    cur += "/" + part;
-    try { FS.mkdir(cur); } catch (e) { /* exists */ }
-  }
-}
-
-function stripNative(src) {
-  return src.replace(/^(\s*)@micropython\.(native|viper)\b.*$/gm, "$1# (stripped) @micropython.$2");
-}
-
-function copyPy(FS, relDir, filter) {
-  const dir = path.join(root, relDir);
-  const names = fs.readdirSync(dir).filter((n) => n.endsWith(".py") && filter(n)).sort();
-  mkdirs(FS, "/repo/" + relDir);
-  for (const n of names) {
-    const src = stripNative(fs.readFileSync(path.join(dir, n), "utf8"));
-    FS.writeFile("/repo/" + relDir + "/" + n, src);
-  }
-  return names;
+function copyRepo(FS, relDir, filter) {
+  return copyPy(FS, path.join(root, relDir), "/repo/" + relDir, filter);
 }
 
 async function main() {
@@ -57,13 +40,13 @@ async function main() {
     stderr: (line) => process.stderr.write(line + "\n"),
   });
   const FS = mp.FS;
-  const common = copyPy(FS, "firmware/common", () => true);
+  const common = copyRepo(FS, "firmware/common");
   if (!common.includes("protodef.py")) {
     console.error("firmware/common/protodef.py missing (python -m armbridge.link.codegen writes it)");
     process.exit(2);
   }
-  copyPy(FS, "firmware/esp32", (n) => n === "config.py" || n === "arm.py");
-  const tests = copyPy(FS, "tests/firmware", (n) => n !== "conftest.py");
+  copyRepo(FS, "firmware/esp32", (n) => n === "config.py" || n === "arm.py");
+  const tests = copyRepo(FS, "tests/firmware", (n) => n !== "conftest.py");
   mkdirs(FS, "/repo/tests/vectors");
   FS.writeFile("/repo/tests/vectors/lines.json",
     fs.readFileSync(path.join(root, "tests", "vectors", "lines.json")));

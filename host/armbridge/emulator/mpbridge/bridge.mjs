@@ -22,31 +22,14 @@ import fs from "node:fs";
 import path from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
 
+import { copyPy } from "./mpfs.mjs";
+
 const here = path.dirname(fileURLToPath(import.meta.url));
 const [mjs, heap, boardModule, configModule, mode, ...dirs] = process.argv.slice(2);
 
 function fail(msg) {
   process.stderr.write("bridge: " + msg + "\n");
   process.exit(2);
-}
-
-function mkdirs(FS, dir) {
-  let cur = "";
-  for (const part of dir.split("/").filter(Boolean)) {
-    cur += "/" + part;
-    try { FS.mkdir(cur); } catch (e) { /* exists */ }
-  }
-}
-
-function stripNative(src) {
-  return src.replace(/^(\s*)@micropython\.(native|viper)\b.*$/gm, "$1# (stripped) @micropython.$2");
-}
-
-function copyPy(FS, from, to, names) {
-  mkdirs(FS, to);
-  for (const n of names) {
-    FS.writeFile(to + "/" + n, stripNative(fs.readFileSync(path.join(from, n), "utf8")));
-  }
 }
 
 async function main() {
@@ -63,11 +46,10 @@ async function main() {
   const FS = mp.FS;
   const paths = [];
   dirs.forEach((d, i) => {
-    const names = fs.readdirSync(d).filter((n) => n.endsWith(".py")).sort();
-    copyPy(FS, d, "/fw/" + i, names);
+    copyPy(FS, d, "/fw/" + i);
     paths.push("/fw/" + i);
   });
-  copyPy(FS, here, "/bridge", ["bridgehal.py", "fwcost.py"]);
+  copyPy(FS, here, "/bridge", (n) => n === "bridgehal.py" || n === "fwcost.py");
   paths.push("/bridge");
   mp.runPython(`
 import sys
