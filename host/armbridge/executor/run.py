@@ -120,9 +120,9 @@ def run_plan(
     failure: BaseException | None = None
     bar = None
     with stop_on_signals():
+        rec = Recording(rrd, robot, plan)  # an unwritable --rrd is bad input: nothing sent yet
+        summary.rrd = str(rrd)
         try:
-            rec = Recording(rrd, robot, plan)
-            summary.rrd = str(rrd)
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
                               session=session, on_telemetry=on_telemetry, on_event=on_event,
                               on_error=on_error) as c:
@@ -160,7 +160,8 @@ def run_plan(
             if failure is None:
                 failure = exc
                 summary.error = str(exc)
-                summary.final_state = client.state if client is not None else None
+                # The state the board showed while connecting (HELLO's telemetry), if any.
+                summary.final_state = client.state if client is not None else last_state[0]
                 if rec is not None:
                     rec.error(None, f"run failed: {exc}", "error")
         finally:
