@@ -230,6 +230,8 @@ def test_port_trouble_is_one_line_with_the_documented_exit_code(board, tmp_path)
     assert r.returncode == 2 and r.stderr.strip() == (
         "error: no such device /dev/does-not-exist-armbridge: is the board plugged in? "
         "(ls /dev/serial/by-id lists those that are)")
+    r = console("info", "--port", "emu:esp99")
+    assert r.returncode == 2 and "esp99" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     # Busy: a monitor holds the port; a second console is told who.
     mon = Proc("board", "monitor", "--port", link)
     try:

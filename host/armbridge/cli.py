@@ -83,7 +83,7 @@ def _register() -> None:
 
 
 def main() -> None:
-    """Exit codes (docs/formats.md §5): 0 success; 1 a run or a board request
+    """Exit codes (docs/formats.md §7): 0 success; 1 a run or a board request
     failed (BoardFailure: fault, refusal, no answer, busy or lost port); 2 bad
     input or usage (ArmbridgeError, typer's usage errors); 128 + the signal
     when a stop signal ended the command (130 Ctrl-C)."""

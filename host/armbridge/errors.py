@@ -1,6 +1,6 @@
 """The error types a user sees: printed by the CLI as a single line.
 
-Exit codes (docs/formats.md §5): an ArmbridgeError is bad input or usage
+Exit codes (docs/formats.md §7): an ArmbridgeError is bad input or usage
 (exit 2: nothing was sent to a board); a BoardFailure is a run or a board
 request that was tried and failed (exit 1: a fault, a refusal, no answer, a
 busy or lost port).

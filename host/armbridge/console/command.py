@@ -12,7 +12,7 @@ where it is: a console is never a second host of a run, and the port lock
 keeps it off a port a run holds); `--session N` rejoins session N instead (a
 resync: the board keeps its queue and done/queued).
 
-Exit codes as `armbridge run` (docs/formats.md §5): 0 done, 1 the board or the
+Exit codes as `armbridge run` (docs/formats.md §7): 0 done, 1 the board or the
 link failed (no answer, refused, busy or lost port), 2 bad input or usage,
 128 + the signal when stopped by one, except that `monitor` ends with 0 on
 Ctrl-C, its normal end.

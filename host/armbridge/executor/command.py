@@ -1,6 +1,6 @@
 """`armbridge run PLAN --port PORT`: run a plan file on a board and summarise the run.
 
-Exit codes (docs/formats.md §5): 0 the plan completed; 1 the run failed (a
+Exit codes (docs/formats.md §7): 0 the plan completed; 1 the run failed (a
 board fault or refusal, no answer, a busy or lost port); 2 bad input or usage
 (nothing was sent); 128 + the signal when stopped by one (130 Ctrl-C, 143
 SIGTERM, 129 SIGHUP), after the e-stop byte. The summary (table, and the
