@@ -11,10 +11,12 @@ ESTOP afterwards), `rerun rrd verify` passes, the JSON summary exists with
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import signal
 import subprocess
+import termios
 from pathlib import Path
 
 import pytest
@@ -77,6 +79,35 @@ def test_a_stop_signal_mid_run_estops_and_leaves_complete_files(tmp_path, board,
     verify(rrd)
     st = board_state(link)
     assert st["state"] == "ESTOP" and st["latched"]
+
+
+def test_closing_the_terminal_mid_run_estops_and_leaves_complete_files(tmp_path, board):
+    """The run's controlling terminal is a pty; closing its master is what closing
+    a terminal window does: the kernel hangs up (SIGHUP) and every later write to
+    the terminal fails. The files are written all the same, and the exit code says why."""
+    emu, link = board
+    js, rrd = tmp_path / "hup.json", tmp_path / "hup.rrd"
+    master, slave = os.openpty()
+
+    def on_the_terminal() -> None:
+        default_signals()
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+    p = subprocess.Popen([ARMBRIDGE, "run", str(plan_file(tmp_path, 40, 0.25)), "--port", link, "--json", str(js),
+                          "--rrd", str(rrd)], stdin=slave, stdout=slave, stderr=slave, preexec_fn=on_the_terminal)
+    os.close(slave)
+    try:
+        emu.wait_for(" DONE 1 ")
+        os.read(master, 65536)  # the progress bar so far
+    finally:
+        os.close(master)  # the terminal goes away
+    rc = p.wait(timeout=60)
+    assert rc == 128 + signal.SIGHUP
+    emu.wait_for(" ESTOP*")
+    s = json.loads(js.read_text())
+    assert s["stopped_by"] == "SIGHUP" and s["estop_sent"] and s["final_state"] == "ESTOP" and s["error"] is None
+    verify(rrd)
 
 
 def test_under_nohup_a_hangup_does_not_stop_the_run(tmp_path, board):
