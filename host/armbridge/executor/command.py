@@ -24,7 +24,8 @@ from armbridge.executor.signals import Stopped, holding, stop_on_signals
 
 def run_cmd(
     plan: Path = typer.Argument(..., help="Plan file (armbridge-plan JSON, see docs/formats.md)."),
-    port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, loop://) or emu:DEVICE."),
+    port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, rfc2217://, loop://) or "
+                                               "emu:DEVICE."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Recording to write [default: runs/<time>-<plan>.rrd]."),
     rate: int = typer.Option(50, "--rate", help=f"Telemetry rate in Hz ({RATE_MIN}..{RATE_MAX})."),
     json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
