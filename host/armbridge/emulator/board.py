@@ -132,6 +132,7 @@ class EmulatedBoard:
         self._stop = threading.Event()
         self._closed = False
         self._pace: tuple[float, int, float] | None = None  # (wall0, sim0 us, sim us per wall s)
+        self._host_us = 0.0  # latest host_time(), us: it never runs backwards
 
         self.board: Any = None
         self._boot()
@@ -289,12 +290,22 @@ class EmulatedBoard:
         return self.clock.t
 
     def host_time(self) -> float:
-        """Seconds on the emulator's time scale, for a host's clock: the wall
-        clock times `speed` when paced (smooth between ticks), sim time in
-        lockstep (where the wall clock means nothing)."""
-        if self.speed > 0:
-            return time.monotonic() * self.speed
-        return self.clock.t
+        """Seconds on the emulator's time scale, for a host's clock. Paced: the
+        sim time the pacer aims at (wall clock times `speed`, smooth between
+        ticks) but never more than a tick ahead of the board's own clock, so a
+        host's timers do not run out early while a starved emulator lags (after
+        its thread has stopped, the pacer's aim alone, so timers still run out).
+        Lockstep, or before the pacer starts: sim time (the wall clock means
+        nothing there)."""
+        pace = self._pace
+        if self.speed <= 0 or pace is None:
+            return self.clock.t
+        wall0, sim0_us, rate = pace
+        us = sim0_us + (time.monotonic() - wall0) * rate
+        if self.running:
+            us = min(us, self.clock.us + self.tick_us)
+        self._host_us = max(self._host_us, us)  # never backwards
+        return self._host_us / 1e6
 
     def wall_time(self, t: float) -> float:
         """The time.monotonic() at which sim time t (s) happened (paced modes only):
