@@ -5,6 +5,7 @@ import pytest
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.url import PARAMETERS, open_emu_port, parse_emu_url
 from armbridge.errors import ArmbridgeError
+from armbridge.link.transport import PortError
 from armbridge.link.transport import Port
 from emu_host import Codec, is_reply
 
@@ -96,6 +97,7 @@ def test_a_paced_port_clock_follows_the_board_and_never_runs_backwards():
 
 def test_a_url_that_fails_to_start_leaves_nothing_behind(tmp_path):
     (tmp_path / "arm").write_text("a file, not a link")
-    with pytest.raises(ArmbridgeError, match="not a symlink"):
+    with pytest.raises(PortError, match="not a symlink") as exc:
         open_emu_port(f"emu:esp32?link={tmp_path / 'arm'}")
+    assert exc.value.exit_code == 1  # a port that cannot be had, not a bad command line
     assert (tmp_path / "arm").read_text() == "a file, not a link" and not (tmp_path / "arm.lock").exists()

@@ -110,16 +110,19 @@ def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
     with `.emulator` (the EmulatedBoard) and `.clock` (seconds on the
     emulator's time scale: `EmulatedBoard.host_time`)."""
     from armbridge.emulator.board import EmulatedBoard
-    from armbridge.link.transport import Port
+    from armbridge.link.transport import Port, PortError
 
-    device, kw = parse_emu_url(url)
+    device, kw = parse_emu_url(url)  # a bad URL: ArmbridgeError (usage, exit 2)
     emu = EmulatedBoard(device, **kw)
     try:
         emu.start()
         ser = serial.Serial(emu.port, baudrate=baud, timeout=timeout)
+    except ArmbridgeError as exc:  # no pty, or its link is owned by a live emulator: the port is busy
+        emu.stop()
+        raise PortError(f"cannot open port {url!r}: {exc}") from None
     except (serial.SerialException, OSError) as exc:
         emu.stop()
-        raise ArmbridgeError(f"cannot open port {url!r}: emulator pty {emu.port}: {exc}") from exc
+        raise PortError(f"cannot open port {url!r}: emulator pty {emu.port}: {exc}") from exc
     except BaseException:
         emu.stop()
         raise
