@@ -55,7 +55,7 @@ def run(opts: DemoOptions, console: Any) -> None:
         return
     import typer
 
-    from armbridge.executor.command import _run
+    from armbridge.executor.command import run_and_report
     from armbridge.executor.signals import Stopped, stop_on_signals
 
     console.print(f"demo: drawing a {SQUARE_SIDE * 100:.0f} cm square, {plan.k} waypoints, "
@@ -63,8 +63,8 @@ def run(opts: DemoOptions, console: Any) -> None:
     # `armbridge run`'s own reporting: the table, the e-stop on every signal, its exit codes.
     try:
         with stop_on_signals():
-            _run(plan=plan, port=opts.port, rrd=opts.rrd, rate=50, json_out=None, clear=opts.clear, progress=True,
-                 console=console)
+            run_and_report(plan=plan, port=opts.port, rrd=opts.rrd, rate=50, json_out=None, clear=opts.clear,
+                           progress=True, console=console)
     except Stopped as stop:  # before the run started
         raise typer.Exit(stop.exit_code) from None
 

@@ -41,12 +41,14 @@ def run_cmd(
     console = Console(stderr=json_out == "-")
     try:
         with stop_on_signals():
-            _run(plan, port, rrd, rate, json_out, clear, progress, console)
+            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
-def _run(plan, port, rrd, rate, json_out, clear, progress, console) -> None:
+def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console) -> None:
+    """run_plan, then what `armbridge run` reports: the JSON summary, the table
+    and the exit code (1: the run failed, 128 + n: stopped by signal n)."""
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console)
