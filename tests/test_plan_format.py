@@ -227,7 +227,7 @@ def test_missing_and_unknown_waypoint_fields(tmp_path):
     assert _err(tmp_path, doc) == 'waypoint 3: missing field "q"'
     doc = _doc(5)
     doc["waypoints"][1]["durations"] = 1
-    assert _err(tmp_path, doc) == 'waypoint 1: unknown field "durations" (allowed: q, duration)'
+    assert _err(tmp_path, doc) == 'waypoint 1: unknown field "durations" (allowed: q, duration, pen)'
     doc = _doc(5)
     doc["waypont"] = []
     assert "unknown field \"waypont\"" in _err(tmp_path, doc)

@@ -64,6 +64,7 @@ def _register() -> None:
     from armbridge.bench.command import bench_app
     from armbridge.console.command import board_app
     from armbridge.demo import demo_cmd
+    from armbridge.draw.command import draw_cmd
     from armbridge.emulator.command import emulate_cmd
     from armbridge.executor.command import run_cmd
     from armbridge.planning.command import plan_app
@@ -72,6 +73,7 @@ def _register() -> None:
     from armbridge.train.command import train_app
 
     app.command("demo")(demo_cmd)
+    app.command("draw")(draw_cmd)
     app.command("emulate")(emulate_cmd)
     app.command("run")(run_cmd)
     app.command("smm")(smm_cmd)

@@ -51,6 +51,8 @@ class Plan:
     provenance: dict = field(default_factory=dict)
     source: Path | None = None
     inline_robot: bool = False  # the file described the robot inline (not a registry name)
+    # Optional (k,) pen flags, one a waypoint: 1 = the move into it draws (pen down), 0 = pen up.
+    pen: np.ndarray | None = None
 
     @property
     def k(self) -> int:
@@ -233,6 +235,7 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
     k = len(wps)
     q = np.empty((k, n))
     dur = np.empty(k)
+    pens: list[int] = []
     for i, wp in enumerate(wps):
         where = f"waypoint {i}"
         if not isinstance(wp, dict):
@@ -241,8 +244,14 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
             if key not in wp:
                 raise ctx.err(f'{where}: missing field "{key}"')
         for key in wp:
-            if key not in ("q", "duration"):
-                raise ctx.err(f'{where}: unknown field "{key}" (allowed: q, duration)')
+            if key not in ("q", "duration", "pen"):
+                raise ctx.err(f'{where}: unknown field "{key}" (allowed: q, duration, pen)')
+        if i > 0 and ("pen" in wp) != bool(pens):
+            raise ctx.err(f"{where}: pen is given on some waypoints only: give it on every waypoint or on none")
+        if "pen" in wp:
+            if wp["pen"] not in (0, 1) or isinstance(wp["pen"], bool):
+                raise ctx.err(f"{where}, pen must be 0 (up) or 1 (down), got {_describe(wp['pen'])}")
+            pens.append(int(wp["pen"]))
         qi = wp["q"]
         if not isinstance(qi, list):
             raise ctx.err(f"{where}, q must be a list of {n} numbers, got {_describe(qi)}")
@@ -285,6 +294,7 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
         provenance=dict(prov),
         source=Path(source) if source is not None else None,
         inline_robot=inline,
+        pen=np.array(pens, dtype=int) if pens else None,
     )
 
 
@@ -316,22 +326,29 @@ def plan_to_dict(plan: Plan) -> dict:
         "robot": robot_spec,
         "joints": [{"name": nm, "unit": u} for nm, u in zip(robot.joint_names, robot.joint_units)],
         "waypoints": [
-            {"q": [float(x) for x in plan.q[i]], "duration": float(plan.durations[i])} for i in range(plan.k)
+            {"q": [float(x) for x in plan.q[i]], "duration": float(plan.durations[i]),
+             **({} if plan.pen is None else {"pen": int(plan.pen[i])})} for i in range(plan.k)
         ],
         "provenance": prov,
     }
 
 
-def make_plan(robot: Robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge") -> Plan:
+def make_plan(robot: Robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge",
+              pen=None) -> Plan:
     """Build (and validate) a Plan in memory; fills provenance.tool and .created when missing.
-    A robot that is not the registry's robot of its name is written inline."""
+    A robot that is not the registry's robot of its name is written inline. `pen`: optional
+    per-waypoint pen flags (1 down, 0 up)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     durations = np.broadcast_to(np.asarray(durations, dtype=float), (q.shape[0],)).copy()
     prov = dict(provenance or {})
     prov.setdefault("tool", tool)
     prov.setdefault("created", datetime.now(timezone.utc).isoformat(timespec="seconds"))
     inline = not catalog.is_registered(robot)
-    plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline)
+    pen = None if pen is None else np.asarray(pen).astype(int).tolist()
+    if pen is not None and len(pen) != q.shape[0]:
+        raise ArmbridgeError(f"pen has {len(pen)} flags for {q.shape[0]} waypoints")
+    plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline,
+                pen=None if pen is None else np.array(pen, dtype=int))
     return validate(plan)
 
 

@@ -1,0 +1,61 @@
+"""One drawing, start to end: lines in -> placed, tidied strokes -> the joint plan.
+
+Pure: no files are read or written here (the command does that), so every
+step is testable on strokes made in memory.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import vpype as vp
+
+from armbridge.draw import layout, path, region, sources
+from armbridge.plans.format import Plan
+from armbridge.robots.planar import PlanarChain
+
+
+@dataclass
+class Drawing:
+    """What `armbridge draw` made: the strokes (m), the pen's path and the plan."""
+
+    strokes: list[np.ndarray]
+    xy: np.ndarray  # (k, 2) pen positions at the waypoints, m
+    pen: np.ndarray  # (k,) 1 = the move into the waypoint draws
+    plan: Plan
+    placement: layout.Placement
+    tidy: layout.Tidy
+    region: region.Region
+
+    @property
+    def drawn_length(self) -> float:
+        """Pen-down length, m."""
+        return float(sum(np.sum(np.hypot(*np.diff(s, axis=0).T)) for s in self.strokes))
+
+
+def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: str,
+          size: float | None = None, at=None, speed: float = 0.02, step: float = path.STEP) -> Drawing:
+    """Place lines in the robot's safe region, tidy them (vpype) and plan the joints (closed-form IK)."""
+    reg = region.region(robot)
+    placed, where = layout.place(lines, reg.center, reg.radius, size=size, at=at)
+    tidied, report = layout.tidy(placed)
+    strokes = sources.to_strokes(tidied)
+    xy, pen = path.pen_path(strokes, step)
+    provenance = {
+        "name": name,
+        "drawing": {
+            "source": source,
+            "safe_region": {"center": [float(c) for c in reg.center], "radius": reg.radius},
+            "phi": reg.phi,
+            "at": list(where.at),
+            "size": where.size,
+            "speed": speed,
+            "step": step,
+            "strokes": len(strokes),
+            "drawn_length": float(sum(np.sum(np.hypot(*np.diff(s, axis=0).T)) for s in strokes)),
+            "pen_up_travel_before_sort": report.travel_before,
+            "pen_up_travel_after_sort": report.travel_after,
+        },
+    }
+    plan = path.joint_plan(robot, xy, pen, reg.phi, speed, provenance)
+    return Drawing(strokes, xy, pen, plan, where, report, reg)

@@ -1,0 +1,111 @@
+"""`armbridge draw`: text, an SVG, a CSV of points, an image, a shape or a built-in sample
+-> a joint-space plan for the drawing arm (and a PNG of it). See docs/drawing.md."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from armbridge.errors import ArmbridgeError
+
+DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
+
+
+def _parse_at(at: str) -> tuple[float, float]:
+    parts = at.split(",")
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise ArmbridgeError(f"--at {at!r}: expected X,Y in metres, e.g. --at 0.08,0.19") from None
+    return x, y
+
+
+def _list_samples() -> None:
+    from armbridge.draw.samples import SAMPLES
+
+    typer.echo("The paper's samples (Table 3):")
+    for name, s in SAMPLES.items():
+        typer.echo(f"  {s.number:2d}  {name:15s} {s.source:6s} {s.plot}")
+
+
+def _lines(text, svg, csv, image, shape, sample, font):
+    """(lines, source description, default name) of the one source given."""
+    from armbridge.draw import samples, sources
+
+    given = [(k, v) for k, v in (("TEXT", text), ("--svg", svg), ("--csv", csv), ("--image", image),
+                                 ("--shape", shape), ("--sample", sample)) if v is not None]
+    if len(given) != 1:
+        what = "none" if not given else ", ".join(k for k, _ in given)
+        raise ArmbridgeError(f"give exactly one thing to draw: TEXT, --svg, --csv, --image, --shape or --sample "
+                             f"(got {what})")
+    kind, value = given[0]
+    if kind == "TEXT":
+        return sources.text_lines(value, font), f"text {value!r} ({font})", "text"
+    if kind == "--svg":
+        return sources.svg_file(value), f"svg {value}", Path(value).stem
+    if kind == "--csv":
+        return sources.csv_file(value), f"csv {value}", Path(value).stem
+    if kind == "--image":
+        return sources.image_file(value), f"image {value}", Path(value).stem
+    if kind == "--shape":
+        return sources.shape_lines(value), f"shape {value}", value.lower()
+    return samples.sample_lines(value), f"sample {value}", value.lower()
+
+
+def draw_cmd(
+    text: Optional[str] = typer.Argument(None, help="Text to draw (single-stroke Hershey font; \\n for a new line)."),
+    svg: Optional[Path] = typer.Option(None, "--svg", help="SVG file to draw (its paths and shapes)."),
+    csv: Optional[Path] = typer.Option(None, "--csv", help="CSV file of points: x,y a line, blank line or pen column "
+                                                           "between strokes (docs/drawing.md)."),
+    image: Optional[Path] = typer.Option(None, "--image", help="Image file: the outlines of its dark shapes."),
+    shape: Optional[str] = typer.Option(None, "--shape", help="circle, triangle, square, pentagon, hexagon or star."),
+    sample: Optional[str] = typer.Option(None, "--sample", help="One of the paper's samples (see --list-samples)."),
+    list_samples: bool = typer.Option(False, "--list-samples", help="List the built-in samples and exit."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Plan file to write (armbridge-plan JSON)."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a figure of the drawing and the arm."),
+    size: Optional[float] = typer.Option(None, "--size", help="The drawing's longer side in m [default: --fit]."),
+    fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region (the default)."),
+    at: Optional[str] = typer.Option(None, "--at", metavar="X,Y",
+                                     help="Where the drawing's centre goes, m [default: the safe region's centre]."),
+    speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen speed in m/s, drawing and travelling."),
+    font: str = typer.Option("futural", "--font", help="Hershey font for TEXT (vpype's fonts)."),
+    robot_name: str = typer.Option("arm3r", "--robot", help="The drawing arm (a planar 3R robot)."),
+) -> None:
+    """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
+
+    The drawing is fitted into the arm's safe region, its strokes merged and
+    sorted (vpype) to cut pen-up travel, and planned in joint space; each
+    waypoint carries a pen flag (1 draws, 0 pen up). Nothing is written when
+    an input is bad or the drawing does not fit.
+    """
+    if list_samples:
+        _list_samples()
+        return
+    if out is None:
+        raise ArmbridgeError("--out PLAN.json is required (where to write the plan)")
+    if fit and size is not None:
+        raise ArmbridgeError("give --size or --fit, not both")
+    from armbridge.draw.build import build
+    from armbridge.plans.format import save_plan
+    from armbridge.robots import get_robot
+
+    lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
+    d = build(lines, get_robot(robot_name), name=name, source=source, size=size,
+              at=None if at is None else _parse_at(at), speed=speed)
+    try:
+        if png is not None:
+            from armbridge.draw.figure import draw_png
+
+            draw_png(d, png, title=f"armbridge draw: {source}")
+        save_plan(d.plan, out)
+    except OSError as exc:
+        raise ArmbridgeError(f"{exc.filename}: cannot write ({exc.strerror})") from None
+    t = d.tidy
+    p = d.placement
+    typer.echo(f"{source}: {t.strokes_out} strokes ({t.strokes_in} before merging), "
+               f"{d.drawn_length * 1000:.0f} mm drawn, size {p.size * 1000:.1f} mm at "
+               f"({p.at[0]:.4f}, {p.at[1]:.4f}) m")
+    typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
+    typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {speed:g} m/s"
+               + (f"; figure {png}" if png is not None else ""))
