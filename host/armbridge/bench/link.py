@@ -142,7 +142,8 @@ def throughput_once(waypoints: int, url: str = "emu:esp32") -> dict:
                 "v1_w_line_bytes": w_line - (V2_CRC_DIGITS - V1_CRC_DIGITS),
                 "v1_line_rate_ceiling_wps": LINE_BYTES_PER_S / (w_line - (V2_CRC_DIGITS - V1_CRC_DIGITS)),
                 "bytes_by_verb": by_verb, "retransmitted": st["waypoint_lines"] - st["waypoints_sent"],
-                "pings": st["pings"], "timeouts": st["timeouts"], "window_cuts": st["window_cuts"],
+                "pings": st["pings"], "timeouts": st["timeouts"], "spurious_timeouts": st["spurious_timeouts"],
+                "window_cuts": st["window_cuts"],
                 "slow_events": st["slow_events"]}
     finally:
         port.close()
@@ -150,8 +151,8 @@ def throughput_once(waypoints: int, url: str = "emu:esp32") -> dict:
 
 def _stats(client: BoardClient) -> dict[str, int]:
     s = client.stats
-    return {k: getattr(s, k) for k in ("waypoint_lines", "waypoints_sent", "pings", "timeouts", "window_cuts",
-                                       "slow_events")}
+    return {k: getattr(s, k) for k in ("waypoint_lines", "waypoints_sent", "pings", "timeouts", "spurious_timeouts",
+                                       "window_cuts", "slow_events")}
 
 
 def throughput(waypoints: int, runs: int = 1, url: str = "emu:esp32") -> dict:
@@ -353,8 +354,8 @@ def print_result(r: dict, console) -> None:
                   f"{tp['w_line_bytes']:.1f} / {tp['bytes_per_waypoint']:.1f}", "")
     table.add_row("line-rate ceiling for these W lines (wp/s)", f"{tp['v1_line_rate_ceiling_wps']:.0f}",
                   f"{tp['line_rate_ceiling_wps']:.0f}", "")
-    table.add_row("streaming: W resent / PINGs / timeouts", "",
-                  f"{tp['retransmitted']} / {tp['pings']} / {tp['timeouts']}", "")
+    table.add_row("streaming: W resent / PINGs / timeouts (spurious)", "",
+                  f"{tp['retransmitted']} / {tp['pings']} / {tp['timeouts']} ({tp['spurious_timeouts']})", "")
     table.add_row("ack round trip median / p95 (ms)", "", f"{rt['median_ms']:.2f} / {rt['p95_ms']:.2f}", "")
     table.add_row("e-stop byte -> outputs off median / max (ms)", "",
                   f"{es['byte_to_outputs_off']['median_ms']:.2f} / {es['byte_to_outputs_off']['max_ms']:.2f}",

@@ -14,8 +14,11 @@ Reliability:
 * Every command carries a seq = its command number mod 65536; an answer (OK
   or ER) ends its life. Unanswered commands stay in a list in seq order and
   are sent again when
-  (a) their retransmission timer runs out: go-back-N from it (link/rto.py:
-      Jacobson/Karels, Karn, back-off while the board is silent);
+  (a) their retransmission timer runs out (link/rto.py: Jacobson/Karels,
+      Karn, back-off while the board is silent): first that line alone, the
+      later ones held until its new deadline (F-RTO, RFC 5682): an answer to a
+      line sent once shows the board was only late, and nothing more is sent
+      again; a second timeout is a real loss: go-back-N from it;
   (b) the board answers `ER SEQ E`: go-back-N from E, unless a retransmission
       of E is already on its way (answers to lines sent before it are stale);
   (c) the board reports a framing error (CRC/PARSE/LONG with seq `-`): the
@@ -26,7 +29,7 @@ Reliability:
       without executing it a second time.
 * Window: at most `cwnd` commands unanswered, `cwnd` <= MAX_WINDOW (below the
   board's 32-entry replay ring). A lost line halves it (not below MIN_WINDOW),
-  each answer grows it by 1/cwnd.
+  a timeout found real sets it to MIN_WINDOW, each answer grows it by 1/cwnd.
 * Credits: at most FREE waypoints (W lines) unacknowledged, FREE from the OK
   with the newest seq; a T or EV DONE line refreshes it (`idle_credit`) only
   when nothing is unanswered.
@@ -133,6 +136,7 @@ class Arq:
         self._lane_free = 0.0  # when the bytes written so far have reached the board (estimate)
         self.cwnd = float(MAX_WINDOW)
         self._last_cut = -math.inf
+        self._probing = False  # a timeout's line was sent alone; the rest wait (F-RTO)
         self._last_send = -math.inf
         self.last_rx = self.now()  # latest valid board line
         self._last_bytes = self.last_rx  # latest byte of any kind from the board
@@ -187,6 +191,7 @@ class Arq:
         """A HELLO attempt (framed with epoch 0); everything unanswered is dropped:
         after the HELLO the board's reply says where things stand."""
         self.out.clear()
+        self._probing = False
         self._w_sent_n = []
         cmd = Cmd(self._n, "HELLO", (proto, session, epoch), 0, keep=True)
         self._n += 1
@@ -204,6 +209,7 @@ class Arq:
         self.epoch = int(hello.args[2])
         self._epoch_n = hello.n
         self.out.clear()
+        self._probing = False
         self._answers.clear()
         self._credit_n = hello.n
         self._credit = ok.free
@@ -215,6 +221,7 @@ class Arq:
     def abandon(self) -> None:
         """Forget every unanswered command (a HELLO that failed)."""
         self.out.clear()
+        self._probing = False
 
     # ------------------------------------------------------------------ sending
     def issue(self, verb: str, *args, wp: int | None = None, keep: bool = False) -> Cmd:
@@ -277,13 +284,10 @@ class Arq:
 
     def _retransmit_from(self, first: Cmd, *, timed_out: bool = False) -> None:
         """Go-back-N: send `first` and every later unanswered command again, in
-        order, as the window allows. After a timeout the window restarts at
-        MIN_WINDOW (TCP's rule after an RTO, floored as `_loss` is): when the
-        board was only late (the host or the board's process descheduled for
-        longer than the RTO), the answers to the first copies, arriving
-        meanwhile, settle the rest before they are sent again (halving
-        instead resent 18-19 W lines per spurious timeout on a clean link,
-        docs/benchmarks.md)."""
+        order, as the window allows. After a timeout (a real loss, see
+        `_timed_out`) the window restarts at MIN_WINDOW, TCP's rule after an
+        RTO, floored as `_loss` is."""
+        self._probing = False
         go = False
         for cmd in self.out:
             go = go or cmd is first
@@ -296,6 +300,24 @@ class Arq:
         else:
             self._loss()
         self._send_due()
+
+    def _timed_out(self, cmd: Cmd) -> None:
+        """`cmd`'s retransmission timer ran out. The first time (F-RTO, RFC
+        5682) only `cmd` goes again and the later lines wait until its new
+        deadline: when the host or the board's process was descheduled past
+        the RTO, the answers to the first copies arrive meanwhile, an answer
+        to a line sent once ends the probe (`_on_answer`) and nothing more is
+        resent (go-back-N at once resent 14-19 W lines per such timeout on a
+        clean link, 2 cores shared). Another timeout while probing is a real
+        loss: go-back-N from `cmd`."""
+        if self._probing:
+            self._retransmit_from(cmd, timed_out=True)
+            return
+        self._probing = True
+        self._transmit(cmd)
+        for other in self.out:
+            if other.n > cmd.n and not other.due:
+                other.deadline = max(other.deadline, cmd.deadline)
 
     def _find(self, seq: int) -> Cmd | None:
         for cmd in self.out:
@@ -378,6 +400,9 @@ class Arq:
         if cmd is None:
             return None  # a late duplicate of an answer we already have
         self._rtt_sample(cmd)
+        if cmd.tx == 1 and self._probing:
+            self._probing = False  # the board executes the lines as sent: the timeout was spurious
+            self.stats.spurious_timeouts += 1
         self._settle(cmd, ok)
         if cmd.n > self._credit_n:
             self._credit_n = cmd.n
@@ -395,6 +420,8 @@ class Arq:
         self.timer.answered()
         cmd.answer = answer
         self.out.remove(cmd)
+        if not self.out:
+            self._probing = False
         if cmd.keep:
             self._answers[cmd.n] = answer
         elif isinstance(answer, P.Er):
@@ -477,8 +504,8 @@ class Arq:
                     # A noisy link that still delivers bytes keeps the plain RTO.
                     self.timer.expired_in_silence()
                 self.note(f"no answer to seq {cmd.seq} ({cmd.verb}) in {now - cmd.last_tx:.3f} s: "
-                          "resending from it")
-                self._retransmit_from(cmd, timed_out=True)
+                          + ("resending from it" if self._probing else "resending it"))
+                self._timed_out(cmd)
                 break
         if not self.live:
             return

@@ -15,6 +15,7 @@ class LinkStats:
     waypoint_lines: int = 0  # W lines written, retransmissions and resends included
     waypoints_acked: int = 0  # distinct waypoints answered OK
     timeouts: int = 0  # retransmission timer expiries
+    spurious_timeouts: int = 0  # of those, shown by a later answer to be the board being late (F-RTO)
     seq_errors: int = 0  # ER SEQ answers
     board_framing_errors: int = 0  # ER - CRC/PARSE/LONG from the board (our lines damaged)
     host_line_errors: int = 0  # board lines the host could not decode (their lines damaged)
