@@ -322,3 +322,50 @@ def test_arq_refuses_to_issue_past_a_full_epoch():
     assert not arq.can_issue()
     with pytest.raises(RuntimeError, match="epoch is full"):
         arq.issue("PING")
+
+
+def _pings_until_answered(c: BoardClient, k: int, release_after_timeout: Peer | None = None):
+    arq = c.arq
+    cmds = [arq.issue("PING", keep=True) for _ in range(k)]
+    answers: dict[int, object] = {}
+    for _ in range(2000):
+        if release_after_timeout is not None and arq.stats.timeouts:
+            release_after_timeout.release()  # the board was only late: the first answers arrive now
+        arq.loop_once()
+        for cmd in cmds:
+            a = arq.answer_of(cmd)
+            if a is not None:
+                answers[cmd.n] = a
+        if len(answers) == k:
+            return cmds, answers
+    raise AssertionError(f"{len(answers)} of {k} answered")
+
+
+def test_a_spurious_timeout_resends_one_line_not_the_window():
+    """F-RTO: the board answers late (held answers), the timer runs out: only the
+    oldest line goes again, and the late answers to the first copies end the
+    probe; nothing else is resent."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer, robot=None)
+    peer.hold_out = set(range(peer.answers_out, peer.answers_out + 6))
+    cmds, answers = _pings_until_answered(c, 6, release_after_timeout=peer)
+    assert all(isinstance(a, P.Ok) for a in answers.values())
+    s = c.stats
+    assert (s.timeouts, s.spurious_timeouts, s.retransmissions) == (1, 1, 1)
+    assert c.arq.cwnd > MIN_WINDOW, "a spurious timeout does not cut the window"
+
+
+def test_lines_lost_at_the_tail_are_resent_after_a_second_timeout():
+    """F-RTO, a real loss: the last 3 of 6 lines never reach the board and no
+    later line reveals it (no ER SEQ): the probe (the first lost line) is
+    answered, the other two time out again and go back-N."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer, robot=None)
+    peer.drop_in = {peer.lines_in + 3, peer.lines_in + 4, peer.lines_in + 5}
+    cmds, answers = _pings_until_answered(c, 6)
+    assert all(isinstance(a, P.Ok) for a in answers.values())
+    s = c.stats
+    assert (s.timeouts, s.spurious_timeouts, s.retransmissions) == (2, 0, 3)
+    assert s.window_cuts == 1, "the real loss restarted the window (at MIN_WINDOW)"
