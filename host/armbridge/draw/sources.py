@@ -204,18 +204,20 @@ def image_file(path: Path | str) -> vp.LineCollection:
 
 
 def shape_outline(name: str) -> np.ndarray:
-    """A closed outline (k, 2) of unit circumradius, centred on the origin, a vertex at the top."""
+    """A closed outline (k, 2) of unit circumradius, centred on the origin; a polygon stands on a
+    flat side, the star on two points."""
     key = name.lower()
     sides = {"triangle": 3, "square": 4, "pentagon": 5, "hexagon": 6}
     if key == "circle":
-        n, radii = CIRCLE_POINTS, np.ones(CIRCLE_POINTS)
+        n, radii, start = CIRCLE_POINTS, np.ones(CIRCLE_POINTS), 0.0
     elif key in sides:
-        n, radii = sides[key], np.ones(sides[key])
+        n = sides[key]
+        n, radii, start = n, np.ones(n), -np.pi / 2 + np.pi / n  # the bottom side horizontal
     elif key == "star":
-        n, radii = 10, np.tile([1.0, STAR_INNER], 5)
+        n, radii, start = 10, np.tile([1.0, STAR_INNER], 5), np.pi / 2
     else:
         raise ArmbridgeError(f'unknown shape "{name}" (known: {", ".join(SHAPES)})')
-    a = np.pi / 2 + 2 * np.pi * np.arange(n) / n
+    a = start + 2 * np.pi * np.arange(n) / n
     pts = np.c_[radii * np.cos(a), radii * np.sin(a)]
     return np.vstack([pts, pts[:1]])
 
