@@ -262,6 +262,17 @@ def test_every_sample_builds_a_valid_plan(name):
         assert info["strokes"] > 1
 
 
+def test_joint_space_moves_keep_the_pen_on_the_stroke():
+    """Between waypoints the arm moves linearly in joint space: at STEP the tip stays within 20 um."""
+    d = build(sample_lines("text-robotics"), ARM, name="r", source="s")
+    q, t = d.plan.q, np.linspace(0, 1, 21)[:, None, None]
+    tip = ARM.ee_point(q[:-1][None] * (1 - t) + q[1:][None] * t)
+    a, ab = d.xy[:-1], np.diff(d.xy, axis=0)
+    s = np.clip(np.sum((tip - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), 1e-18), 0, 1)
+    dev = np.linalg.norm(tip - (a + s[..., None] * ab), axis=-1)
+    assert dev.max() < 2e-5
+
+
 def test_plan_pen_flags_round_trip_and_old_plans_load(tmp_path):
     q = np.zeros((3, 3)) + [1.0, -1.0, 0.0]
     plan = make_plan(ARM, q, 0.5, {"name": "p"}, pen=[0, 1, 1])
@@ -296,6 +307,10 @@ def test_cli_end_to_end_writes_plan_and_png(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     assert "pen-up travel:" in r.stdout and "before sorting" in r.stdout
     assert f"wrote {out}: {plan.k} waypoints" in r.stdout
+    r = CliRunner().invoke(build_app(), ["draw", "A\\nB", "--out", str(tmp_path / "ab.json")])
+    assert r.exit_code == 0, r.output
+    ab = load_plan(tmp_path / "ab.json").ee_path()
+    assert np.ptp(ab[:, 1]) > 1.5 * np.ptp(ab[:, 0])  # two lines: B under A, taller than wide
 
 
 def test_cli_list_samples():

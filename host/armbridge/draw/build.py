@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import vpype as vp
+import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.draw import layout, path, region, sources
 from armbridge.plans.format import Plan

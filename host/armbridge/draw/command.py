@@ -41,6 +41,7 @@ def _lines(text, svg, csv, image, shape, sample, font):
                              f"(got {what})")
     kind, value = given[0]
     if kind == "TEXT":
+        value = value.replace("\\n", "\n")  # a shell passes "\n" as two characters
         return sources.text_lines(value, font), f"text {value!r} ({font})", "text"
     if kind == "--svg":
         return sources.svg_file(value), f"svg {value}", Path(value).stem

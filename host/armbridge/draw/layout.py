@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import vpype as vp
+import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.errors import ArmbridgeError
 
@@ -100,7 +100,7 @@ def pen_up_travel(lc: vp.LineCollection) -> float:
 
 def simplify(lc: vp.LineCollection, tolerance: float = SIMPLIFY_TOLERANCE) -> vp.LineCollection:
     """Each stroke simplified within tolerance (Douglas-Peucker, as vpype's linesimplify)."""
-    from shapely.geometry import LineString
+    from shapely.geometry import LineString  # type: ignore[import-untyped]
 
     out = lc.clone()
     for line in lc:

@@ -58,7 +58,7 @@ def reachable(robot: PlanarChain, xy: np.ndarray, phi: float, margin: float = JO
 @lru_cache(maxsize=16)
 def region(robot: PlanarChain) -> Region:
     """The safe disk and its pen orientation (computed once per robot: a grid and a distance transform)."""
-    from scipy import ndimage  # scikit-image's own dependency
+    from scipy import ndimage  # type: ignore[import-untyped]  # scikit-image's own dependency
 
     robot = _check(robot)
     reach = float(np.sum(robot.link_lengths))

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Callable, NamedTuple
 
 import numpy as np
-import vpype as vp
+import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.draw import sources
 from armbridge.errors import ArmbridgeError

@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-import vpype as vp
+import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.errors import ArmbridgeError
 
@@ -109,7 +109,7 @@ def csv_lines(text: str, name: str = "<csv>") -> vp.LineCollection:
     An optional header row names the columns (`x`, `y` and optionally `pen`).
     With a `pen` column, a row with pen 0 is a pen-up move to that point: it
     starts a new stroke; pen 1 draws to the point. `#` starts a comment."""
-    cols = ("x", "y")
+    cols: tuple[str, ...] = ("x", "y")
     strokes: list[list[tuple[float, float]]] = [[]]
     seen_data = False
     for lineno, raw in enumerate(text.splitlines(), start=1):
