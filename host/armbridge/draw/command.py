@@ -104,7 +104,7 @@ def draw_cmd(
         raise ArmbridgeError(f"{exc.filename}: cannot write ({exc.strerror})") from None
     t = d.tidy
     p = d.placement
-    typer.echo(f"{source}: {t.strokes_out} strokes ({t.strokes_in} before merging), "
+    typer.echo(f"{source}: {t.strokes_out} stroke{'s' * (t.strokes_out != 1)} ({t.strokes_in} before merging), "
                f"{d.drawn_length * 1000:.0f} mm drawn, size {p.size * 1000:.1f} mm at "
                f"({p.at[0]:.4f}, {p.at[1]:.4f}) m")
     typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
