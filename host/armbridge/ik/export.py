@@ -60,11 +60,13 @@ def file_entry(path: Path, folder: Path) -> dict[str, Any]:
 # ------------------------------------------------------------------ float ONNX
 
 
-def export_float(model: MasrIKNet, path: Path) -> Path:
-    """Dynamo export, dynamic batch, weights inside the .onnx."""
+def export_float(model: MasrIKNet, path: Path, example: torch.Tensor | None = None) -> Path:
+    """Dynamo export, dynamic batch, weights inside the .onnx; example: an input batch of
+    two rows (default: the MASR IK-NN's; the 3R arm's ANN passes its own)."""
     model = model.eval()
-    example = torch.zeros(2, model.n + 4)
-    example[:, model.n + 3] = 0.1
+    if example is None:
+        example = torch.zeros(2, model.n + 4)
+        example[:, model.n + 3] = 0.1
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.onnx.export(
         model,

@@ -128,6 +128,51 @@ def masr_iknn_cmd(
         json_out.write_text(json.dumps(acc, indent=2) + "\n")
 
 
+@train_app.command("arm3r-ik")
+def arm3r_ik_cmd(
+    samples: int = typer.Option(150_000, "--samples", help="FK samples, q uniform within the limits (paper: 150,000)."),
+    epochs: int = typer.Option(150, "--epochs", help="Epochs (Table 2: 150)."),
+    batch: int = typer.Option(128, "--batch", help="Batch size."),
+    lr: float = typer.Option(1e-3, "--lr", help="Adam learning rate at the start."),
+    lr_final: float = typer.Option(1e-5, "--lr-final", help="Learning rate at the end of the cosine decay."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the data set, split and training."),
+    max_steps: int = typer.Option(0, "--max-steps", help="Stop after this many steps (0: all epochs)."),
+    eval_points: int = typer.Option(20_000, "--eval-points", help="Points for the card's accuracy."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Model folder [default: WORK_DIR/model]."),
+    work_dir: Path = typer.Option(Path("runs/arm3r-ik"), "--work-dir", help="Scratch files, below the current directory."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing model in --out (also a shipped one)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Log every 10 epochs."),
+) -> None:
+    """Train the 3R drawing arm's ANN (Table 2), export float/int8 ONNX + flat int8, write the card."""
+    _require_train_extra()
+    from armbridge.ik.arm3r_ann import CARD_NAME
+    from armbridge.train.arm3r_ik import Arm3rTrainConfig, run
+
+    for opt, v in (("--samples", samples), ("--epochs", epochs), ("--batch", batch), ("--eval-points", eval_points)):
+        if v <= 0:
+            raise ArmbridgeError(f"{opt} must be > 0, got {v}")
+    if not (lr > 0 and lr_final > 0):
+        raise ArmbridgeError("--lr and --lr-final must be > 0")
+    model_dir = out or work_dir / "model"
+    check_output(model_dir / CARD_NAME, force, resume=False)
+    console = Console(stderr=True)
+    argv = sys.argv[sys.argv.index("arm3r-ik") + 1:] if "arm3r-ik" in sys.argv else []
+    cfg = Arm3rTrainConfig(samples=samples, epochs=epochs, batch=batch, lr=lr, lr_final=lr_final, seed=seed,
+                           max_steps=max_steps, eval_points=min(eval_points, samples))
+    card = run(cfg, model_dir, work_dir, command=" ".join(["armbridge", "train", "arm3r-ik", *map(shlex.quote, argv)]),
+               progress=progress, log=lambda s: console.print(s, highlight=False))
+    table = Table(title=f"{card['name']}: tip error (mm) on {card['accuracy']['drawing_disc']['points']} drawing-disc points")
+    for col in ("model", "mean", "max", "converged (%)", "ms/point (batch)"):
+        table.add_column(col, justify="right" if col != "model" else "left")
+    acc = card["accuracy"]
+    for label, m in (("ANN float", acc["drawing_disc"]["ann"]), ("ANN + FABRIK", acc["drawing_disc"]["ann_fabrik"]),
+                     (f"ANN int8 ONNX ({acc['int8_onnx']['scheme']})", acc["int8_onnx"][acc["int8_onnx"]["scheme"]]["ann"]),
+                     ("ANN int8 flat", acc["int8_flat"]["ann"])):
+        table.add_row(label, f"{m['tip']['mean_mm']:.4f}", f"{m['tip']['max_mm']:.4f}",
+                      f"{m['converged_pct']:.1f}" if "converged_pct" in m else "", f"{m['batched_ms_per_point']:.4f}")
+    Console().print(table)
+
+
 @train_app.command("smm-7r")
 @train_app.command("smm-4r")
 @train_app.command("smm-3r")
