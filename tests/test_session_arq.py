@@ -358,7 +358,7 @@ def test_a_spurious_timeout_resends_one_line_not_the_window():
 
 def test_lines_lost_at_the_tail_are_resent_after_a_second_timeout():
     """F-RTO, a real loss: the last 3 of 6 lines never reach the board and no
-    later line reveals it (no ER SEQ): the probe (the first lost line) is
+    later line reveals it (no ER SEQ, no damaged line): the probe (the first lost line) is
     answered, the other two time out again and go back-N."""
     clock = FakeClock()
     peer = Peer(clock)
