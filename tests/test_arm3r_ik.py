@@ -275,5 +275,13 @@ def test_train_command_tiny_run_and_force(tmp_path):
     assert again.returncode == 2
     lines = [s for s in again.stderr.splitlines() if s.strip()]
     assert len(lines) == 1 and "exists" in lines[0] and "--force" in lines[0]
-    bad = _armbridge("train", "arm3r-ik", "--samples", "0", "--out", "o2", cwd=tmp_path)
-    assert bad.returncode == 2 and "--samples must be > 0" in bad.stderr
+    import typer
+    from typer.testing import CliRunner
+
+    from armbridge.train.command import train_app
+
+    app = typer.Typer()
+    app.add_typer(train_app, name="train")
+    bad = CliRunner().invoke(app, ["train", "arm3r-ik", "--samples", "0", "--out", str(tmp_path / "o2")])
+    assert isinstance(bad.exception, ArmbridgeError) and "--samples must be > 0" in str(bad.exception)
+    assert not (tmp_path / "o2").exists()
