@@ -26,25 +26,25 @@ from armbridge.ik import arm3r_pipeline as pipe  # noqa: E402
 from armbridge.ik.analytic3r import ik as closed_form  # noqa: E402
 from armbridge.ik.arm3r_ann import Arm3rANN, fk_samples, sha256, tip_errors  # noqa: E402
 from armbridge.ik.cbf import (  # noqa: E402
-    ARM3R_REGION,
-    ARM3R_THETA,
     CbfConfig,
-    SafeRegion,
     barrier_values,
     filter_velocity,
     lyapunov,
     track,
 )
 from armbridge.ik.fabrik import clip_angle, fabrik  # noqa: E402
+from armbridge.ik.region import SafeRegion, pen_angle, safe_region  # noqa: E402
 from armbridge.robots import get_robot  # noqa: E402
 
 ARM = get_robot("arm3r")
 ROOT = Path(__file__).resolve().parents[1]
 CARD = ROOT / "models" / "onnx" / "arm3r-ik" / "card.json"
 PI = np.pi
+REGION = safe_region(ARM)  # the drawing's disc is the CBF's safe set
+THETA = pen_angle(ARM)
 
 
-def disc_points(count: int, seed: int, region: SafeRegion = ARM3R_REGION, frac: float = 1.0) -> np.ndarray:
+def disc_points(count: int, seed: int, region: SafeRegion = REGION, frac: float = 1.0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     r = frac * region.radius * np.sqrt(rng.random(count))
     a = rng.random(count) * 2 * PI
@@ -53,7 +53,7 @@ def disc_points(count: int, seed: int, region: SafeRegion = ARM3R_REGION, frac: 
 
 def safe_starts(xy: np.ndarray) -> np.ndarray:
     """Configurations with the tip on xy (in the disc) at the pen angle: the closed form."""
-    q, ok = closed_form(ARM, np.concatenate([xy, np.full((len(xy), 1), ARM3R_THETA)], axis=1))
+    q, ok = closed_form(ARM, np.concatenate([xy, np.full((len(xy), 1), THETA)], axis=1))
     assert ok.all()
     return q
 
@@ -129,17 +129,17 @@ def test_cbf_closed_forms_and_exact_match_osqp():
     rng = np.random.default_rng(5)
     q0 = safe_starts(disc_points(300, 6))
     # states pushed onto the boundary and the joint limits by far references
-    q = track(ARM, ARM3R_REGION, q0, rng.uniform(-4, 4, q0.shape), 40).q
+    q = track(ARM, REGION, q0, rng.uniform(-4, 4, q0.shape), 40).q
     u_nom = 5.0 * (rng.uniform(-4, 4, q.shape) - q)
     u_nom[:50] *= 1e-3                                  # small: the box and circle never bind
-    ue, se = filter_velocity(ARM, ARM3R_REGION, q, u_nom, solver="exact")
-    uo, so = filter_velocity(ARM, ARM3R_REGION, q, u_nom, solver="osqp")
+    ue, se = filter_velocity(ARM, REGION, q, u_nom, solver="exact")
+    uo, so = filter_velocity(ARM, REGION, q, u_nom, solver="osqp")
     assert se["box_or_free"] > 0 and se["circle"] > 0 and se["both_exact"] > 0 and se["osqp"] == 0
     assert so["osqp"] == se["both_exact"]
     np.testing.assert_allclose(ue, uo, atol=1e-7)
     # the constraints (9) hold for the answer
     cfg = CbfConfig()
-    h = barrier_values(ARM, ARM3R_REGION, q)
+    h = barrier_values(ARM, REGION, q)
     assert np.all(ue >= -cfg.gamma * h[:, 1:4] - 1e-12) and np.all(ue <= cfg.gamma * h[:, 4:] + 1e-12)
     assert np.all(np.abs(ue) <= ARM.v_max + 1e-12)
 
@@ -147,11 +147,12 @@ def test_cbf_closed_forms_and_exact_match_osqp():
 def test_cbf_single_circle_constraint_hand_case():
     """Tip on the boundary, pushed straight out: the circle's closed form removes exactly the
     outward part (h = 0, so a u >= 0), and with gamma h > 0 inside leaves u alone."""
-    q = safe_starts(np.array([[0.0, 0.22 + 0.08 - 1e-12], [0.0, 0.22]]))
+    cx, cy = REGION.center
+    q = safe_starts(np.array([[cx, cy + REGION.radius - 1e-12], [cx, cy]]))
     tip, jac = ARM.ee_point(q), ARM.jacobian(q)[:, :2, :]
     out = np.linalg.pinv(jac[0]) @ np.array([0.0, 0.01])     # 1 cm/s straight up (out of the disc)
-    u, stats = filter_velocity(ARM, ARM3R_REGION, q, np.stack([out, out]))
-    a = -2 * (tip[0] - np.array(ARM3R_REGION.center)) @ jac[0]
+    u, stats = filter_velocity(ARM, REGION, q, np.stack([out, out]))
+    a = -2 * (tip[0] - np.array(REGION.center)) @ jac[0]
     assert stats["circle"] == 1 and a @ u[0] >= -1e-9 and abs(a @ u[0]) < 1e-9
     np.testing.assert_allclose(u[1], out)                     # at the centre nothing binds
 
@@ -166,7 +167,7 @@ def test_cbf_never_leaves_the_safe_set(seed, gamma, gain, spread, frac):
     q0 = safe_starts(disc_points(64, seed, frac=frac))
     q_ref = rng.uniform(-spread, spread, q0.shape) + q0
     cfg = CbfConfig(gamma=gamma, gain=gain, dt=min(0.01, 1 / gamma, 1.9 / gain))
-    res = track(ARM, ARM3R_REGION, q0, q_ref, 40, cfg)
+    res = track(ARM, REGION, q0, q_ref, 40, cfg)
     assert res.h_min.min() >= 0 and res.limit_margin_min.min() >= 0
     assert np.all(np.diff(res.V, axis=0) <= 1e-12 * res.V[:-1] + 1e-15)
 
@@ -174,7 +175,7 @@ def test_cbf_never_leaves_the_safe_set(seed, gamma, gain, spread, frac):
 def test_cbf_tracks_a_safe_reference_and_lyapunov_decreases():
     q0 = safe_starts(disc_points(200, 8))
     q1 = safe_starts(disc_points(200, 9))
-    res = track(ARM, ARM3R_REGION, q0, q1, 300)
+    res = track(ARM, REGION, q0, q1, 300)
     assert np.all(np.diff(res.V, axis=0) <= 0)
     assert res.V[-1].max() < 1e-10 * max(res.V[0].max(), 1e-9) + 1e-12
     np.testing.assert_allclose(res.q, q1, atol=1e-5)
@@ -183,7 +184,7 @@ def test_cbf_tracks_a_safe_reference_and_lyapunov_decreases():
 
 def test_cbf_refuses_an_unsafe_start_and_bad_settings():
     with pytest.raises(ArmbridgeError, match="outside the safe set"):
-        track(ARM, ARM3R_REGION, [[PI / 2, 0.0, 0.0]], [[PI / 2, 0.0, 0.0]], 5)  # tip at (0, 0.38)
+        track(ARM, REGION, [[PI / 2, 0.0, 0.0]], [[PI / 2, 0.0, 0.0]], 5)  # tip at (0, 0.38): outside
     with pytest.raises(ArmbridgeError, match="gamma\\*dt <= 1"):
         CbfConfig(gamma=200.0)
     with pytest.raises(ArmbridgeError, match="radius > 0"):
@@ -204,7 +205,7 @@ def test_shipped_model_meets_its_card(ann):
         assert sha256(CARD.parent / entry["path"]) == entry["sha256"]
     assert card["robot"] == ARM.to_dict()
     acc = card["accuracy"]
-    fresh = pipe.drawing_samples(ARM, ARM3R_REGION, ARM3R_THETA, 4000, seed=424242)  # not the card's seed
+    fresh = pipe.drawing_samples(ARM, 4000, seed=424242)  # not the card's seed
     m = pipe.measure(ARM, ann.predict, fresh)
     disc = acc["drawing_disc"]
     assert m["ann"]["tip"]["mean_mm"] <= disc["ann"]["tip"]["mean_mm"] * 1.2 + 0.2
@@ -226,12 +227,12 @@ def test_pipeline_with_cbf_has_no_violations_on_random_targets(ann):
     reference, the CBF filter drives the arm there from the disc's centre; no step leaves C."""
     rng = np.random.default_rng(77)
     n = 3000
-    xy = np.asarray(ARM3R_REGION.center) + rng.uniform(-0.16, 0.16, (n, 2))
-    res = pipe.solve(ARM, ann.predict, xy, ARM3R_THETA)
-    q0 = np.tile(safe_starts(np.array([ARM3R_REGION.center])), (n, 1))
-    out = track(ARM, ARM3R_REGION, q0, res.q, 150)
+    xy = np.asarray(REGION.center) + rng.uniform(-2 * REGION.radius, 2 * REGION.radius, (n, 2))
+    res = pipe.solve(ARM, ann.predict, xy, THETA)
+    q0 = np.tile(safe_starts(np.array([REGION.center])), (n, 1))
+    out = track(ARM, REGION, q0, res.q, 150)
     assert out.h_min.min() >= 0 and out.limit_margin_min.min() >= 0
-    inside = ARM3R_REGION.contains(xy) & res.ok
+    inside = REGION.contains(xy) & res.ok
     assert inside.sum() > n // 8  # the disc is ~20 % of the square
     # targets inside the disc are reached (to the tracking's residual after 1.5 s at K = 5/s)
     assert tip_errors(ARM, out.q[inside], xy[inside]).max() < 2e-3

@@ -11,10 +11,11 @@ import vpype as vp
 from typer.testing import CliRunner
 
 from armbridge.cli import build_app
-from armbridge.draw import layout, path, region, sources
+from armbridge.draw import layout, path, sources
 from armbridge.draw.build import build
 from armbridge.draw.samples import SAMPLES, sample_lines
 from armbridge.errors import ArmbridgeError
+from armbridge.ik import region
 from armbridge.ik.analytic3r import ik
 from armbridge.plans.format import load_plan, loads_plan, make_plan, plan_to_dict, save_plan
 from armbridge.robots import get_robot
@@ -144,8 +145,9 @@ def test_shapes(name):
 
 
 def test_safe_region_is_reachable_with_margin():
-    center, radius = region.safe_region(ARM)
-    phi = region.drawing_phi(ARM)
+    reg = region.safe_region(ARM)
+    center, radius = np.asarray(reg.center), reg.radius
+    phi = region.pen_angle(ARM)
     assert 0.08 < radius < ARM.reach / 2
     rng = np.random.default_rng(0)
     a = rng.uniform(0, 2 * np.pi, 5000)

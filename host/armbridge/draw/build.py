@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import vpype as vp  # type: ignore[import-untyped]
 
-from armbridge.draw import layout, path, region, sources
+from armbridge.draw import layout, path, sources
+from armbridge.ik.region import SafeRegion, pen_angle, safe_region
 from armbridge.plans.format import Plan
 from armbridge.robots.planar import PlanarChain
 
@@ -25,7 +26,8 @@ class Drawing:
     plan: Plan
     placement: layout.Placement
     tidy: layout.Tidy
-    region: region.Region
+    region: SafeRegion  # the disk it was placed in (ik.region)
+    phi: float  # the pen orientation it is drawn at, rad
 
     @property
     def drawn_length(self) -> float:
@@ -36,7 +38,7 @@ class Drawing:
 def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: str,
           size: float | None = None, at=None, speed: float = 0.02, step: float = path.STEP) -> Drawing:
     """Place lines in the robot's safe region, tidy them (vpype) and plan the joints (closed-form IK)."""
-    reg = region.region(robot)
+    reg, phi = safe_region(robot), pen_angle(robot)
     placed, where = layout.place(lines, reg.center, reg.radius, size=size, at=at)
     tidied, report = layout.tidy(placed)
     strokes = sources.to_strokes(tidied)
@@ -45,8 +47,8 @@ def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: st
         "name": name,
         "drawing": {
             "source": source,
-            "safe_region": {"center": [float(c) for c in reg.center], "radius": reg.radius},
-            "phi": reg.phi,
+            "safe_region": {"center": list(reg.center), "radius": reg.radius},
+            "phi": phi,
             "at": list(where.at),
             "size": where.size,
             "speed": speed,
@@ -57,5 +59,5 @@ def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: st
             "pen_up_travel_after_sort": report.travel_after,
         },
     }
-    plan = path.joint_plan(robot, xy, pen, reg.phi, speed, provenance)
-    return Drawing(strokes, xy, pen, plan, where, report, reg)
+    plan = path.joint_plan(robot, xy, pen, phi, speed, provenance)
+    return Drawing(strokes, xy, pen, plan, where, report, reg, phi)

@@ -1,6 +1,6 @@
 """Placement and line clean-up, on vpype's LineCollection.
 
-`place` scales and moves a drawing into the safe disk (`region.safe_region`)
+`place` scales and moves a drawing into the safe disk (`ik.region.safe_region`)
 at the size and position the user asked for, or as large as fits; a drawing
 that cannot fit is an error naming by how much it overflows. `tidy` then runs
 vpype's own steps on the placed lines: merging strokes whose ends meet,

@@ -17,7 +17,7 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -65,6 +65,28 @@ def sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def flat_int8_predictor(chain: PlanarChain, flat_path: Path) -> Callable[[np.ndarray], np.ndarray]:
+    """poses (B, 3) -> q (B, 3) by the flat int8 file (what the board runs): the Table 2
+    MinMax scalers from the limits (`scaler_bounds`), the int8 MLP, clipped into the limits."""
+    from armbridge.ik.flat_int8 import flat_int8_forward, read_flat_int8
+
+    layers = read_flat_int8(flat_path)
+    b = {k: np.asarray(v) for k, v in scaler_bounds(chain).items()}
+
+    def predict(p: np.ndarray) -> np.ndarray:
+        z = flat_int8_forward(layers, (np.asarray(p, dtype=float) - b["in_min"]) / (b["in_max"] - b["in_min"]))
+        return np.clip(b["out_min"] + z * (b["out_max"] - b["out_min"]), chain.q_min, chain.q_max)
+
+    return predict
+
+
+def shipped_card() -> Path:
+    """The card of the shipped model (models/onnx/arm3r-ik/card.json)."""
+    from armbridge import resources
+
+    return resources.models_dir() / MODEL_DIR / CARD_NAME
+
+
 @dataclass
 class Arm3rANN:
     """The network of a model card: `predict(poses) -> q`, within the joint limits."""
@@ -79,11 +101,7 @@ class Arm3rANN:
     def load(cls, card_path: str | Path | None = None, int8: bool = False, verify: bool = True,
              threads: int = 1) -> "Arm3rANN":
         """The card (default: the shipped one) and its float or int8 ONNX model, sha256 checked."""
-        if card_path is None:
-            from armbridge import resources
-
-            card_path = resources.models_dir() / MODEL_DIR / CARD_NAME
-        card_path = Path(card_path)
+        card_path = Path(shipped_card() if card_path is None else card_path)
         try:
             card = json.loads(card_path.read_text())
             entry = card["files"]["onnx_int8" if int8 else "onnx"]

@@ -5,7 +5,7 @@ and the measurements its model card and the benchmarks report.
 FABRIK on position (section 3.6), back in joint angles within the limits, with
 per-target reachability. The CBF filter (`ik.cbf`) then keeps the motion there
 safe. `drawing_samples` draws targets the way a drawing uses the arm: points
-in the safe disc at the pen angle, within a band of orientations around it.
+in the safe disc (`ik.region`) at the pen angle, within a band of orientations around it.
 """
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from typing import Any, Callable
 import numpy as np
 
 from armbridge.ik.arm3r_ann import poses_of, tip_errors
-from armbridge.ik.cbf import SafeRegion
 from armbridge.ik.fabrik import FabrikResult, fabrik
+from armbridge.ik.region import pen_angle, safe_region
 from armbridge.robots.planar import PlanarChain
 
 Predict = Callable[[np.ndarray], np.ndarray]
@@ -31,9 +31,10 @@ def solve(chain: PlanarChain, predict: Predict, xy: Any, theta: Any, tol: float 
     return fabrik(chain, xy, q0, tol=tol, max_iter=max_iter)
 
 
-def drawing_samples(chain: PlanarChain, region: SafeRegion, theta: float, count: int, seed: int,
-                    spread: float = 0.25) -> np.ndarray:
-    """count poses (x, y, theta): points uniform in the disc, theta uniform in theta +- spread."""
+def drawing_samples(chain: PlanarChain, count: int, seed: int, spread: float = 0.25) -> np.ndarray:
+    """count poses (x, y, theta): points uniform in the safe disc (`ik.region`), theta uniform in
+    the pen angle +- spread."""
+    region, theta = safe_region(chain), pen_angle(chain)
     rng = np.random.default_rng(seed)
     r = region.radius * np.sqrt(rng.random(count))
     a = rng.random(count) * 2 * np.pi

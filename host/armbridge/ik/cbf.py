@@ -31,6 +31,10 @@ them exactly; the circle is not, so a step that would leave the disc (or a
 rounding that would leave a limit) is halved until it does not, down to
 staying put. The safe set is therefore invariant step by step, and with
 K dt < 2 each step lowers V while the arm moves. Pure numpy.
+
+The circle is the drawing's safe region, `ik.region.safe_region(robot)` (the
+disk the drawing is placed in, reached at the pen angle `ik.region.pen_angle`
+with every joint 5 degrees inside its limits): one definition for both.
 """
 from __future__ import annotations
 
@@ -40,33 +44,8 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.ik.region import SafeRegion
 from armbridge.robots.planar import PlanarChain
-
-
-@dataclass(frozen=True)
-class SafeRegion:
-    """The circular safe region of the tip: centre (m), radius (m)."""
-
-    center: tuple[float, float]
-    radius: float
-
-    def __post_init__(self) -> None:
-        if not self.radius > 0:
-            raise ArmbridgeError(f"the safe region needs a radius > 0 m, got {self.radius}")
-
-    def h(self, xy: Any) -> np.ndarray:
-        """h_0 = R^2 - |xy - c|^2: >= 0 inside (eq. 6), shape (...)."""
-        d = np.asarray(xy, dtype=float) - np.asarray(self.center)
-        return self.radius**2 - np.sum(d * d, axis=-1)
-
-    def contains(self, xy: Any) -> np.ndarray:
-        return self.h(xy) >= 0
-
-
-#: arm3r's drawing disc: every point of it is reached inside the joint limits at the pen angle
-#: ARM3R_THETA (closed-form IK over the disc: feasible for theta in [0.17, 0.87] rad).
-ARM3R_REGION = SafeRegion(center=(0.0, 0.22), radius=0.08)
-ARM3R_THETA = 0.52
 
 
 @dataclass(frozen=True)

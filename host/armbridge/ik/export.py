@@ -42,10 +42,9 @@ import numpy as np
 import torch
 
 from armbridge.errors import ArmbridgeError
+from armbridge.ik.flat_int8 import FLAT_MAGIC, FLAT_VERSION, flat_int8_forward, read_flat_int8  # noqa: F401
 from armbridge.ik.masr_nn import MasrIKNet
 
-FLAT_MAGIC = b"AWI8"
-FLAT_VERSION = 1
 ACT_CODES = {"none": 0, "leaky_relu": 1, "relu": 2, "tanh": 3, "silu": 4}
 
 
@@ -167,47 +166,6 @@ def write_flat_int8(model: MasrIKNet, path: Path) -> Path:
         buf += b"\x00" * (-len(buf) % 4)
     path.write_bytes(bytes(buf))
     return path
-
-
-def read_flat_int8(path: Path) -> list[dict[str, Any]]:
-    """Parse a flat int8 file: per layer rows, cols, activation, scale, bias, weight (int8)."""
-    data = Path(path).read_bytes()
-    if data[:4] != FLAT_MAGIC:
-        raise ArmbridgeError(f"{path}: not a flat int8 weight file (magic {data[:4]!r})")
-    version, n_layers, _n_in, _n_out = struct.unpack_from("<HHHH", data, 4)
-    if version != FLAT_VERSION:
-        raise ArmbridgeError(f"{path}: flat int8 version {version}, this reader knows {FLAT_VERSION}")
-    off = 12
-    layers = []
-    for _ in range(n_layers):
-        rows, cols, act = struct.unpack_from("<HHB3x", data, off)
-        off += 8
-        scale = np.frombuffer(data, "<f4", rows, off)
-        off += 4 * rows
-        bias = np.frombuffer(data, "<f4", rows, off)
-        off += 4 * rows
-        w = np.frombuffer(data, np.int8, rows * cols, off).reshape(rows, cols)
-        off += rows * cols
-        off += -off % 4
-        layers.append({"rows": rows, "cols": cols, "activation": act, "scale": scale, "bias": bias, "weight": w})
-    return layers
-
-
-def flat_int8_forward(layers: list[dict[str, Any]], features: np.ndarray) -> np.ndarray:
-    """Reference forward pass of the flat int8 MLP on features (B, n_in) -> z (B, n_out)."""
-    h = np.asarray(features, dtype=np.float32)
-    for lay in layers:
-        h = (h @ lay["weight"].T.astype(np.float32)) * lay["scale"] + lay["bias"]
-        a = lay["activation"]
-        if a == 1:
-            h = np.where(h > 0, h, 0.01 * h)
-        elif a == 2:
-            h = np.maximum(h, 0)
-        elif a == 3:
-            h = np.tanh(h)
-        elif a == 4:
-            h = h / (1 + np.exp(-h))
-    return h
 
 
 def flat_int8_solve(layers: list[dict[str, Any]], card: dict[str, Any], x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:

@@ -26,9 +26,9 @@ import torch
 from torch import nn
 
 from armbridge.ik import export as ex
-from armbridge.ik.arm3r_ann import CARD_NAME, Arm3rANN, fk_samples, scaler_bounds
+from armbridge.ik.arm3r_ann import CARD_NAME, Arm3rANN, fk_samples, flat_int8_predictor, scaler_bounds
 from armbridge.ik.arm3r_pipeline import drawing_samples, measure
-from armbridge.ik.cbf import ARM3R_REGION, ARM3R_THETA
+from armbridge.ik.region import pen_angle, safe_region
 from armbridge.ik.masr_nn import restore_torch, set_determinism
 from armbridge.robots import get_robot
 
@@ -68,6 +68,29 @@ class Arm3rNet(nn.Module):
 
     def linear_layers(self) -> list[nn.Linear]:
         return [m for m in self.mlp if isinstance(m, nn.Linear)]
+
+
+def disc_targets(chain: Any) -> str:
+    """The card's words for the drawing-disc targets (`ik.region`: the drawing's and the CBF's disc)."""
+    reg = safe_region(chain)
+    return (f"uniform in the safe region (ik.region) centre [{reg.center[0]:.4f}, {reg.center[1]:.4f}] m radius "
+            f"{reg.radius:.4f} m, theta uniform in the pen angle {pen_angle(chain):.4f} +- 0.25 rad")
+
+
+def disc_accuracy(chain: Any, f_float: Path, schemes: dict[str, Path], f_flat: Path, count: int,
+                  seed: int) -> tuple[dict[str, Any], str]:
+    """The card's drawing-disc sections (float, both int8 ONNX schemes, the flat int8 file) on
+    `count` targets of `drawing_samples`, and the better-measuring int8 scheme."""
+    disc = drawing_samples(chain, count, seed)
+    floatp = Arm3rANN(chain, {}, f_float).predict
+    acc: dict[str, Any] = {"drawing_disc": {**measure(chain, floatp, disc), "targets": disc_targets(chain)}}
+    measured = {k: measure(chain, Arm3rANN(chain, {}, v).predict, disc) for k, v in schemes.items()}
+    better = min(measured, key=lambda k: measured[k]["ann"]["tip"]["mean_mm"])
+    flat_predict = flat_int8_predictor(chain, f_flat)
+    acc["int8_onnx"] = {"scheme": better, **measured}
+    acc["int8_flat"] = measure(chain, flat_predict, disc)
+    acc["int8_flat"]["vs_float_max_abs_rad"] = float(np.abs(flat_predict(disc) - floatp(disc)).max())
+    return acc, better
 
 
 def split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -142,33 +165,15 @@ def run(cfg: Arm3rTrainConfig, out: Path, work_dir: Path, command: str = "", pro
         ref = model(torch.as_tensor(poses[te[:2000]], dtype=torch.float32)).numpy()
     onnx_err = float(np.abs(ex.onnx_run(f_float, poses[te[:2000]]) - ref).max())
 
-    def predictor(path: Path) -> Callable[[np.ndarray], np.ndarray]:
-        return Arm3rANN(chain, {}, path).predict
-
     te = te[: cfg.eval_points]
-    disc = drawing_samples(chain, ARM3R_REGION, ARM3R_THETA, cfg.eval_points, cfg.seed + 1)
     acc: dict[str, Any] = {
-        "test_split": measure(chain, predictor(f_float), poses[te], q[te]),
-        "drawing_disc": measure(chain, predictor(f_float), disc),
+        "test_split": measure(chain, Arm3rANN(chain, {}, f_float).predict, poses[te], q[te]),
         "onnx_vs_torch_max_abs_rad": onnx_err,
     }
-    acc["drawing_disc"]["targets"] = (f"uniform in the disc centre {list(ARM3R_REGION.center)} m radius "
-                                      f"{ARM3R_REGION.radius} m, theta uniform in {ARM3R_THETA} +- 0.25 rad")
-    measured = {k: measure(chain, predictor(v), disc) for k, v in schemes.items()}
-    better = min(measured, key=lambda k: measured[k]["ann"]["tip"]["mean_mm"])
+    disc, better = disc_accuracy(chain, f_float, schemes, f_flat, cfg.eval_points, cfg.seed + 1)
+    acc.update(disc)
     f_int8 = out / "int8.onnx"
     f_int8.write_bytes(schemes[better].read_bytes())
-    layers = ex.read_flat_int8(f_flat)
-    lo, hi = np.asarray(bounds["in_min"]), np.asarray(bounds["in_max"])
-    omin, omax = np.asarray(bounds["out_min"]), np.asarray(bounds["out_max"])
-
-    def flat_predict(p: np.ndarray) -> np.ndarray:
-        z = ex.flat_int8_forward(layers, (p - lo) / (hi - lo))
-        return np.clip(omin + z * (omax - omin), chain.q_min, chain.q_max)
-
-    acc["int8_onnx"] = {"scheme": better, **measured}
-    acc["int8_flat"] = measure(chain, flat_predict, disc)
-    acc["int8_flat"]["vs_float_max_abs_rad"] = float(np.abs(flat_predict(disc) - predictor(f_float)(disc)).max())
     say("disc: ANN mean tip error {:.2f} mm, + FABRIK {:.4f} mm ({:.1f} % converged)".format(
         acc["drawing_disc"]["ann"]["tip"]["mean_mm"], acc["drawing_disc"]["ann_fabrik"]["tip"]["mean_mm"],
         acc["drawing_disc"]["ann_fabrik"]["converged_pct"]))
