@@ -237,7 +237,7 @@ class AdversarialLink(RuleBasedStateMachine):
 
 
 AdversarialLink.TestCase.settings = settings(
-    max_examples=35, stateful_step_count=40, deadline=None,
+    max_examples=50, stateful_step_count=40, deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
 )
 test_exactly_once_against_an_adversarial_link = AdversarialLink.TestCase
