@@ -278,3 +278,39 @@ def firmware_cmd(
     write_json(result, json_out)
     fc.print_result(result, console)
     console.print(f"wrote {json_out}")
+
+
+@bench_app.command("arm3r")
+def arm3r_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 of the 12 samples, 2,000 random CBF "
+                               "targets, 10 points timed singly and solved by RTB LM."),
+    seed: int = typer.Option(10, "--seed", help="Seed of the random CBF targets."),
+    json_out: Path = typer.Option(Path("runs/bench-arm3r.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Tables 5-8 of the 3R drawing-arm paper on its twelve samples: MSE, RMSE, MAE in
+    x, y, q1-q3, theta for ANN, ANN + FABRIK, ANN + FABRIK + CBF, the closed form and
+    RTB LM; time per point; CBF violations over random targets; int8 against float."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.bench import arm3r
+
+    console = Console()
+    result = arm3r.run(arm3r.QUICK if quick else arm3r.FULL, seed=seed,
+                       progress=lambda text: console.print(f"[dim]bench arm3r: {text}[/]"))
+    write_json(result, json_out)
+    table = Table(title="armbridge bench arm3r: overall (Tables 5, 8); x, y mm, angles deg: MSE / RMSE / MAE")
+    for col in ("row", *arm3r.COLS, "mean tip (mm)"):
+        table.add_column(col, justify="left" if col == "row" else "right")
+    for row, s in result["overall"].items():
+        if "missing" in s:
+            table.add_row(row, s["missing"], *[""] * 6)
+            continue
+        table.add_row(row, *[f"{s[c]['mse']:.3g} / {s[c]['rmse']:.3g} / {s[c]['mae']:.3g}" for c in arm3r.COLS],
+                      f"{s['tip_mm']['mean']:.2g}")
+    console.print(table)
+    rc = result["random_cbf"]
+    console.print(f"CBF on {rc['targets']:,} random targets ({rc['outside_region']:,} outside the region): "
+                  f"{rc['region_violations']} region and {rc['limit_violations']} joint-limit violations")
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")

@@ -1,0 +1,250 @@
+"""`armbridge bench arm3r`: Tables 5-8 of the 3R drawing-arm paper (Murai, Vairagi, Semwal).
+
+Targets: the pen waypoints of the paper's twelve samples (Table 3, `draw.samples`),
+each placed in the safe region (`ik.region`) at 90 % of the largest size that fits
+(so the tips start strictly inside the CBF's safe set), at the pen angle phi. The
+reference joint angles of a target are the closed-form IK at (x, y, phi) (arm3r's
+limits leave one elbow branch, so the reference is unique).
+
+Rows, all on the same targets in one run:
+
+* ANN: the shipped float net (Table 2) alone;
+* ANN + FABRIK: `ik.arm3r_pipeline.solve` (tol 1 um, 50 passes);
+* ANN + FABRIK + CBF: each target's ANN + FABRIK answer is the CBF-QP's reference
+  (`ik.cbf.track`, held, `cbf_steps` steps at gain 20/s, dt 10 ms) from the previous
+  target's answer, so every step of the drawing passes the safety filter;
+* closed form: `ik.analytic3r.ik` with the orientation (the free parameter of a
+  position-only task) set to the pen angle: exact, the floor and the speed baseline;
+* RTB LM: roboticstoolbox's `ik_LM` on arm3r as a DHRobot of three revolute links
+  (mask x, y, yaw; from the middle of the limits; one point a call), on the first
+  `rtb_points` targets of each sample, when roboticstoolbox imports (the masr extra).
+
+Errors per row: MSE, RMSE, MAE of x and y (mm, FK of the answer against the target),
+q1-q3 (deg, against the reference) and theta = q1 + q2 + q3 (deg, against phi), per
+sample (Tables 6-7) and pooled (Tables 5 and 8). Also: time per point single (one
+target a call, median) and batched (a whole sample a call, best of 3); safe-region
+and joint-limit violations of the CBF over `random_targets` random targets in a
+square twice the disk's diameter around it (four in five outside); and the int8 nets
+(the board's flat file and the int8 ONNX) against the float net.
+"""
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from armbridge.ik import arm3r_pipeline as pipe
+from armbridge.ik.analytic3r import ik as closed_form
+from armbridge.ik.arm3r_ann import Arm3rANN, flat_int8_predictor, poses_of, shipped_card
+from armbridge.ik.cbf import CbfConfig, barrier_values, track
+from armbridge.ik.region import pen_angle, safe_region
+from armbridge.robots import get_robot
+from armbridge.robots.planar import PlanarChain
+
+CBF = CbfConfig(gamma=10.0, gain=20.0, dt=0.01)  # K dt = 0.2: 100 steps leave 2e-10 of a move
+PLACE_FRACTION = 0.9
+PAPER = {"overall_theta": {"mse": 1.66, "rmse": 1.25, "mae": 0.96},
+         "time": "ANN under 1 ms, FABRIK 2-3 ms more per prediction (section 5.3)"}
+
+
+@dataclass(frozen=True)
+class Arm3rBenchSize:
+    samples: tuple[str, ...]  # names in draw.samples.SAMPLES; () = all twelve
+    random_targets: int
+    random_steps: int  # CBF steps per random target
+    cbf_steps: int  # CBF steps per drawing target
+    single_points: int  # targets per sample timed one a call
+    rtb_points: int  # targets per sample for RTB LM
+
+
+FULL = Arm3rBenchSize((), 100_000, 150, 100, 100, 100)
+QUICK = Arm3rBenchSize(("csv-circle", "image-square", "text-robotics"), 2_000, 100, 100, 10, 10)
+ROWS = ("ann", "ann_fabrik", "ann_fabrik_cbf", "closed_form", "rtb_lm")
+COLS = ("x", "y", "q1", "q2", "q3", "theta")
+
+
+def errors(chain: PlanarChain, q: np.ndarray, poses: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
+    """Per target (N, 6): x, y error (mm), q1-q3 error (deg), theta error (deg)."""
+    got = poses_of(chain, q)
+    return np.concatenate([(got[:, :2] - poses[:, :2]) * 1e3, np.rad2deg(q - q_ref),
+                           np.rad2deg(got[:, 2:] - poses[:, 2:])], axis=1)
+
+
+def stats(e: np.ndarray) -> dict[str, dict[str, float]]:
+    """MSE, RMSE, MAE per column of errors (N, 6), and the mean tip distance (mm)."""
+    out: dict[str, Any] = {}
+    for i, c in enumerate(COLS):
+        mse = float(np.mean(e[:, i] ** 2))
+        out[c] = {"mse": mse, "rmse": float(np.sqrt(mse)), "mae": float(np.mean(np.abs(e[:, i])))}
+    tip = np.hypot(e[:, 0], e[:, 1])
+    out["tip_mm"] = {"mean": float(tip.mean()), "max": float(tip.max())}
+    return out
+
+
+def _best_ms(fn: Callable[[], Any], n: int, repeats: int = 3) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e3
+
+
+def _single_ms(fn: Callable[[np.ndarray], Any], poses: np.ndarray) -> float:
+    ts = []
+    for p in poses:
+        t0 = time.perf_counter()
+        fn(p[None])
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts) * 1e3)
+
+
+def _rtb(chain: PlanarChain) -> Callable[[np.ndarray], np.ndarray] | str:
+    """poses (B, 3) -> q by roboticstoolbox's LM, one call a point; or why it is missing."""
+    try:
+        import roboticstoolbox as rtb  # type: ignore[import-untyped]
+        from spatialmath import SE3  # type: ignore[import-untyped]
+    except ImportError as exc:
+        return f"roboticstoolbox is not installed ({exc.name}; the masr extra installs it)"
+    robot = rtb.DHRobot([rtb.RevoluteDH(a=float(a), qlim=[float(lo), float(hi)])
+                         for a, lo, hi in zip(chain.link_lengths, chain.q_min, chain.q_max)], name=chain.name)
+    q0 = (chain.q_min + chain.q_max) / 2
+
+    def solve(poses: np.ndarray) -> np.ndarray:
+        out = np.empty((len(poses), chain.n))
+        for k, (x, y, phi) in enumerate(poses):
+            sol = robot.ik_LM(SE3(x, y, 0.0) * SE3.Rz(phi), q0=q0, mask=np.array([1, 1, 0, 0, 0, 1]), tol=1e-14,
+                              ilimit=100, slimit=20, joint_limits=True)
+            out[k] = sol[0]
+        return out
+
+    return solve
+
+
+def _cbf_path(chain: PlanarChain, region: Any, q_ref: np.ndarray, q_first: np.ndarray, steps: int) -> Any:
+    """Each target i's reference held for `steps` filter steps from target i-1's reference
+    (the first from q_first), batched over the targets."""
+    q0 = np.concatenate([q_first[None], q_ref[:-1]])
+    return track(chain, region, q0, q_ref, steps, CBF)
+
+
+def _sample(chain, name, ann, rtb, size, region, phi) -> dict[str, Any]:
+    from armbridge.draw.build import build
+    from armbridge.draw.samples import SAMPLES, sample_lines
+
+    s = SAMPLES[name]
+    fit = build(sample_lines(name), chain, name=name, source=s.source)
+    d = build(sample_lines(name), chain, name=name, source=s.source, size=PLACE_FRACTION * fit.placement.size)
+    poses = np.c_[d.xy, np.full(len(d.xy), phi)]
+    q_ref, ok = closed_form(chain, poses)
+    assert ok.all(), f"{name}: a target outside the safe region's IK"  # placement keeps them inside
+    res = pipe.solve(chain, ann.predict, poses[:, :2], phi)
+    q_ann = ann.predict(poses)
+    cbf = _cbf_path(chain, region, res.q, q_ref[0], size.cbf_steps)
+    answers: dict[str, Any] = {"ann": q_ann, "ann_fabrik": res.q, "ann_fabrik_cbf": cbf.q,
+                               "closed_form": q_ref}
+    k = min(size.rtb_points, len(poses))
+    if callable(rtb):
+        answers["rtb_lm"] = rtb(poses[:k])
+    rows: dict[str, Any] = {r: stats(errors(chain, q, poses[: len(q)], q_ref[: len(q)])) for r, q in answers.items()}
+    rows["rtb_lm"] = rows.get("rtb_lm", {"missing": rtb if isinstance(rtb, str) else ""})
+    single = poses[: size.single_points]
+    n = len(poses)
+    timing = {
+        "ann": {"single_ms": _single_ms(ann.predict, single), "batched_ms": _best_ms(lambda: ann.predict(poses), n)},
+        "ann_fabrik": {"single_ms": _single_ms(lambda p: pipe.solve(chain, ann.predict, p[:, :2], phi), single),
+                       "batched_ms": _best_ms(lambda: pipe.solve(chain, ann.predict, poses[:, :2], phi), n)},
+        "cbf_filter": {"batched_ms_per_point_step": _best_ms(
+            lambda: _cbf_path(chain, region, res.q, q_ref[0], 10), n * 10, 1)},
+        "closed_form": {"single_ms": _single_ms(lambda p: closed_form(chain, p), single),
+                        "batched_ms": _best_ms(lambda: closed_form(chain, poses), n)},
+    }
+    if callable(rtb):
+        timing["rtb_lm"] = {"single_ms": _single_ms(rtb, poses[: min(k, size.single_points)])}
+    return {"name": name, "number": s.number, "source": s.source, "plot": s.plot, "points": n,
+            "rtb_points": k if callable(rtb) else 0, "size_m": d.placement.size,
+            "fabrik_converged_pct": float(res.ok.mean() * 100),
+            "cbf": {"h_min": float(cbf.h_min.min()), "limit_margin_min_rad": float(cbf.limit_margin_min.min())},
+            "rows": rows, "timing": timing, "_errors": {r: errors(chain, q, poses[: len(q)], q_ref[: len(q)])
+                                                       for r, q in answers.items()},
+            "_poses": poses}
+
+
+def _random_cbf(chain, ann, region, phi, count: int, steps: int, seed: int) -> dict[str, Any]:
+    """ANN + FABRIK + CBF on random targets around the disk: every step in the safe set?"""
+    rng = np.random.default_rng(seed)
+    xy = np.asarray(region.center) + rng.uniform(-2 * region.radius, 2 * region.radius, (count, 2))
+    t0 = time.perf_counter()
+    res = pipe.solve(chain, ann.predict, xy, phi)
+    t1 = time.perf_counter()
+    q_start, _ = closed_form(chain, np.array([[*region.center, phi]]))
+    out = track(chain, region, np.tile(q_start, (count, 1)), res.q, steps, CBF)
+    t2 = time.perf_counter()
+    final = barrier_values(chain, region, out.q)
+    return {"targets": count, "outside_region": int((~region.contains(xy)).sum()), "steps": steps,
+            "region_violations": int((out.h_min < 0).sum()), "limit_violations": int((out.limit_margin_min < 0).sum()),
+            "final_unsafe": int((final < 0).any(axis=1).sum()),
+            "lyapunov_rises": int((np.diff(out.V, axis=0) > 1e-12 * out.V[:-1] + 1e-15).sum()),
+            "ann_fabrik_batched_ms_per_point": (t1 - t0) / count * 1e3,
+            "cbf_ms_per_point_step": (t2 - t1) / (count * steps) * 1e3, "solver_rows": out.stats}
+
+
+def _int8(chain, ann, poses: np.ndarray, phi: float) -> dict[str, Any]:
+    """The int8 nets against the float net on the same targets, alone and after FABRIK."""
+    card = shipped_card()
+    qf = ann.predict(poses)
+    nets = {"flat_int8 (board)": flat_int8_predictor(chain, card.parent / ann.card["files"]["int8_flat"]["path"]),
+            "onnx_int8": Arm3rANN.load(card, int8=True).predict}
+    out = {}
+    for name, predict in nets.items():
+        q8 = predict(poses)
+        res = pipe.solve(chain, predict, poses[:, :2], phi)
+        tip = np.linalg.norm(chain.ee_point(q8) - chain.ee_point(qf), axis=1) * 1e3
+        out[name] = {"vs_float_q_max_abs_deg": float(np.rad2deg(np.abs(q8 - qf).max())),
+                     "vs_float_q_mae_deg": float(np.rad2deg(np.abs(q8 - qf).mean())),
+                     "vs_float_tip_mean_mm": float(tip.mean()), "vs_float_tip_max_mm": float(tip.max()),
+                     "with_fabrik_tip_mean_mm": float(res.error.mean() * 1e3)}
+    return out
+
+
+def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, seed: int = 10) -> dict[str, Any]:
+    from armbridge.draw.samples import SAMPLES
+
+    chain = get_robot("arm3r")
+    region, phi = safe_region(chain), pen_angle(chain)
+    ann = Arm3rANN.load()
+    rtb = _rtb(chain)
+    per = []
+    for name in size.samples or tuple(SAMPLES):
+        per.append(_sample(chain, name, ann, rtb, size, region, phi))
+        progress(f"{name}: {per[-1]['points']} points")
+    overall = {}
+    for r in ROWS:
+        e = [s["_errors"][r] for s in per if r in s["_errors"]]
+        overall[r] = stats(np.concatenate(e)) if e else {"missing": rtb if isinstance(rtb, str) else ""}
+    poses = np.concatenate([s.pop("_poses") for s in per])
+    for s in per:
+        s.pop("_errors")
+    progress(f"CBF on {size.random_targets:,} random targets")
+    random = _random_cbf(chain, ann, region, phi, size.random_targets, size.random_steps, seed)
+    violations = random["region_violations"] + random["limit_violations"] + sum(
+        s["cbf"]["h_min"] < 0 or s["cbf"]["limit_margin_min_rad"] < 0 for s in per)
+    timing = {r: {k: float(np.mean([s["timing"][r][k] for s in per if r in s["timing"]]))
+                  for k in per[0]["timing"].get(r, {})} for r in per[0]["timing"]}
+    return {
+        "bench": "arm3r", "size": asdict(size), "robot": chain.name,
+        "safe_region": {"center": list(region.center), "radius_m": region.radius, "pen_angle_rad": phi},
+        "units": {"x, y": "mm", "q1-q3, theta": "deg", "time": "ms per point"},
+        "cbf": asdict(CBF), "place_fraction": PLACE_FRACTION,
+        "samples": per, "overall": overall, "timing_mean_over_samples": timing,
+        "random_cbf": random, "int8": _int8(chain, ann, poses, phi), "paper": PAPER,
+        "targets": {"ann_fabrik_mean_under_0.1mm_every_sample":
+                    all(s["rows"]["ann_fabrik"]["tip_mm"]["mean"] < 0.1 for s in per),
+                    "zero_cbf_violations": violations == 0,
+                    "ann_fabrik_under_0.1ms_batched": timing["ann_fabrik"]["batched_ms"] < 0.1},
+        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+    }

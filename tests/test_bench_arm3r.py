@@ -1,0 +1,50 @@
+"""`armbridge bench arm3r --quick`: Tables 5-8 of the 3R drawing-arm paper, end to end
+through the command (real onnxruntime, FABRIK, CBF, roboticstoolbox)."""
+from __future__ import annotations
+
+import json
+
+from require import missing
+from typer.testing import CliRunner
+
+try:
+    import onnxruntime  # noqa: F401
+    import qpsolvers  # noqa: F401
+    import roboticstoolbox  # noqa: F401
+except ImportError as exc:
+    missing(f"{exc.name} is not installed (`make setup` installs it)")
+
+from armbridge.bench import arm3r  # noqa: E402
+from armbridge.bench.command import bench_app  # noqa: E402
+
+
+def test_bench_arm3r_quick(tmp_path):
+    out = tmp_path / "b.json"
+    r = CliRunner().invoke(bench_app, ["arm3r", "--quick", "--json", str(out)])
+    assert r.exit_code == 0, r.output
+    res = json.loads(out.read_text())
+    assert [s["name"] for s in res["samples"]] == list(arm3r.QUICK.samples)
+    for s in res["samples"]:
+        assert s["points"] > 100 and s["fabrik_converged_pct"] == 100.0
+        assert set(s["rows"]) == set(arm3r.ROWS)
+        for row in arm3r.ROWS:
+            for c in arm3r.COLS:
+                m = s["rows"][row][c]
+                assert m["rmse"] ** 2 == m["mse"] or abs(m["rmse"] ** 2 - m["mse"]) <= 1e-12 * max(m["mse"], 1)
+                assert m["mae"] <= m["rmse"] + 1e-12
+        assert s["rows"]["ann_fabrik"]["tip_mm"]["mean"] < 0.1
+        assert s["rows"]["ann_fabrik_cbf"]["tip_mm"]["mean"] < 0.1   # the filter passes in-region references
+        assert s["rows"]["ann"]["tip_mm"]["mean"] > 1.0                  # the net alone is mm-coarse
+        assert s["rows"]["closed_form"]["tip_mm"]["max"] < 1e-6
+        assert s["rows"]["rtb_lm"]["tip_mm"]["mean"] < 0.01
+        assert s["cbf"]["h_min"] >= 0 and s["cbf"]["limit_margin_min_rad"] >= 0
+        assert {"single_ms", "batched_ms"} <= set(s["timing"]["ann_fabrik"])
+    rc = res["random_cbf"]
+    assert rc["targets"] == arm3r.QUICK.random_targets and rc["outside_region"] > rc["targets"] // 2
+    assert rc["region_violations"] == rc["limit_violations"] == rc["final_unsafe"] == rc["lyapunov_rises"] == 0
+    assert res["targets"]["ann_fabrik_mean_under_0.1mm_every_sample"] and res["targets"]["zero_cbf_violations"]
+    for net in res["int8"].values():
+        assert net["vs_float_tip_mean_mm"] > 0 and net["with_fabrik_tip_mean_mm"] < 0.1
+    assert set(res["overall"]) == set(arm3r.ROWS)
+    assert res["safe_region"]["radius_m"] > 0.08
+    assert "overall (Tables 5, 8)" in r.output
