@@ -72,19 +72,31 @@ def draw_cmd(
     speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen speed in m/s, drawing and travelling."),
     font: str = typer.Option("futural", "--font", help="Hershey font for TEXT (vpype's fonts)."),
     robot_name: str = typer.Option("arm3r", "--robot", help="The drawing arm (a planar 3R robot)."),
+    port: Optional[str] = typer.Option(None, "--port", help="Also run the plan on this board (as `armbridge run`: "
+                                                            "a serial device, pyserial URL or emu:DEVICE)."),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="With --port: the recording [default: runs/<time>-<plan>.rrd]."),
+    rate: int = typer.Option(50, "--rate", help="With --port: telemetry rate in Hz."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
+                                           help="With --port: the run summary as JSON to FILE ('-': stdout)."),
+    clear: bool = typer.Option(False, "--clear", help="With --port: clear a latched ESTOP/WDOG/FAULT first."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="With --port: show a progress bar."),
 ) -> None:
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
     The drawing is fitted into the arm's safe region, its strokes merged and
     sorted (vpype) to cut pen-up travel, and planned in joint space; each
     waypoint carries a pen flag (1 draws, 0 pen up). Nothing is written when
-    an input is bad or the drawing does not fit.
+    an input is bad or the drawing does not fit. With --port the plan is then
+    run on the board as `armbridge run` does (same exit codes: 0 completed, 1
+    failed, 2 bad input, 128+signal), and the summary adds the drawing error.
     """
     if list_samples:
         _list_samples()
         return
     if out is None:
         raise ArmbridgeError("--out PLAN.json is required (where to write the plan)")
+    if port is None and (rrd is not None or json_out is not None or clear):
+        raise ArmbridgeError("--rrd, --json and --clear need --port (they are about running the plan)")
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
     from armbridge.draw.build import build
@@ -94,6 +106,10 @@ def draw_cmd(
     lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
     d = build(lines, get_robot(robot_name), name=name, source=source, size=size,
               at=None if at is None else _parse_at(at), speed=speed)
+    if text is not None:
+        from armbridge.draw.error import characters
+
+        d.plan.provenance["drawing"]["characters"] = characters(text.replace("\\n", "\n"))
     try:
         if png is not None:
             from armbridge.draw.figure import draw_png
@@ -110,3 +126,7 @@ def draw_cmd(
     typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
     typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {speed:g} m/s"
                + (f"; figure {png}" if png is not None else ""))
+    if port is not None:  # as `armbridge run` (exit codes, signals, summary)
+        from armbridge.executor.command import run_command
+
+        run_command(out, port, rrd, rate, json_out, clear, progress)

@@ -37,6 +37,11 @@ def run_cmd(
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
+    run_command(plan, port, rrd, rate, json_out, clear, progress)
+
+
+def run_command(plan, port, rrd, rate, json_out, clear, progress) -> None:
+    """What `armbridge run` does with its options (also `armbridge draw --port`)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
     console = Console(stderr=json_out == "-")
     try:

@@ -102,7 +102,7 @@ def run_plan(
         active = client.done_index + 1 if client is not None else 0
         samples.append((t, m.state, m.q, m.target, active))
         if rec is not None:
-            rec.telemetry(t, m.q, m.target, m.effort, m.done)
+            rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
             if m.state != last_state[0]:
                 rec.event(t, f"state {m.state}")
         last_state[0] = m.state
@@ -144,6 +144,8 @@ def run_plan(
                     if bar is not None:
                         bar.stop()
                     fill(summary, c, plan, samples, names)
+                    if plan.pen is not None:
+                        summary.drawing = _drawing(plan, samples, summary.measured_duration_s)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)
@@ -241,3 +243,11 @@ def _discard(rec, path: Path) -> None:
         path.unlink()
     except OSError:
         pass
+
+
+def _drawing(plan: Plan, samples, duration_s: float) -> dict:
+    """A drawing plan's summary section (draw/error.py) from the telemetry samples."""
+    from armbridge.draw.error import run_drawing_report
+
+    q = np.array([x[2] for x in samples]).reshape(-1, plan.n)
+    return run_drawing_report(plan, q, np.array([x[4] for x in samples], int), duration_s)

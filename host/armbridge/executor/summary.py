@@ -55,6 +55,7 @@ class Summary:
     fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None
     fw_version: str | None = None
+    drawing: dict | None = None  # a plan with pen flags: draw/error.py run_drawing_report
 
     @property
     def completed(self) -> bool:
@@ -107,6 +108,14 @@ class Summary:
                 f"tracking {name} (rms / max)",
                 f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} mrad",
             )
+        if self.drawing:
+            d = self.drawing
+            t.add_row("drawing error, trace from strokes (mean / max)",
+                      f"{_f(d.get('trace_mean_mm'), 2)} / {_f(d.get('trace_max_mm'), 2)} mm")
+            t.add_row("drawing error, strokes from trace (mean / max)",
+                      f"{_f(d.get('target_mean_mm'), 2)} / {_f(d.get('target_max_mm'), 2)} mm")
+            if d.get("characters"):
+                t.add_row("time per character", f"{_f(d.get('s_per_character'), 2)} s ({d['characters']} characters)")
         t.add_row("telemetry samples", str(self.telemetry_samples))
         if self.rrd:
             t.add_row("recording", self.rrd)

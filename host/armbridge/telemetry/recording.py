@@ -13,6 +13,9 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
     plan/path                 planned end-effector path        LineStrips2D (3D), static
     plan/waypoints            planned end effector per waypoint Points2D (3D), static
     trace/tip                 the whole measured tip trace     LineStrips2D (3D), static, at close
+    drawing/target            a drawing plan's pen-down strokes LineStrips2D, static (plans with `pen`)
+    drawing/trace             the measured tip while the pen is LineStrips2D, the trace so far at each
+                              down (the active segment's flag)  flush (plans with `pen`)
     events                    board events, state changes      TextLog
     errors                    link errors, refusals, resyncs   TextLog
 
@@ -21,6 +24,11 @@ arm is `robot.joint_points(q)` (one strip per sample), the tip is
 `robot.ee_point(q)` (a MASR's MA, a chain's last frame), in 2-D or, for a
 spatial chain (`draw_dim` 3), as the 3-D archetypes. `joints/<joint>` are the
 robot's coordinate names (a MASR's d is in m).
+
+A plan with pen flags (a drawing, draw/) also gets the `drawing/` entities
+and a layout (a Rerun blueprint saved as the file's default): the canvas
+beside the joint plots. The pen state of a sample is the flag of the plan
+segment the executor says is active (`telemetry(..., active=i)`).
 
 Telemetry is buffered and sent in columns (`send_columns`) every `flush_every`
 samples, so recording costs little time in the executor's loop; events and
@@ -70,13 +78,16 @@ class Recording:
         except OSError as exc:
             raise ArmbridgeError(f"{self.path.parent}: cannot create the recording folder: {exc.strerror}") from None
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()))
+        self._pen = None if plan is None or plan.pen is None or self._dim != 2 else np.asarray(plan.pen)
         try:
-            self.rec.save(str(self.path))
+            self.rec.save(str(self.path), default_blueprint=drawing_layout(self.joint_names) if self._pen is not None
+                          else None)
         except Exception as exc:  # noqa: BLE001 - rerun raises plain exceptions for I/O
             raise ArmbridgeError(f"{self.path}: cannot write the recording: {exc}") from None
         self._closed = False
-        self._buf: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]] = []
+        self._buf: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, float, int]] = []
         self._tip_trace: list[np.ndarray] = []
+        self._down: list[np.ndarray] = []  # per flush: pen down at each sample (drawing plans)
         self._t = 0.0  # latest board time seen: lines without their own time go there
         self.samples = 0
         self.events = 0
@@ -104,15 +115,22 @@ class Recording:
                     f"waypoints: {self.plan.k}, planned duration {self.plan.total_duration:.3f} s"]
             text += [f"provenance.{k}: {v}" for k, v in prov.items()]
             rec.log("plan/info", rr.TextDocument("\n".join(text)), static=True)
+        if self._pen is not None:
+            from armbridge.draw.error import pen_strips
+
+            rec.log("drawing/target", rr.LineStrips2D(pen_strips(tips[:, :2], self._pen), colors=[(60, 60, 200)],
+                                                      radii=0.0006), static=True)
 
     # ------------------------------------------------------------------ samples
-    def telemetry(self, t: float, q, target, effort, done: int | None = None) -> None:
-        """One telemetry sample at board time t (s, unwrapped)."""
+    def telemetry(self, t: float, q, target, effort, done: int | None = None, active: int | None = None) -> None:
+        """One telemetry sample at board time t (s, unwrapped); active: the plan index of
+        the segment being run (a drawing's pen state), None when unknown (pen up)."""
         if self._closed:
             return
         self._t = max(self._t, float(t))
         self._buf.append((float(t), np.asarray(q, float).copy(), np.asarray(target, float).copy(),
-                          np.asarray(effort, float).copy(), np.nan if done is None else float(done)))
+                          np.asarray(effort, float).copy(), np.nan if done is None else float(done),
+                          -1 if active is None else int(active)))
         self.samples += 1
         if len(self._buf) >= self.flush_every:
             self.flush()
@@ -168,6 +186,18 @@ class Recording:
         send("arm/target", indexes=idx, columns=self._strips.columns(strips=list(arm_t)))
         send("arm/tip", indexes=idx, columns=self._points.columns(positions=tip))
         self._tip_trace.append(tip)
+        if self._pen is not None:
+            from armbridge.draw.error import trace_strips
+
+            a = np.array([b[5] for b in buf])
+            ok = (a >= 0) & (a < len(self._pen))
+            down = np.zeros(len(a), bool)
+            down[ok] = self._pen[a[ok]] == 1
+            self._down.append(down)
+            strips = trace_strips(np.concatenate(self._tip_trace), np.concatenate(self._down))
+            if strips:
+                self.rec.set_time(TIMELINE, duration=float(t[-1]))
+                self.rec.log("drawing/trace", rr.LineStrips2D(strips, colors=[(220, 30, 30)], radii=0.0006))
 
     def close(self) -> Path:
         """Flush, log the measured tip trace and close the file. Idempotent."""
@@ -190,3 +220,18 @@ class Recording:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def drawing_layout(joint_names: list[str]):
+    """The layout of a drawing's recording: the canvas (strokes, trace, arm) beside
+    one plot per joint (measured and set point) over board time."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(origin="/", contents=["drawing/**", "arm/**", "workspace"], name="canvas"),
+            rrb.Vertical(*[rrb.TimeSeriesView(origin=f"joints/{n}", contents=[f"joints/{n}/q", f"joints/{n}/target"],
+                                              name=n) for n in joint_names]),
+            column_shares=[3, 2],
+        ),
+    )
