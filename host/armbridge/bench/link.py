@@ -338,9 +338,9 @@ def print_result(r: dict, console) -> None:
     tp, rt, es, so, ud = r["throughput"], r["round_trip"], r["estop"], r["soak"], r["undetected"]
     v1, v2 = ud["v1"], ud["v2"]
     table = Table(title="armbridge bench link (115200 baud 8N1, 3-joint waypoints)")
-    for col, just in (("measure", "left"), ("v1 (CRC-16)", "right"), ("v2 (CRC-32, epoch)", "right"),
-                      ("target", "right")):
-        table.add_column(col, justify=just)
+    table.add_column("measure", justify="left")
+    for col in ("v1 (CRC-16)", "v2 (CRC-32, epoch)", "target"):
+        table.add_column(col, justify="right")
 
     def rate(u: dict) -> str:
         return (f"{u['undetected']} / {u['damaged']:,} = {u['rate']:.2g}" if u["undetected"]

@@ -86,7 +86,7 @@ def _qp(hw: np.ndarray, un: np.ndarray, a: np.ndarray, b: float, lo: np.ndarray,
     """min 1/2 (u - un)^T H (u - un) s.t. a u >= b, lo <= u <= hi, by OSQP; the answer is
     clipped into the box (the step's backtracking catches what is left of OSQP's tolerance)."""
     from qpsolvers import solve_qp
-    from scipy import sparse
+    from scipy import sparse  # type: ignore[import-untyped]
 
     u = solve_qp(sparse.diags(hw, format="csc"), -hw * un, G=sparse.csc_matrix(-a[None, :]), h=np.array([-b]),
                  lb=lo, ub=hi, solver="osqp", eps_abs=1e-9, eps_rel=1e-9, polish=True, max_iter=4000,

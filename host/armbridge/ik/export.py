@@ -36,14 +36,25 @@ import hashlib
 import struct
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, cast
 
 import numpy as np
 import torch
 
 from armbridge.errors import ArmbridgeError
 from armbridge.ik.flat_int8 import FLAT_MAGIC, FLAT_VERSION, flat_int8_forward, read_flat_int8  # noqa: F401
-from armbridge.ik.masr_nn import MasrIKNet
+
+class ExportableMLP(Protocol):
+    """What the exporters need of a network (the MASR IK-NN, the 3R arm's ANN):
+    an nn.Module whose Linear layers, in order, hold its weights, with one
+    activation (a key of ACT_CODES) between them."""
+
+    activation: str
+
+    def linear_layers(self) -> list[torch.nn.Linear]: ...
+
+    def eval(self) -> Any: ...
+
 
 ACT_CODES = {"none": 0, "leaky_relu": 1, "relu": 2, "tanh": 3, "silu": 4}
 
@@ -59,16 +70,17 @@ def file_entry(path: Path, folder: Path) -> dict[str, Any]:
 # ------------------------------------------------------------------ float ONNX
 
 
-def export_float(model: MasrIKNet, path: Path, example: torch.Tensor | None = None) -> Path:
+def export_float(model: ExportableMLP, path: Path, example: torch.Tensor | None = None) -> Path:
     """Dynamo export, dynamic batch, weights inside the .onnx; example: an input batch of
     two rows (default: the MASR IK-NN's; the 3R arm's ANN passes its own)."""
     model = model.eval()
-    if example is None:
-        example = torch.zeros(2, model.n + 4)
-        example[:, model.n + 3] = 0.1
+    if example is None:  # the MASR IK-NN's input: n + 4 features
+        n = int(getattr(model, "n"))
+        example = torch.zeros(2, n + 4)
+        example[:, n + 3] = 0.1
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.onnx.export(
-        model,
+        cast(torch.nn.Module, model),
         (example,),
         str(path),
         dynamo=True,
@@ -96,7 +108,7 @@ def quantize_rows(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q, scale.astype(np.float32)
 
 
-def export_weight_only_int8(model: MasrIKNet, float_path: Path, path: Path) -> Path:
+def export_weight_only_int8(model: ExportableMLP, float_path: Path, path: Path) -> Path:
     """The float ONNX with every Linear weight replaced by int8 + per-row scale + DequantizeLinear."""
     import onnx
     from onnx import helper, numpy_helper
@@ -150,7 +162,7 @@ def export_ort_dynamic_int8(float_path: Path, path: Path) -> Path:
     return path
 
 
-def write_flat_int8(model: MasrIKNet, path: Path) -> Path:
+def write_flat_int8(model: ExportableMLP, path: Path) -> Path:
     """The weight-only int8 MLP in the flat format of the module docstring."""
     layers = model.linear_layers()
     act = ACT_CODES[model.activation]

@@ -51,6 +51,10 @@ class Arm3rNet(nn.Module):
     """Table 2's MLP with the MinMax scalers as buffers, so they are part of the ONNX graph."""
 
     activation = "relu"  # ik.export.write_flat_int8 reads it
+    in_min: torch.Tensor  # the scalers' bounds (buffers, registered from `bounds`)
+    in_max: torch.Tensor
+    out_min: torch.Tensor
+    out_max: torch.Tensor
 
     def __init__(self, bounds: dict[str, list[float]], hidden: int = 100) -> None:
         super().__init__()
