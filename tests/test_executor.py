@@ -225,8 +225,8 @@ def test_ctrl_c_sends_estop_and_keeps_the_recording(tmp_path, ports, monkeypatch
     real = recording.Recording.telemetry
     seen = {"run": 0}
 
-    def interrupt_after_some_motion(self, t, q, target, effort, done=None):
-        real(self, t, q, target, effort, done)
+    def interrupt_after_some_motion(self, t, q, target, effort, done=None, **kw):
+        real(self, t, q, target, effort, done, **kw)
         if done is not None and done >= 20 and not seen.get("fired"):
             seen["fired"] = True  # Ctrl-C once
             raise KeyboardInterrupt

@@ -41,6 +41,22 @@ def test_a_clean_plan_runs_once_in_order_with_its_values():
     assert peer.epoch == 1 and c.arq.epoch == 1  # a fresh board: the first epoch
 
 
+def test_a_line_cut_by_opening_the_port_is_not_a_damaged_line():
+    """The tail of a line the board was sending when the port opened is not
+    counted as damage; a damaged line later is."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    whole = P.encode(7, "T", 123, "IDLE", "-", 8, 1571, -1571, 0, 1571, -1571, 0, 0, 0, 0)
+    peer.rx += whole[len(whole) // 2:]  # its tail: the frame is whole, the CRC is not its body's
+    c = client_for(peer)
+    durs, q = plan(5)
+    c.execute(durs, q)
+    assert c.stats.host_line_errors == 0
+    peer.rx += whole[:-3] + b"00\n"  # a damaged CRC field
+    c.drain(0.05)
+    assert c.stats.host_line_errors == 1
+
+
 def test_seq_is_the_command_number_mod_65536():
     assert [Cmd(n, "PING", (), 1).seq for n in (1, 65535, 65536, 65537)] == [1, 65535, 0, 1]
 

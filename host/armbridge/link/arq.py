@@ -131,6 +131,9 @@ class Arq:
         self.refused: list[tuple[Cmd, P.Er]] = []  # ER answers of commands nobody waits for
 
         self._splitter = P.LineSplitter(P.MAX_BOARD_LINE)
+        # The first piece the port delivers may be the tail of a line the board
+        # was sending when the port was opened: not a damaged line.
+        self._first_piece = True
         self._n = 1  # next command number
         self._epoch_n = 1  # command number of the HELLO that opened the epoch
         self._tx_order = 0
@@ -359,6 +362,7 @@ class Arq:
             items = self._splitter.feed(data)
         st = self.stats
         for k, item in enumerate(items):
+            first, self._first_piece = self._first_piece, False
             if isinstance(item, P.ProtocolError):
                 st.host_line_errors += 1
                 self._last_damage = self.now()
@@ -370,10 +374,13 @@ class Arq:
                 line = P.decode(item)  # board lines: epoch 0
                 msg = P.parse_board_line(line)
             except P.ProtocolError as exc:
-                st.host_line_errors += 1
-                self._last_damage = self.now()
                 if _V1_FRAME.fullmatch(item):
                     st.v1_lines += 1
+                if first:
+                    self.note(f"the first bytes from the port were not a whole line (opened mid-line): {exc}")
+                    continue
+                st.host_line_errors += 1
+                self._last_damage = self.now()
                 self.note(f"board line dropped: {exc}")
                 continue
             self.last_rx = self.now()
