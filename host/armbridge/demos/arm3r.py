@@ -53,20 +53,12 @@ def run(opts: DemoOptions, console: Any) -> None:
         save_plan(plan, opts.write_plan)
         console.print(f"wrote {opts.write_plan} ({plan.k} waypoints, {plan.total_duration:.1f} s)")
         return
-    import typer
-
-    from armbridge.executor.command import run_and_report
-    from armbridge.executor.signals import Stopped, stop_on_signals
+    from armbridge.executor.command import run_command
 
     console.print(f"demo: drawing a {SQUARE_SIDE * 100:.0f} cm square, {plan.k} waypoints, "
                   f"{plan.total_duration:.1f} s planned, on {opts.port}")
     # `armbridge run`'s own reporting: the table, the e-stop on every signal, its exit codes.
-    try:
-        with stop_on_signals():
-            run_and_report(plan=plan, port=opts.port, rrd=opts.rrd, rate=50, json_out=None, clear=opts.clear,
-                           progress=True, console=console)
-    except Stopped as stop:  # before the run started
-        raise typer.Exit(stop.exit_code) from None
+    run_command(plan, opts.port, opts.rrd, 50, None, opts.clear, True)
 
 
 DEMO = Demo(robot="arm3r", summary="arm3r: draw a 10 cm square (--fault-tolerant: reach a target despite a "
