@@ -52,3 +52,42 @@ UART_TX = 17
 UART_RX = 16
 UART_BAUD = 115200
 UART_RXBUF = 1024
+
+# ---------------------------------------------------------------- the rig
+# "effort": continuous-rotation servos driven by effort with potentiometer
+# feedback (hal_esp32.Esp32Hal). "pca9685": the paper's rig (section 4.1,
+# Table 1): positional hobby servos behind a PCA9685 I2C servo controller
+# (hal_pca9685.Pca9685Hal), feedback pots on the ADC pins above.
+SERVOS = "effort"
+I2C_ID = 0
+I2C_SCL = 22
+I2C_SDA = 21
+I2C_FREQ = 400000
+PCA9685_ADDR = 0x40
+SERVO_FREQ_HZ = 50
+SERVO_CHANNELS = (0, 1, 2)          # PCA9685 channel of each joint
+# Per joint: pulse us_a (us) at angle a (mrad) and us_b at b; linear between.
+# A 270 deg servo (500..2500 us) mounted with its centre at the middle of the
+# joint's range. CAL changes them at run time (RAM only).
+SERVO_CAL = ((500, -785, 2500, 3927), (500, -3927, 2500, 785), (500, -2356, 2500, 2356))
+
+# ---------------------------------------------------------------- pen lift
+# An optional fourth servo lifts the pen (as BrachioGraph's): PCA9685 channel
+# PEN_CHANNEL on the pca9685 rig, PWM pin PEN_PIN on the effort rig (None: no
+# pen servo, and the PEN verb is refused VERB).
+PEN_CHANNEL = 3
+PEN_PIN = 14
+PEN_UP_US = 1200
+PEN_DOWN_US = 1700
+PEN_SETTLE_MS = 150                 # a pen change waits this long before the next move
+
+# ---------------------------------------------------------------- board IK
+# Cartesian waypoints (X, XY) are solved on the board by the int8 net
+# (ik3r.py, mlp.py) plus a fixed number of FABRIK passes. The weights are a
+# file on the board's filesystem (models/onnx/arm3r-ik/int8.bin, flashed as
+# IK_WEIGHTS); without it X and XY are refused VERB.
+IK_WEIGHTS = "arm3r_ik.bin"
+IK_THETA_MRAD = 0                   # the pen angle XY uses (host: ik.region.pen_angle)
+IK_REGION_UM = (76000, 190000, 114851)   # safe disc (cx, cy, r), host: ik.region.safe_region
+IK_FABRIK_PASSES = 12
+IK_TOL_UM = 100                     # a solve that ends farther than this from the target: REACH
