@@ -78,3 +78,12 @@ class Esp32Hal:
 
     def save_persist(self, data: bytes) -> None:
         self._rtc.memory(data)
+
+    # ------------------------------------------------------------ files
+    def read_file(self, name: str):
+        """A file of the board's filesystem (the IK weights), or None if missing."""
+        try:
+            with open(name, "rb") as f:
+                return f.read()
+        except OSError:
+            return None
