@@ -32,7 +32,8 @@
 #define AB_ERR_NOSESSION 10
 #define AB_ERR_STALE 11
 #define AB_ERR_PROTO 12
-#define AB_N_ERRORS 13
+#define AB_ERR_REACH 13
+#define AB_N_ERRORS 14
 
 /* Argument kinds: a plain integer in [lo, hi]; a joint index 1..n; n joint
    values, each in [lo, hi] (always the last argument). */
@@ -66,7 +67,15 @@ static const ab_arg_spec AB_ARGS_SETLIM[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"mi
 static const ab_arg_spec AB_ARGS_WDOG[] = {{"ms", AB_ARG_INT, 50, 10000}};
 #define AB_VERB_STAT 10
 #define AB_VERB_PING 11
-#define AB_N_COMMANDS 12
+#define AB_VERB_X 12
+static const ab_arg_spec AB_ARGS_X[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}, {"theta", AB_ARG_INT, -10000, 10000}};
+#define AB_VERB_XY 13
+static const ab_arg_spec AB_ARGS_XY[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}};
+#define AB_VERB_PEN 14
+static const ab_arg_spec AB_ARGS_PEN[] = {{"down", AB_ARG_INT, 0, 1}};
+#define AB_VERB_CAL 15
+static const ab_arg_spec AB_ARGS_CAL[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"us_a", AB_ARG_INT, 500, 2500}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"us_b", AB_ARG_INT, 500, 2500}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
+#define AB_N_COMMANDS 16
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -80,8 +89,12 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"WDOG", AB_ARGS_WDOG, 1, 0, -1, -1},
     {"STAT", 0, 0, 1, -1, -1},
     {"PING", 0, 0, 1, -1, -1},
+    {"X", AB_ARGS_X, 5, 0, -1, -1},
+    {"XY", AB_ARGS_XY, 4, 0, -1, -1},
+    {"PEN", AB_ARGS_PEN, 1, 0, -1, -1},
+    {"CAL", AB_ARGS_CAL, 5, 0, 1, 3},
 };
 
-static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO"};
+static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH"};
 
 #endif

@@ -37,6 +37,7 @@ LATCHED = const(9)
 NOSESSION = const(10)
 STALE = const(11)
 PROTO = const(12)
+REACH = const(13)
 
 ERROR_NAMES = {
     1: 'PARSE',
@@ -51,6 +52,7 @@ ERROR_NAMES = {
     10: 'NOSESSION',
     11: 'STALE',
     12: 'PROTO',
+    13: 'REACH',
 }
 
 COMMANDS = {
@@ -66,12 +68,17 @@ COMMANDS = {
     'WDOG': (('ms', 50, 10000),),
     'STAT': (),
     'PING': (),
+    'X': (('id', 0, 65535), ('dur', 1, 60000), ('x', -1000000, 1000000), ('y', -1000000, 1000000), ('theta', -10000, 10000)),
+    'XY': (('id', 0, 65535), ('dur', 1, 60000), ('x', -1000000, 1000000), ('y', -1000000, 1000000)),
+    'PEN': (('down', 0, 1),),
+    'CAL': (('joint', 1, 0), ('us_a', 500, 2500), ('a', -1000000, 1000000), ('us_b', 500, 2500), ('b', -1000000, 1000000)),
 }
 
 READ_ONLY = ('STAT', 'LIM', 'PING')
 
 ORDERED = {
     'SETLIM': (('min', 'max'),),
+    'CAL': (('us_a', 'us_b'),),
 }
 
 REPLIES = {
@@ -93,4 +100,4 @@ STATES = ('IDLE', 'RUN', 'HOLD', 'ESTOP', 'WDOG', 'FAULT')
 
 LATCHED_STATES = ('ESTOP', 'WDOG', 'FAULT')
 
-EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR')
+EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN')

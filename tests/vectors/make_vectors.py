@@ -144,10 +144,19 @@ SPEC = {
                ("vmax", 1, 1000000)],
     "WDOG": [("ms", 50, 10000)],
     "STAT": [], "PING": [],
+    "X": [("id", 0, 65535), ("dur", 1, 60000), ("x", -1000000, 1000000), ("y", -1000000, 1000000),
+          ("theta", -10000, 10000)],
+    "XY": [("id", 0, 65535), ("dur", 1, 60000), ("x", -1000000, 1000000), ("y", -1000000, 1000000)],
+    "PEN": [("down", 0, 1)],
+    "CAL": [("joint", 1, None), ("us_a", 500, 2500), ("a", -1000000, 1000000), ("us_b", 500, 2500),
+            ("b", -1000000, 1000000)],
 }
-# A valid value for each argument (SETLIM's min/max must stay ordered).
+# value i <= value j, else RANGE (docs/protocol.md §3: SETLIM's min <= max, CAL's us_a <= us_b)
+ORDER = {"SETLIM": (1, 2), "CAL": (1, 3)}
+# A valid value for each argument (SETLIM's min/max and CAL's pulses must stay ordered).
 TYPICAL = {"proto": 2, "session": 4242, "epoch": 1, "joint": 2, "id": 7, "dur": 500, "q": 0,
-           "hz": 25, "kp": 2000, "ki": 0, "kd": 50, "min": -3000, "max": 3000, "vmax": 2000, "ms": 1000}
+           "hz": 25, "kp": 2000, "ki": 0, "kd": 50, "min": -3000, "max": 3000, "vmax": 2000, "ms": 1000,
+           "x": 76000, "y": 190000, "theta": 0, "down": 1, "us_a": 1000, "a": -785, "us_b": 2000, "b": 2356}
 
 
 def expanded(verb: str, n: int) -> list:
@@ -190,8 +199,8 @@ for verb in SPEC:
                                        (hi + 1, "RANGE", "above the upper bound")):
                 args = list(base)
                 args[i] = value
-                if verb == "SETLIM" and error is None and args[1] > args[2]:
-                    error, what = "RANGE", what + ", so min above max"
+                if verb in ORDER and error is None and args[ORDER[verb][0]] > args[ORDER[verb][1]]:
+                    error, what = "RANGE", what + ", so out of order"
                 case(verb, args, n, error, f"{name} {what} ({value})")
     base = typical(verb, N)
     if base:
@@ -215,6 +224,9 @@ case("SETLIM", [2, 501, 500, 100], error="RANGE", why="min above max")
 case("SETLIM", [2, -1000000, 1000000, 1000000], why="the widest range")
 case("SETLIM", [2, 1000000, -1000000, 1], error="RANGE", why="min above max at the extremes")
 case("SETLIM", [2, 501, 500, 0], error="RANGE", why="vmax out of range and min above max")
+case("CAL", [1, 1500, 0, 1500, 1000], why="us_a == us_b passes the codec (the board refuses it)")
+case("CAL", [1, 2000, 0, 1000, 1000], error="RANGE", why="us_a above us_b")
+case("X", [0, 1, -1000000, 1000000, -10000], why="Cartesian values at their bounds")
 case("HELLO", [3, 4242, 1], why="another proto passes parse_command; the session answers PROTO")
 case("HELLO", [2, 4242, 2 ** 30], error="RANGE", why="epoch beyond 2^30-1 (a MicroPython small int)")
 case("W", [0, 1, 1000000, -1000000, 0], why="joint values at both bounds")

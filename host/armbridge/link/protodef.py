@@ -47,10 +47,12 @@ LATCHED = 9
 NOSESSION = 10
 STALE = 11
 PROTO = 12
+REACH = 13  # a Cartesian target outside the board's safe region, or one its IK did not reach
 
 ERROR_NAMES = {
     1: "PARSE", 2: "CRC", 3: "LONG", 4: "VERB", 5: "ARGS", 6: "RANGE",
     7: "SEQ", 8: "FULL", 9: "LATCHED", 10: "NOSESSION", 11: "STALE", 12: "PROTO",
+    13: "REACH",
 }
 
 # Host -> board commands: verb -> argument specs (name, lo, hi), in order.
@@ -72,6 +74,17 @@ COMMANDS = {
     "WDOG": (("ms", 50, 10000),),
     "STAT": (),
     "PING": (),
+    # The 3R drawing arm's capabilities; a board without one answers VERB.
+    # X: a Cartesian waypoint, x y in micrometres, theta (q1+q2+q3, unwrapped) in
+    # mrad, solved by the board's own IK. XY: the same at the board's pen angle.
+    "X": (("id", 0, 65535), ("dur", 1, 60000), ("x", -1000000, 1000000), ("y", -1000000, 1000000),
+          ("theta", -10000, 10000)),
+    "XY": (("id", 0, 65535), ("dur", 1, 60000), ("x", -1000000, 1000000), ("y", -1000000, 1000000)),
+    # PEN: modal pen-lift state (0 up, 1 down) of the waypoints queued after it.
+    "PEN": (("down", 0, 1),),
+    # CAL: a positional servo's calibration, pulse us_a (us) at angle a, us_b at b (mrad).
+    "CAL": (("joint", 1, 0), ("us_a", 500, 2500), ("a", -1000000, 1000000), ("us_b", 500, 2500),
+            ("b", -1000000, 1000000)),
 }
 
 # Verbs that change nothing: a retransmitted copy is answered afresh, not replayed.
@@ -82,6 +95,7 @@ READ_ONLY = ("STAT", "LIM", "PING")
 # a locked joint.)
 ORDERED = {
     "SETLIM": (("min", "max"),),
+    "CAL": (("us_a", "us_b"),),
 }
 
 # OK payloads of the commands that have one (names, in order).
@@ -105,4 +119,4 @@ BOARD_LINES = {
 STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
 LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
 
-EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR")
+EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN")
