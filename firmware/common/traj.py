@@ -16,6 +16,12 @@ so narrowing a range, or a stop at a measured position just outside it, moves
 the arm no faster than its speed limit. The caller keeps queued targets inside
 the ranges (excludes() tells whether a new range would leave one outside).
 DONE events carry the waypoint's targets as they were pushed.
+
+A waypoint may carry a `dwell` (ms the set point waits at the segment's start
+before it moves: a pen lift settling) and an `aux` value (the pen state it is
+drawn with): when a segment begins whose aux differs from the last one begun,
+step() reports ("AUX", aux) before its START, so the board switches the
+output at the segment boundary, in order with the motion (G-code's M3/M5).
 """
 
 
@@ -33,8 +39,11 @@ class Traj:
         self._queue: list = []   # waypoints not yet started: (id, dur, targets)
         self.active_id = -1      # id of the active segment, -1 when none
         self._targets: list = []  # targets of the active segment, as pushed
-        self._dur = 0
+        self._dur = 0             # dwell + motion time of the active segment
+        self._dwell = 0
+        self._scale = 1.0         # 1000 / motion time (ms)
         self._t = 0
+        self.aux = None           # aux of the last segment begun
         self._start = [0.0] * n
         self._end = [0.0] * n
 
@@ -49,12 +58,18 @@ class Traj:
     def busy(self) -> bool:
         return self.active_id >= 0 or len(self._queue) > 0
 
-    def push(self, wid: int, dur: int, targets) -> bool:
+    def push(self, wid: int, dur: int, targets, dwell: int = 0, aux=None) -> bool:
         """Queues a waypoint; False when the queue is full."""
         if len(self._queue) >= self.qsize:
             return False
-        self._queue.append((wid, dur, list(targets)))
+        self._queue.append((wid, dur, list(targets), dwell, aux))
         return True
+
+    def last_aux(self):
+        """The aux of the last waypoint queued (or begun, when none is queued)."""
+        if self._queue:
+            return self._queue[-1][4]
+        return self.aux
 
     def set_range(self, j: int, lo: int, hi: int, vmax: int) -> None:
         """Joint j's (0-based) range and speed limit. A lower vmax re-plans the
@@ -67,7 +82,8 @@ class Traj:
         if slower and self.active_id >= 0:
             for k in range(self.n):
                 self._start[k] = self.sp[k]
-            self._plan(self._dur - self._t)
+            wait = self._dwell - self._t
+            self._plan(self._dur - self._t - (wait if wait > 0 else 0), wait if wait > 0 else 0)
 
     def excludes(self, j: int, lo: int, hi: int) -> bool:
         """True when a queued or active target of joint j lies outside [lo, hi]."""
@@ -146,7 +162,10 @@ class Traj:
             self.sp[j] = y
 
     def _begin(self, events: list) -> None:
-        wid, dur, targets = self._queue.pop(0)
+        wid, dur, targets, dwell, aux = self._queue.pop(0)
+        if aux is not None and aux != self.aux:
+            events.append(("AUX", aux))
+        self.aux = aux
         self._targets = targets
         for j in range(self.n):
             self._ramping[j] = False
@@ -154,13 +173,14 @@ class Traj:
             self._end[j] = float(targets[j])
         self.active_id = wid
         events.append(("START", wid))
-        worst = self._plan(dur)
+        worst = self._plan(dur, dwell)
         if worst >= 0:
             events.append(("SLOW", wid, worst + 1))
 
-    def _plan(self, dur: int) -> int:
-        """Times the active segment _start -> _end: dur ms, or longer where a
-        joint would exceed its vmax -> the joint that set the time, or -1."""
+    def _plan(self, dur: int, dwell: int = 0) -> int:
+        """Times the active segment _start -> _end: `dwell` ms at the start, then
+        dur ms of motion, or longer where a joint would exceed its vmax -> the
+        joint that set the time, or -1."""
         worst = -1
         for j in range(self.n):
             need = abs(self._end[j] - self._start[j]) * 1000.0 / self.vmax[j]
@@ -172,18 +192,23 @@ class Traj:
                 worst = j
         if dur < 1:
             dur = 1
-        self._dur = dur
+        self._dwell = dwell
+        self._dur = dwell + dur
         self._t = 0
-        scale = 1000.0 / dur
+        self._scale = 1000.0 / dur
         for j in range(self.n):
-            self.vel[j] = (self._end[j] - self._start[j]) * scale
+            self.vel[j] = 0.0 if dwell > 0 else (self._end[j] - self._start[j]) * self._scale
         return worst
 
     def _interpolate(self) -> None:
-        f = self._t / self._dur
+        t = self._t - self._dwell
+        if t <= 0:
+            return                # dwelling: the set point waits at the start
+        f = t / (self._dur - self._dwell)
         for j in range(self.n):
             a = self._start[j]
             self.sp[j] = a + (self._end[j] - a) * f
+            self.vel[j] = (self._end[j] - a) * self._scale
 
     def _finish(self, events: list) -> None:
         for j in range(self.n):

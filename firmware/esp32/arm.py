@@ -6,12 +6,23 @@ arm's verbs (W, GAIN, SETLIM) and its control tick: the waypoint trajectory
 (traj.py), one PID per joint and the following-error check. The interface
 between the two is in link.py's docstring.
 
+Capabilities, each present only when the HAL or the filesystem has it (a
+board without one answers its verb VERB, docs/protocol.md §3):
+  * X, XY: Cartesian waypoints solved here by the int8 net and FABRIK
+    (ik3r.py), when the weights file cfg.IK_WEIGHTS is on the filesystem;
+  * PEN: the pen-lift servo (hal.has_pen), modal: the pen state rides with the
+    waypoints queued after it (traj's aux), a change dwells PEN_SETTLE_MS;
+  * CAL: positional servo calibration (hal.POSITIONAL, the PCA9685 rig).
+    On that rig the servos close their own loops: the board writes the set
+    point as positions (hal.write_positions) instead of running its PIDs, and
+    the watchdog's ZERO mode holds the frozen set point.
+
 `hal` is the duck-typed HAL of docs/architecture.md; `cfg` is the config
 module (firmware/esp32/config.py) or any object with its attribute names. The
 ones read here and in link.py: FW_NAME, FW_VERSION, N_JOINTS, LIMITS_MRAD,
 VMAX_MRAD_S, PERIOD_MS, QSIZE, TELEMETRY_HZ, WDOG_MS, PID_KP, PID_KI, PID_KD,
-PID_KFF, FOLLOW_ERR_MRAD, FOLLOW_ERR_MS (pins and ADC/PWM calibration are
-read by hal_esp32 only).
+PID_KFF, FOLLOW_ERR_MRAD, FOLLOW_ERR_MS, PEN_SETTLE_MS, IK_WEIGHTS,
+IK_THETA_MRAD (pins and ADC/PWM/servo calibration are read by the HALs only).
 
 The set point changes only by the trajectory (segments stretched to vmax, a
 ramp at vmax into a narrowed range) or by being put at the measured position
@@ -52,8 +63,23 @@ class Board:
         # waypoint (events coalesce them per tick): the emulator keeps the
         # board's own log of executed waypoints with it.
         self.on_done = None
+        self.positional = getattr(hal, "POSITIONAL", False)
         self.verbs = {"W": self._cmd_w, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim}
-        self.motion_verbs = ("W",)
+        self.motion_verbs = ["W"]
+        self.ik = _load_ik(hal, cfg)
+        if self.ik is not None:
+            self.verbs["X"] = self._cmd_x
+            self.verbs["XY"] = self._cmd_x
+            self.motion_verbs += ["X", "XY"]
+        self.pen = 0              # pen state written to the servo (0 up, 1 down)
+        self.pen_next = 0         # the state waypoints queued from now on draw with
+        self._settling = False    # a pen move has not settled yet ...
+        self._settle_at = 0       # ... until this ticks_ms
+        if getattr(hal, "has_pen", False):
+            self.verbs["PEN"] = self._cmd_pen
+            self.motion_verbs.append("PEN")
+        if self.positional and hasattr(hal, "set_calibration"):
+            self.verbs["CAL"] = self._cmd_cal
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls hold_here() and sends BOOT
 
     # ------------------------------------------------------------ entry points
@@ -81,14 +107,60 @@ class Board:
     # ------------------------------------------------------------ verbs
 
     def _cmd_w(self, v: list) -> list:
-        targets = v[2:]
+        self._queue(v[0], v[1], v[2:])
+        return []
+
+    def _cmd_x(self, v: list) -> list:
+        """X id dur x y theta / XY id dur x y: solved now, queued as joint targets."""
+        if self.traj.free() <= 0:     # before the solve: a full queue costs no IK
+            raise proto.ProtocolError(P.FULL)
+        theta = v[4] if len(v) > 4 else self.cfg.IK_THETA_MRAD
+        q = self.ik.solve(v[2] / 1000000.0, v[3] / 1000000.0, theta / 1000.0)
+        if q is None:
+            raise proto.ProtocolError(P.REACH)
+        self._queue(v[0], v[1], [_milli(a) for a in q])
+        return []
+
+    def _queue(self, wid: int, dur: int, targets: list) -> None:
         for j in range(self.n):
             if not self.lim[j][0] <= targets[j] <= self.lim[j][1]:
                 raise proto.ProtocolError(P.RANGE, "", str(j + 1))
-        if not self.traj.push(v[0], v[1], targets):
+        dwell = 0
+        aux = None
+        if "PEN" in self.verbs:
+            aux = self.pen_next
+            busy = self.traj.busy()
+            before = self.traj.last_aux() if busy else self.pen
+            if before is None:
+                before = self.pen
+            if aux != before:
+                dwell = self.cfg.PEN_SETTLE_MS
+            elif not busy and self._settling:   # a pen moved at rest is still settling
+                left = self.hal.ticks_diff(self._settle_at, self.hal.ticks_ms())
+                dwell = left if left > 0 else 0
+        if not self.traj.push(wid, dur, targets, dwell, aux):
             raise proto.ProtocolError(P.FULL)
-        self.link.queued = v[0]
+        self.link.queued = wid
+
+    def _cmd_pen(self, v: list) -> list:
+        """PEN down: the state of the waypoints queued after it; at rest, now."""
+        self.pen_next = v[0]
+        if not self.traj.busy() and v[0] != self.pen:
+            self._set_pen(v[0])
         return []
+
+    def _cmd_cal(self, v: list) -> list:
+        j, us_a, a, us_b, b = v
+        if us_a == us_b or a == b:
+            raise proto.ProtocolError(P.RANGE, "", str(j))
+        self.hal.set_calibration(j - 1, us_a, a, us_b, b)
+        return []
+
+    def _set_pen(self, down: int) -> None:
+        self.pen = down
+        self.hal.write_pen(down == 1)
+        self._settling = True
+        self._settle_at = (self.hal.ticks_ms() + self.cfg.PEN_SETTLE_MS) & L.TICKS_MASK
 
     def _cmd_gain(self, v: list) -> list:
         self.pids[v[0] - 1].set_gains(v[1] / 1000.0, v[2] / 1000.0, v[3] / 1000.0)
@@ -117,6 +189,7 @@ class Board:
     def halt(self) -> None:
         self.traj.flush()
         self.traj.hold = False
+        self.pen_next = self.pen
         for j in range(self.n):
             self.u[j] = 0.0
 
@@ -137,17 +210,24 @@ class Board:
         u = self.u
         if mode == L.DRIVE:
             self._advance()
-            dt = self.period_ms / 1000.0
-            sp, vel = self.traj.sp, self.traj.vel
-            for j in range(self.n):
-                u[j] = self.pids[j].update(sp[j] / 1000.0, self.q[j], dt, vel[j] / 1000.0)
-            self.hal.write_outputs(u)
+            sp = self.traj.sp
+            if self.positional:
+                self.hal.write_positions([x / 1000.0 for x in sp])
+            else:
+                dt = self.period_ms / 1000.0
+                vel = self.traj.vel
+                for j in range(self.n):
+                    u[j] = self.pids[j].update(sp[j] / 1000.0, self.q[j], dt, vel[j] / 1000.0)
+                self.hal.write_outputs(u)
             self._check_following()
             return
         for j in range(self.n):
             u[j] = 0.0
         if mode == L.ZERO:
-            self.hal.write_outputs(u)
+            if self.positional:      # a positional servo stops by holding where it was sent
+                self.hal.write_positions([x / 1000.0 for x in self.traj.sp])
+            else:
+                self.hal.write_outputs(u)
 
     def telemetry(self) -> list:
         fields = [_milli(x) for x in self.q]
@@ -163,12 +243,18 @@ class Board:
         last waypoint completed in the tick (those before it are done too), and
         START only for a waypoint that starts from rest (otherwise it starts in
         the tick its predecessor is DONE)."""
+        if self._settling and self.hal.ticks_diff(self.hal.ticks_ms(), self._settle_at) >= 0:
+            self._settling = False
+            self.link.event("PEN", [self.pen])
         last_done = -1
         for e in self.traj.step(self.period_ms):
             if e[0] == "DONE":
                 last_done = e[1]
                 if self.on_done is not None:
                     self.on_done(e[1], e[2])
+            elif e[0] == "AUX":
+                if e[1] != self.pen:
+                    self._set_pen(e[1])
             elif e[0] != "START" or last_done < 0:
                 self.link.event(e[0], e[1:])
         if last_done >= 0:
@@ -185,3 +271,20 @@ class Board:
                     return
             else:
                 self._fe_ms[j] = 0
+
+
+def _load_ik(hal, cfg):
+    """The board's IK (ik3r.BoardIK) from the weights on the filesystem, or None:
+    no weights file, or one that does not parse (then X/XY are refused VERB and
+    the board runs on; a bad file must not stop the arm's other verbs)."""
+    name = getattr(cfg, "IK_WEIGHTS", None)
+    if not name or not hasattr(hal, "read_file"):
+        return None
+    data = hal.read_file(name)
+    if not data:
+        return None
+    try:
+        import ik3r
+        return ik3r.BoardIK(cfg, data)
+    except Exception:   # noqa: BLE001 - any bad file: no IK, the board runs on
+        return None

@@ -192,3 +192,26 @@ def test_lower_vmax_replans_the_active_segment_without_a_jump():
         assert 0.0 < t.sp[0] - prev <= 10.0 + 1e-9
         prev = t.sp[0]
     assert evs == [] and t.step(10) == [("DONE", 1, [1000])]
+
+
+def test_dwell_waits_at_the_start_and_aux_changes_are_reported_once():
+    t = Traj(1, 4)
+    t.set_point([0])
+    t.push(1, 100, [100], 0, 0)
+    t.push(2, 100, [200], 50, 1)              # the pen goes down: 50 ms settle first
+    t.push(3, 100, [300], 0, 1)
+    evs = t.step(10)
+    assert evs == [("AUX", 0), ("START", 1)]
+    evs = []
+    for _ in range(10):
+        evs += t.step(10)
+    assert ("AUX", 1) in evs and ("DONE", 1, [100]) in evs
+    sp = t.sp[0]
+    for _ in range(4):                         # 40 ms into the 50 ms dwell: no motion
+        assert t.step(10) == []
+        assert t.sp[0] == sp and t.vel[0] == 0.0
+    evs = []
+    for _ in range(25):
+        evs += t.step(10)
+    assert [e[0] for e in evs].count("AUX") == 0   # 3 has the same aux as 2
+    assert ("DONE", 3, [300]) in evs and t.sp[0] == 300
