@@ -24,8 +24,10 @@ q1-q3 (deg, against the reference) and theta = q1 + q2 + q3 (deg, against phi), 
 sample (Tables 6-7) and pooled (Tables 5 and 8). Also: time per point single (one
 target a call, median) and batched (a whole sample a call, best of 3); safe-region
 and joint-limit violations of the CBF over `random_targets` random targets in a
-square twice the disk's diameter around it (four in five outside); and the int8 nets
-(the board's flat file and the int8 ONNX) against the float net.
+square twice the disk's diameter around it (four in five outside); the CBF's Lyapunov
+function along the samples drawn in turn, checked to decrease and plotted as Fig. 13
+(`bench.arm3r_lyapunov`, key "lyapunov"); and the int8 nets (the board's flat file and
+the int8 ONNX) against the float net.
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ import platform
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -171,7 +174,7 @@ def _sample(chain, name, ann, rtb, size, region, phi) -> dict[str, Any]:
             "cbf": {"h_min": float(cbf.h_min.min()), "limit_margin_min_rad": float(cbf.limit_margin_min.min())},
             "rows": rows, "timing": timing, "_errors": {r: errors(chain, q, poses[: len(q)], q_ref[: len(q)])
                                                        for r, q in answers.items()},
-            "_poses": poses}
+            "_poses": poses, "_lyapunov": (q_ref[0], res.q)}
 
 
 def _random_cbf(chain, ann, region, phi, count: int, steps: int, seed: int) -> dict[str, Any]:
@@ -211,7 +214,9 @@ def _int8(chain, ann, poses: np.ndarray, phi: float) -> dict[str, Any]:
     return out
 
 
-def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, seed: int = 10) -> dict[str, Any]:
+def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, seed: int = 10,
+        lyapunov_png: Path | None = None) -> dict[str, Any]:
+    from armbridge.bench.arm3r_lyapunov import section as lyapunov_section
     from armbridge.draw.samples import SAMPLES
 
     chain = get_robot("arm3r")
@@ -227,6 +232,10 @@ def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, 
         e = [s["_errors"][r] for s in per if r in s["_errors"]]
         overall[r] = stats(np.concatenate(e)) if e else {"missing": rtb if isinstance(rtb, str) else ""}
     poses = np.concatenate([s.pop("_poses") for s in per])
+    lyap = [s.pop("_lyapunov") for s in per]
+    progress("Lyapunov function along the samples (Fig. 13)")
+    lyapunov = lyapunov_section(chain, region, CBF, [s["name"] for s in per], [a for a, _ in lyap],
+                                [b for _, b in lyap], lyapunov_png)
     for s in per:
         s.pop("_errors")
     progress(f"CBF on {size.random_targets:,} random targets")
@@ -241,10 +250,11 @@ def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, 
         "units": {"x, y": "mm", "q1-q3, theta": "deg", "time": "ms per point"},
         "cbf": asdict(CBF), "place_fraction": PLACE_FRACTION,
         "samples": per, "overall": overall, "timing_mean_over_samples": timing,
-        "random_cbf": random, "int8": _int8(chain, ann, poses, phi), "paper": PAPER,
+        "random_cbf": random, "lyapunov": lyapunov, "int8": _int8(chain, ann, poses, phi), "paper": PAPER,
         "targets": {"ann_fabrik_mean_under_0.1mm_every_sample":
                     all(s["rows"]["ann_fabrik"]["tip_mm"]["mean"] < 0.1 for s in per),
                     "zero_cbf_violations": violations == 0,
-                    "ann_fabrik_under_0.1ms_batched": timing["ann_fabrik"]["batched_ms"] < 0.1},
+                    "ann_fabrik_under_0.1ms_batched": timing["ann_fabrik"]["batched_ms"] < 0.1,
+                    "lyapunov_decreasing": lyapunov["decreasing"]},
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
     }

@@ -286,17 +286,20 @@ def arm3r_cmd(
                                "targets, 10 points timed singly and solved by RTB LM."),
     seed: int = typer.Option(10, "--seed", help="Seed of the random CBF targets."),
     json_out: Path = typer.Option(Path("runs/bench-arm3r.json"), "--json", help="Where to write the results."),
+    lyapunov_png: Path = typer.Option(None, "--lyapunov-png", help="Also plot Fig. 13 (the CBF's Lyapunov "
+                                      "function along each sample) to this PNG."),
 ) -> None:
     """Tables 5-8 of the 3R drawing-arm paper on its twelve samples: MSE, RMSE, MAE in
     x, y, q1-q3, theta for ANN, ANN + FABRIK, ANN + FABRIK + CBF, the closed form and
-    RTB LM; time per point; CBF violations over random targets; int8 against float."""
+    RTB LM; time per point; CBF violations over random targets; the Lyapunov function
+    checked to decrease (Fig. 13); int8 against float."""
     from rich.console import Console
     from rich.table import Table
 
     from armbridge.bench import arm3r
 
     console = Console()
-    result = arm3r.run(arm3r.QUICK if quick else arm3r.FULL, seed=seed,
+    result = arm3r.run(arm3r.QUICK if quick else arm3r.FULL, seed=seed, lyapunov_png=lyapunov_png,
                        progress=lambda text: console.print(f"[dim]bench arm3r: {text}[/]"))
     write_json(result, json_out)
     table = Table(title="armbridge bench arm3r: overall (Tables 5, 8); x, y mm, angles deg: MSE / RMSE / MAE")
@@ -312,5 +315,9 @@ def arm3r_cmd(
     rc = result["random_cbf"]
     console.print(f"CBF on {rc['targets']:,} random targets ({rc['outside_region']:,} outside the region): "
                   f"{rc['region_violations']} region and {rc['limit_violations']} joint-limit violations")
+    ly = result["lyapunov"]
+    console.print(f"Lyapunov V on {ly['rows']} samples, {ly['checked']:,} filter steps: {ly['violations']} rises "
+                  f"(max change {ly['max_increase']:.3g} rad^2), {ly['constrained_steps']} steps constrained"
+                  + (f"; wrote {ly['png']}" if "png" in ly else ""))
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
