@@ -13,6 +13,11 @@ go from on to off (`outputs_off_at`), the times they come back on
 (`outputs_on_at`), the efforts written (`efforts`, with times), the delivery
 time of every e-stop byte (`estop_byte_at`), and every complete line the
 firmware writes (handed to `on_line` before link faults are applied).
+
+The pen-lift servo (config PEN_PIN) is a fourth output: `write_pen(down)`
+logs (time, down) in `pen_log`; `pen_down_at(t)` is where the pen was at time
+t, taking PEN_SETTLE_MS of servo travel after each command (the pen touches
+the paper when the travel ends, and leaves it at once).
 """
 from __future__ import annotations
 
@@ -94,6 +99,9 @@ class SimHal:
         self.efforts: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
         self.saturation_violations = 0  # efforts written outside [-1, 1]
         self.reads = 0
+        self.has_pen = True
+        self.pen_travel_s = 0.15
+        self.pen_log: list[tuple[float, bool]] = []
         self._line = bytearray()
 
     # clock ---------------------------------------------------------------
@@ -135,6 +143,21 @@ class SimHal:
         if self.outputs_enabled:
             self.outputs_off_at.append(self.clock.t)
         self.outputs_enabled = False
+
+    # pen -----------------------------------------------------------------
+    def write_pen(self, down) -> None:
+        self.pen_log.append((self.clock.t, bool(down)))
+
+    def pen_down_at(self, t: float) -> bool:
+        """Whether the pen touched the paper at time t (s)."""
+        down = False
+        for at, d in self.pen_log:
+            if at > t:
+                break
+            down = d and t >= at + self.pen_travel_s
+            if not d:
+                down = False
+        return down
 
     # uart ----------------------------------------------------------------
     def uart_read(self) -> bytes | None:
