@@ -76,6 +76,8 @@ class PersistentMemory:
 class SimHal:
     """HAL over the sim clock, a ServoPlant, a PacedUart and persistent memory."""
 
+    has_pen = True  # the pen-lift servo of the default config (PEN_PIN)
+
     def __init__(
         self,
         clock: SimClock,
@@ -99,8 +101,7 @@ class SimHal:
         self.efforts: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
         self.saturation_violations = 0  # efforts written outside [-1, 1]
         self.reads = 0
-        self.has_pen = True
-        self.pen_travel_s = 0.15
+        self.pen_travel_s = 0.15  # servo travel up <-> down (the firmware waits PEN_SETTLE_MS)
         self.pen_log: list[tuple[float, bool]] = []
         self._line = bytearray()
 
