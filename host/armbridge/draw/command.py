@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from armbridge.errors import ArmbridgeError
+from armbridge.executor.command import CARTESIAN_HELP, PEN_HELP
 
 DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
 
@@ -80,6 +81,8 @@ def draw_cmd(
                                            help="With --port: the run summary as JSON to FILE ('-': stdout)."),
     clear: bool = typer.Option(False, "--clear", help="With --port: clear a latched ESTOP/WDOG/FAULT first."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="With --port: show a progress bar."),
+    cartesian: bool = typer.Option(False, "--cartesian", help="With --port: " + CARTESIAN_HELP),
+    pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help="With --port: " + PEN_HELP),
 ) -> None:
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
@@ -95,8 +98,9 @@ def draw_cmd(
         return
     if out is None:
         raise ArmbridgeError("--out PLAN.json is required (where to write the plan)")
-    if port is None and (rrd is not None or json_out is not None or clear):
-        raise ArmbridgeError("--rrd, --json and --clear need --port (they are about running the plan)")
+    if port is None and (rrd is not None or json_out is not None or clear or cartesian or pen != "auto"):
+        raise ArmbridgeError("--rrd, --json, --clear, --cartesian and --pen need --port (they are about running "
+                             "the plan)")
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
     from armbridge.draw.build import build
@@ -129,4 +133,4 @@ def draw_cmd(
     if port is not None:  # as `armbridge run` (exit codes, signals, summary)
         from armbridge.executor.command import run_command
 
-        run_command(out, port, rrd, rate, json_out, clear, progress)
+        run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)

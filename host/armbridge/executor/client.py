@@ -254,6 +254,26 @@ class BoardClient:
     def command(self, verb: str, *args, timeout: float | None = None) -> P.Ok:
         """Send one command and wait for its answer (retransmitting as needed).
         ER -> ArmbridgeError naming the command and the refusal."""
+        ans = self.ask(verb, *args, timeout=timeout)
+        if isinstance(ans, P.Er):
+            raise ArmbridgeError(f"the board refused {verb} {' '.join(map(str, args))}: "
+                                 f"{ans.code} {ans.name} {' '.join(ans.detail)}".rstrip())
+        return ans
+
+    def can(self, verb: str, *args, timeout: float | None = None) -> bool:
+        """Whether the board has a capability: the command is sent for real (so pick
+        arguments that are harmless, e.g. PEN 0), OK -> True, ER VERB -> False; any
+        other refusal -> ArmbridgeError."""
+        ans = self.ask(verb, *args, timeout=timeout)
+        if isinstance(ans, P.Er):
+            if ans.code == P.VERB:
+                return False
+            raise ArmbridgeError(f"the board refused {verb} {' '.join(map(str, args))}: "
+                                 f"{ans.code} {ans.name} {' '.join(ans.detail)}".rstrip())
+        return True
+
+    def ask(self, verb: str, *args, timeout: float | None = None) -> P.Ok | P.Er:
+        """Send one command and wait for its answer, OK or ER (retransmitting as needed)."""
         if timeout is None:
             timeout = self.connect_timeout
         arq = self.arq
@@ -270,9 +290,6 @@ class BoardClient:
                 if self.now() > end:
                     raise ArmbridgeError(f"the board did not answer {verb} within {timeout:.1f} s")
                 arq.loop_once()
-        if isinstance(ans, P.Er):
-            raise ArmbridgeError(f"the board refused {verb} {' '.join(map(str, args))}: "
-                                 f"{ans.code} {ans.name} {' '.join(ans.detail)}".rstrip())
         return ans
 
     def estop(self) -> None:
@@ -318,16 +335,22 @@ class BoardClient:
         q_milli: Sequence[Sequence[int]],
         on_progress: Callable[[int], None] | None = None,
         timeout: float | None = None,
+        *,
+        verb: str = "W",
+        pen: Sequence[int] | None = None,
     ) -> None:
-        """Stream waypoints (W id dur q...) under credits and return when the last
-        one is DONE. Ids continue across the plans of a session. `timeout` (clock
-        seconds) defaults to 30 s + 5 x the plan's duration."""
+        """Stream waypoints (W id dur q...; with verb="X", q_milli holds x y (um)
+        theta (mrad) and the board solves them) under credits and return when the
+        last one is DONE. `pen`: a flag per waypoint, sent as modal PEN lines
+        (the board must have a pen servo: see can("PEN", 0)). Ids continue across
+        the plans of a session. `timeout` (clock seconds) defaults to 30 s + 5 x
+        the plan's duration."""
         if not self.connected:
             raise ArmbridgeError("not connected: call connect() first")
         if self.robot is None:
             raise ArmbridgeError("this session has no robot: a plan needs one (open the session with the plan's "
                                  "robot)")
-        stream = Stream(durations_ms, q_milli, self._base, on_progress)
+        stream = Stream(durations_ms, q_milli, self._base, on_progress, verb=verb, pen=pen)
         self._stream, self._streaming = stream, True
         arq = self.arq
         planned = sum(stream.durations) / 1000.0

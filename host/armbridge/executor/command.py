@@ -22,6 +22,12 @@ from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, run_p
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
 
 
+CARTESIAN_HELP = ("Send Cartesian waypoints (X x y theta, from the plan by FK) and let the board solve its own IK "
+                  "(the 3R arm's int8 net + FABRIK).")
+PEN_HELP = ("Plans with pen flags: 'auto' drives the board's pen-lift servo when it has one, 'on' requires one, "
+            "'off' never sends PEN (pen-up moves only marked).")
+
+
 def run_cmd(
     plan: Path = typer.Argument(..., help="Plan file (armbridge-plan JSON, see docs/formats.md)."),
     port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, rfc2217://, loop://) or "
@@ -32,31 +38,35 @@ def run_cmd(
                                            help="Also write the summary as JSON to FILE ('-': stdout)."),
     clear: bool = typer.Option(False, "--clear", help="Clear a latched ESTOP/WDOG/FAULT on the board first."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    cartesian: bool = typer.Option(False, "--cartesian", help=CARTESIAN_HELP),
+    pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help=PEN_HELP),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
-    run_command(plan, port, rrd, rate, json_out, clear, progress)
+    run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
 
 
-def run_command(plan, port, rrd, rate, json_out, clear, progress) -> None:
+def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto") -> None:
     """What `armbridge run` does with its options (also `armbridge draw --port`)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
     console = Console(stderr=json_out == "-")
     try:
         with stop_on_signals():
-            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console)
+            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian, pen=pen)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
-def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console) -> None:
+def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
+                   pen="auto") -> None:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
     and the exit code (1: the run failed, 128 + n: stopped by signal n)."""
     failed: RunFailed | None = None
     try:
-        summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console)
+        summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
+                           cartesian=cartesian, pen=pen)
     except RunFailed as exc:
         failed, summary = exc, exc.summary
     with holding():

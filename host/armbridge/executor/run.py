@@ -54,11 +54,19 @@ def run_plan(
     session: int | None = None,
     console=None,
     timeout: float | None = None,
+    cartesian: bool = False,
+    pen: str = "auto",
 ) -> Summary:
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
 
     `clear`: send CLR first when the board is latched (ESTOP/WDOG/FAULT) from
     before; without it a latched board fails the run.
+
+    `cartesian`: send the waypoints as `X id dur x y theta` (the tip's pose by FK)
+    and let the board solve its IK; the board must have it (else the run fails
+    on the first waypoint naming the missing capability). `pen` (plans with pen
+    flags): "auto" uses the board's pen-lift servo when it has one (PEN lines),
+    "on" requires one, "off" never sends PEN (pen-up moves are only marked).
 
     Outcomes: a Summary (completed, or `stopped_by_user` after SIGINT/SIGTERM/
     SIGHUP: e-stop sent, `stopped_by` names the signal); `RunFailed` carrying
@@ -73,6 +81,8 @@ def run_plan(
         plan = load_plan(plan)
     if not isinstance(rate_hz, int) or not RATE_MIN <= rate_hz <= RATE_MAX:
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
+    if pen not in PEN_MODES:
+        raise ArmbridgeError(f"pen mode {pen!r}: use one of {', '.join(PEN_MODES)}")
     from armbridge.executor.session import open_session
     from armbridge.link.transport import PortError
     from armbridge.telemetry.recording import Recording, default_rrd_path
@@ -81,7 +91,7 @@ def run_plan(
     names = list(robot.joint_names)
     rrd = Path(rrd_path) if rrd_path is not None else default_rrd_path(plan.name)
     durs_ms = [max(1, int(round(d * 1000))) for d in plan.durations]
-    q_milli = [P.to_milli(row) for row in plan.q]
+    verb, rows = ("X", cartesian_rows(plan)) if cartesian else ("W", [P.to_milli(row) for row in plan.q])
     summary = Summary(
         plan=str(plan.source) if plan.source is not None else plan.name,
         port=port_url,
@@ -89,6 +99,7 @@ def run_plan(
         robot=robot.name,
         waypoints_total=plan.k,
         planned_duration_s=plan.total_duration,
+        ik="board" if cartesian else "host",
     )
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg
@@ -129,9 +140,13 @@ def run_plan(
                 client = c
                 assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
+                pen_flags = _pen_flags(c, plan, pen, summary)
                 bar = _progress_bar(plan, console) if progress else None
                 try:
-                    c.execute(durs_ms, q_milli, on_progress=bar.update if bar else None, timeout=timeout)
+                    c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
+                              verb=verb, pen=pen_flags)
+                    if pen_flags is not None:
+                        c.command("PEN", 0)  # the drawing is done: lift the pen
                     # Let the last samples (the arm settling on the final waypoint) arrive.
                     c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
                     summary.final_state = c.stat()[0]
@@ -173,6 +188,37 @@ def run_plan(
     if failure is not None:
         raise RunFailed(summary.error or str(failure), summary) from failure
     return summary
+
+
+PEN_MODES = ("auto", "on", "off")
+
+
+def cartesian_rows(plan: Plan) -> list[list[int]]:
+    """The plan's waypoints as X arguments: the tip's x, y (um) and theta = the sum
+    of the joint angles (mrad, unwrapped) by FK. Only a planar chain has them."""
+    robot = plan.robot
+    if not hasattr(robot, "ee_point") or getattr(robot, "kind", "planar") != "planar":
+        raise ArmbridgeError(f"--cartesian needs a planar arm; the plan's robot {robot.name!r} is not one")
+    xy = np.asarray(robot.ee_point(plan.q), dtype=float).reshape(-1, 2)
+    theta = plan.q.sum(axis=1)
+    rows = np.column_stack([np.rint(xy * 1e6), np.rint(theta * 1e3)]).astype(int)
+    return rows.tolist()
+
+
+def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> list[int] | None:
+    """The pen flags to stream as PEN lines, or None (no flags, no servo, or --pen off).
+    Asking the board `PEN 0` lifts the pen before the first move: harmless, and the answer
+    says whether it has the servo."""
+    if plan.pen is None:
+        return None
+    if mode != "off" and client.can("PEN", 0):
+        summary.pen = "servo"
+        return [int(x) for x in plan.pen]
+    if mode == "on":
+        raise ArmbridgeError("the board has no pen-lift servo (it refused PEN with VERB); "
+                             "run with --pen auto or off to draw with pen-up moves only marked")
+    summary.pen = "marked"
+    return None
 
 
 def _progress_bar(plan: Plan, console):

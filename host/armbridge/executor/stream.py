@@ -1,10 +1,18 @@
 """Streaming one plan's waypoints: which are sent, which are done, where to resume.
 
 A `Stream` is the plan side of a session: it issues `W id dur q...` lines
+(or Cartesian `X id dur x y theta` lines, which the board solves itself)
 through the session layer (link/arq.py) while the board's queue has credit,
 follows START and DONE (events, or the `done` column of telemetry when an
 event was lost), and after a resync maps the board's `done`/`queued` ids back
 to plan indices, so the rest is resent and nothing runs twice.
+
+A drawing plan's pen flags go down as `PEN down` lines, modal like G-code's
+M3/M5: one before the first waypoint and before each waypoint whose flag
+differs from the last sent; the board applies it to the waypoints queued after
+it (docs/protocol.md §3). After a resync the next waypoint sent is preceded by
+its PEN again, so a board that rebooted (its pen state back to up) draws the
+rest as planned. PEN takes no queue slot, so it costs no credit.
 
 Waypoint ids run on across the plans of one session (`base`, the count of
 waypoints streamed before this plan, mod 65536): a board's `done` after a
@@ -25,11 +33,17 @@ class Stream:
     """One plan's waypoints in flight. Plan indices 0..k-1; ids (base + i) mod 65536."""
 
     def __init__(self, durations_ms: Sequence[int], q_milli: Sequence[Sequence[int]], base: int = 0,
-                 on_progress: Callable[[int], None] | None = None) -> None:
+                 on_progress: Callable[[int], None] | None = None, *, verb: str = "W",
+                 pen: Sequence[int] | None = None) -> None:
         if len(durations_ms) != len(q_milli):
             raise ValueError(f"{len(durations_ms)} durations for {len(q_milli)} waypoints")
+        if pen is not None and len(pen) != len(durations_ms):
+            raise ValueError(f"{len(pen)} pen flags for {len(durations_ms)} waypoints")
         self.durations = [int(d) for d in durations_ms]
-        self.q = [[int(v) for v in row] for row in q_milli]
+        self.q = [[int(v) for v in row] for row in q_milli]  # the arguments after dur
+        self.verb = verb
+        self.pen = None if pen is None else [int(x) for x in pen]
+        self._pen_sent: int | None = None  # the board's modal pen state as last sent
         self.k = len(self.durations)
         self.base = base
         self.on_progress = on_progress
@@ -63,7 +77,11 @@ class Stream:
         while (self.next_wp < self.k and arq.credit_left() > 0 and len(arq.out) < max(1, int(arq.cwnd))
                and arq.can_issue()):
             i = self.next_wp
-            arq.issue("W", self.wid(i), self.durations[i], *self.q[i], wp=self.base + i)
+            if self.pen is not None and self.pen[i] != self._pen_sent:
+                arq.issue("PEN", self.pen[i])
+                self._pen_sent = self.pen[i]
+                continue
+            arq.issue(self.verb, self.wid(i), self.durations[i], *self.q[i], wp=self.base + i)
             self.next_wp += 1
 
     # ------------------------------------------------------------------ board news
@@ -116,6 +134,7 @@ class Stream:
                     f"has not sent (sent up to index {self.next_wp - 1}). Stopped."
                 )
         self._advance(done_idx)
+        self._pen_sent = None  # the board may have rebooted: say the pen state again
         resume = self.done + 1
         if queued is not None:  # the board kept its queue (no reset): resend after it
             q_idx = self.index_of(queued, max(self.done, 0), self.next_wp - 1)
@@ -133,6 +152,8 @@ class Stream:
             P.RANGE: "a value is outside the board's limits",
             P.FULL: "its queue was full (host credit error)",
             P.LATCHED: f"it is latched in {state or 'ESTOP/WDOG/FAULT'}",
+            P.VERB: f"this board cannot do {cmd.verb} (a capability its firmware or rig lacks)",
+            P.REACH: "the target is outside the board's safe region or its IK did not reach it",
         }.get(er.code, "")
         detail = " ".join(er.detail)
         return ArmbridgeError(

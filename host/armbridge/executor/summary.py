@@ -56,6 +56,8 @@ class Summary:
     fw: str | None = None
     fw_version: str | None = None
     drawing: dict | None = None  # a plan with pen flags: draw/error.py run_drawing_report
+    pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
+    ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
 
     @property
     def completed(self) -> bool:
@@ -108,6 +110,10 @@ class Summary:
                 f"tracking {name} (rms / max)",
                 f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} mrad",
             )
+        if self.pen:
+            t.add_row("pen", "pen-lift servo (PEN)" if self.pen == "servo" else "no pen-lift servo: pen-up moves marked")
+        if self.ik == "board":
+            t.add_row("IK", "on the board (X waypoints)")
         if self.drawing:
             d = self.drawing
             t.add_row("drawing error, trace from strokes (mean / max)",

@@ -424,7 +424,7 @@ class Arq:
         if cmd.wp is not None and cmd.wp not in self._acked_wp:
             self._acked_wp.add(cmd.wp)
             self.stats.waypoints_acked += 1
-        if cmd.tx == 1 or cmd.verb != "W":
+        if cmd.tx == 1 or cmd.wp is None:
             self.cwnd = min(float(MAX_WINDOW), self.cwnd + 1.0 / self.cwnd)
         self._lost_answers_before(cmd)
         return cmd.verb

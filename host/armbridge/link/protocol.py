@@ -15,7 +15,7 @@ import numpy as np
 
 from armbridge.link import protodef as D
 from armbridge.link.protodef import (  # noqa: F401  (re-exported: the codes users name)
-    ARGS, CRC, FULL, LATCHED, LONG, NOSESSION, PARSE, PROTO, RANGE, SEQ, STALE, VERB,
+    ARGS, CRC, FULL, LATCHED, LONG, NOSESSION, PARSE, PROTO, RANGE, REACH, SEQ, STALE, VERB,
 )
 
 PROTOCOL_VERSION = D.PROTOCOL_VERSION
