@@ -58,3 +58,17 @@ def test_pen_off_sends_no_pen_line(ports, tmp_path):
     s = run_plan(_plan("I"), "emu:esp32?speed=0", tmp_path / "r.rrd", progress=False, pen="off")
     assert s.completed and s.pen == "marked"
     assert ports[0].emulator.hal.pen_log == []
+
+
+def test_pen_state_survives_a_damaged_link_and_a_board_reset(ports, tmp_path):
+    """Resyncs (line damage) and a reset mid-drawing: the host says PEN again before
+    it resends, so every waypoint still ends with the pen where the plan says."""
+    plan = _plan()
+    url = "emu:esp32?speed=0&drop=0.01&corrupt=0.01&seed=5&reset_at=2.0"
+    s = run_plan(plan, url, tmp_path / "r.rrd", progress=False)
+    assert s.completed and s.pen == "servo" and s.resyncs >= 1, s.to_dict()
+    emu = ports[0].emulator
+    ids = [wid for _, wid, _ in emu.executed]
+    assert ids == list(range(plan.k))  # each once, in order
+    for ms, wid, _ in emu.executed:
+        assert emu.hal.pen_down_at((ms - 1) / 1000.0) == bool(plan.pen[wid]), (wid, ms)
