@@ -1,11 +1,18 @@
 """The HAL of docs/architecture.md over MicroPython's `machine` on an ESP32.
 
-Servos: PWM at PWM_FREQ_HZ, pulse PULSE_MIN_US..PULSE_MAX_US for an effort of
--1..1 (PULSE_NEUTRAL_US at 0); outputs_off() stops the pulses (duty 0), which
-lets hobby servos go limp; the next write_outputs() drives them again.
-Feedback: potentiometers on ADC pins, linear calibration from the config.
-Link: UART at UART_BAUD, non-blocking reads. Persistence: RTC memory, which
-survives a reset but not a power cycle.
+`Esp32Base` is what both rigs share: the clock, the feedback potentiometers
+(ADC pins, linear calibration from the config), the link UART at UART_BAUD
+(non-blocking reads), persistence in RTC memory (survives a reset, not a
+power cycle) and the filesystem. Each rig adds its outputs:
+
+`Esp32Hal` (config SERVOS = "effort"): servos driven by effort, PWM at
+PWM_FREQ_HZ, pulse PULSE_MIN_US..PULSE_MAX_US for an effort of -1..1
+(PULSE_NEUTRAL_US at 0). The optional pen-lift servo on PEN_PIN (None: none)
+gets PEN_UP_US / PEN_DOWN_US. outputs_off() stops every pulse (duty 0), the
+pen's too, which lets hobby servos go limp; the next write_outputs() drives
+them again, the pen where it was last put (up, before any write_pen).
+
+The positional rig (SERVOS = "pca9685") is hal_pca9685.Pca9685Hal.
 """
 
 import time
@@ -13,18 +20,16 @@ import time
 import machine
 
 
-class Esp32Hal:
+class Esp32Base:
+    """Clock, feedback pots, UART, RTC memory and files of the ESP32 (both rigs)."""
+
     def __init__(self, cfg) -> None:
         self.cfg = cfg
-        neutral_ns = cfg.PULSE_NEUTRAL_US * 1000
-        self._pwms = [machine.PWM(machine.Pin(p), freq=cfg.PWM_FREQ_HZ, duty_ns=neutral_ns)
-                      for p in cfg.PWM_PINS]
         self._adcs = [machine.ADC(machine.Pin(p), atten=machine.ADC.ATTN_11DB)
                       for p in cfg.ADC_PINS]
         self._uart = machine.UART(cfg.UART_ID, baudrate=cfg.UART_BAUD, tx=cfg.UART_TX,
                                   rx=cfg.UART_RX, rxbuf=cfg.UART_RXBUF, timeout=0)
         self._rtc = machine.RTC()
-        self.outputs_off()
 
     # ------------------------------------------------------------ time
     # (no annotations: the stubs type ticks as _TicksMs/_TicksUs, the HAL as int)
@@ -43,24 +48,6 @@ class Esp32Hal:
         for j in range(len(self._adcs)):
             volts = (self._adcs[j].read_uv() - c.ADC_CENTER_UV[j]) / 1000000.0
             out[j] = c.ADC_RAD_AT_CENTER[j] + c.ADC_RAD_PER_V[j] * volts
-
-    def write_outputs(self, efforts: list) -> None:
-        c = self.cfg
-        for j in range(len(self._pwms)):
-            e = efforts[j]
-            if e > 1.0:
-                e = 1.0
-            elif e < -1.0:
-                e = -1.0
-            if e >= 0:
-                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_MAX_US - c.PULSE_NEUTRAL_US)
-            else:
-                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_NEUTRAL_US - c.PULSE_MIN_US)
-            self._pwms[j].duty_ns(int(us * 1000))
-
-    def outputs_off(self) -> None:
-        for p in self._pwms:
-            p.duty_ns(0)
 
     # ------------------------------------------------------------ link
     def uart_read(self):
@@ -87,3 +74,53 @@ class Esp32Hal:
                 return f.read()
         except OSError:
             return None
+
+
+class Esp32Hal(Esp32Base):
+    """The effort rig: continuous servos on PWM pins (see the module docstring)."""
+
+    def __init__(self, cfg) -> None:
+        neutral_ns = cfg.PULSE_NEUTRAL_US * 1000
+        self._pwms = [machine.PWM(machine.Pin(p), freq=cfg.PWM_FREQ_HZ, duty_ns=neutral_ns)
+                      for p in cfg.PWM_PINS]
+        Esp32Base.__init__(self, cfg)
+        pin = getattr(cfg, "PEN_PIN", None)
+        self.has_pen = pin is not None
+        self._pen = None
+        self._pen_ns = cfg.PEN_UP_US * 1000 if pin is not None else 0
+        self._live = False
+        if pin is not None:
+            self._pen = machine.PWM(machine.Pin(pin), freq=cfg.PWM_FREQ_HZ, duty_ns=self._pen_ns)
+        self.outputs_off()
+
+    def write_outputs(self, efforts: list) -> None:
+        c = self.cfg
+        for j in range(len(self._pwms)):
+            e = efforts[j]
+            if e > 1.0:
+                e = 1.0
+            elif e < -1.0:
+                e = -1.0
+            if e >= 0:
+                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_MAX_US - c.PULSE_NEUTRAL_US)
+            else:
+                us = c.PULSE_NEUTRAL_US + e * (c.PULSE_NEUTRAL_US - c.PULSE_MIN_US)
+            self._pwms[j].duty_ns(int(us * 1000))
+        if not self._live:
+            self._live = True
+            if self._pen is not None:
+                self._pen.duty_ns(self._pen_ns)
+
+    def outputs_off(self) -> None:
+        for p in self._pwms:
+            p.duty_ns(0)
+        if self._pen is not None:
+            self._pen.duty_ns(0)
+        self._live = False
+
+    def write_pen(self, down: bool) -> None:
+        """The pen-lift servo to PEN_DOWN_US (down) or PEN_UP_US (up); it is
+        driven from now on."""
+        if self._pen is not None:
+            self._pen_ns = (self.cfg.PEN_DOWN_US if down else self.cfg.PEN_UP_US) * 1000
+            self._pen.duty_ns(self._pen_ns)

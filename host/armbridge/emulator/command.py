@@ -11,7 +11,7 @@ import typer
 
 from armbridge.emulator.board import EmulatedBoard
 from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
-from armbridge.emulator.registry import BOARDS, board_spec
+from armbridge.emulator.registry import BOARDS, board_spec, rig_spec
 from armbridge.errors import ArmbridgeError
 
 
@@ -21,6 +21,7 @@ def _say(text: str) -> None:
 
 
 _DEVICES = "; ".join(f"{name} ({BOARDS[name].description})" for name in sorted(BOARDS))
+_RIGS = "; ".join(f"{name}: {', '.join(sorted(BOARDS[name].rigs))}" for name in sorted(BOARDS) if BOARDS[name].rigs)
 
 
 def format_counters(counters: dict) -> str:
@@ -41,6 +42,10 @@ def emulate_cmd(
     interpreter: Optional[str] = typer.Option(None, "--interpreter", metavar="NAME",
                                               help="Run the firmware under cpython (default) or micropython "
                                                    "(the real MicroPython interpreter, WebAssembly, slower)."),
+    servos: Optional[str] = typer.Option(None, "--servos", metavar="RIG",
+                                         help="The board's rig (its config SERVOS): " + _RIGS + ". effort: continuous "
+                                              "servos driven by effort (default); pca9685: positional servos behind "
+                                              "a PCA9685 on I2C, the paper's rig (cpython only)."),
     drop: str = typer.Option("0", "--drop", metavar="R", help="Fraction of bytes dropped, [0, 1]."),
     corrupt: str = typer.Option("0", "--corrupt", metavar="R", help="Fraction of bytes with one bit flipped, [0, 1]."),
     dup: str = typer.Option("0", "--dup", metavar="R", help="Fraction of bytes sent twice, [0, 1]."),
@@ -53,9 +58,9 @@ def emulate_cmd(
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
 ) -> None:
     """Put an emulated board on a pseudo-terminal and print its path; Ctrl-C stops it."""
-    spec = board_spec(device)
+    spec = rig_spec(board_spec(device), servos)
     if interpreter is not None and interpreter not in spec.interpreters:
-        raise ArmbridgeError(f"--interpreter {interpreter!r}: the {device} firmware runs under "
+        raise ArmbridgeError(f"--interpreter {interpreter!r}: the {device} firmware on the {spec.rig} rig runs under "
                              f"{', '.join(spec.interpreters)}")
     if not speed >= 0:
         raise ArmbridgeError(f"--speed {speed} must be >= 0 (0 = as fast as it goes)")
@@ -96,7 +101,8 @@ def emulate_cmd(
     if emu.link_note:
         _say(f"note: {emu.link_note}")
     if not quiet:
-        _say(f"speed {speed:g}, seed {seed}, firmware under {emu.interpreter}, faults: {faults.describe()}; "
+        _say(f"speed {speed:g}, seed {seed}, rig {spec.rig}, firmware under {emu.interpreter}, "
+             f"faults: {faults.describe()}; "
              "Ctrl-C stops")
         for text in held or []:
             _say(text)

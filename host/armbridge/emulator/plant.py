@@ -12,7 +12,9 @@ Model per joint, with effort u in [-1, 1] (the firmware's PWM duty, signed):
     y = quantise(q + N(0, sigma))            potentiometer through a 12-bit ADC
 
 `step` is the pure step function (numpy in, numpy out); `ServoPlant` holds the
-state, the fault schedule and the seeded measurement noise.
+state, the fault schedule and the seeded measurement noise. `Pots` (the
+potentiometers and the ADC) is shared with the positional rig's plant
+(servo_plant.py).
 """
 from __future__ import annotations
 
@@ -77,6 +79,31 @@ def step(
     return q_new, v_new
 
 
+class Pots:
+    """Feedback potentiometers read through an ADC: gaussian noise (sigma, rad),
+    then quantisation to 2**bits codes over the stop-to-stop span lo_stop..hi_stop
+    (rad, one per joint), so a reading never leaves the span. rng: the seeded
+    noise source (numpy Generator), owned by the plant."""
+
+    def __init__(self, lo_stop: np.ndarray, hi_stop: np.ndarray, sigma: float, bits: int,
+                 rng: np.random.Generator) -> None:
+        self.lo_stop = np.asarray(lo_stop, dtype=float)
+        self.span = np.asarray(hi_stop, dtype=float) - self.lo_stop
+        self.sigma = float(sigma)
+        self.codes = (1 << int(bits)) - 1
+        self.rng = rng
+
+    def measure(self, q: np.ndarray) -> np.ndarray:
+        noisy = q + self.rng.normal(0.0, self.sigma, self.lo_stop.size)
+        code = np.clip(np.rint((noisy - self.lo_stop) / self.span * self.codes), 0, self.codes)
+        return self.lo_stop + code * (self.span / self.codes)
+
+    @property
+    def quantum(self) -> np.ndarray:
+        """ADC step per joint (rad)."""
+        return self.span / self.codes
+
+
 class ServoPlant:
     """n servo joints with state, time, faults and seeded potentiometer noise.
 
@@ -108,9 +135,7 @@ class ServoPlant:
         self.driven = False
         self.t = 0.0
         self.stall_from = np.full(self.n, np.inf)
-        self._rng = np.random.default_rng(seed)
-        self._codes = (1 << self.p.adc_bits) - 1
-        self._span = self.hi_stop - self.lo_stop
+        self.pots = Pots(self.lo_stop, self.hi_stop, self.p.sigma, self.p.adc_bits, np.random.default_rng(seed))
 
     # drive ---------------------------------------------------------------
     def drive(self, efforts) -> None:
@@ -148,11 +173,9 @@ class ServoPlant:
     # sensing -------------------------------------------------------------
     def measure(self) -> np.ndarray:
         """Potentiometer readings (rad): noise, then 12-bit quantisation over the stop-to-stop span."""
-        noisy = self.q + self._rng.normal(0.0, self.p.sigma, self.n)
-        code = np.clip(np.rint((noisy - self.lo_stop) / self._span * self._codes), 0, self._codes)
-        return self.lo_stop + code * (self._span / self._codes)
+        return self.pots.measure(self.q)
 
     @property
     def quantum(self) -> np.ndarray:
         """ADC step per joint (rad)."""
-        return self._span / self._codes
+        return self.pots.quantum

@@ -14,11 +14,16 @@ A new board plugs in with one entry here and its own plant/HAL modules;
     slow = dataclasses.replace(board_spec("esp32"), name="esp32-slow",
                                plant_params=PlantParams(v_servo=2.0))
     EmulatedBoard(slow, speed=0)
+
+A board can have more than one rig (the hardware its firmware drives, chosen by
+its config: the esp32's SERVOS): `BoardSpec.rigs` names them, and
+`rig_spec(spec, name)` is the spec of the same board on another rig, its plant
+and HAL swapped (`armbridge emulate esp32 --servos pca9685`, `emu:esp32?servos=pca9685`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
@@ -80,6 +85,36 @@ def servo_plant(cfg, params: PlantParams | None, q0, seed: int) -> ServoPlant:
 
 
 @dataclass(frozen=True)
+class Rig:
+    """One rig of a board: its plant and HAL factories (as BoardSpec's) and the
+    interpreters whose runners can carry its HAL."""
+
+    description: str
+    plant: PlantFactory
+    hal: HalFactory
+    interpreters: tuple[str, ...]
+
+
+def _pca_plant(cfg, params, q0, seed: int) -> Any:
+    from armbridge.emulator.pcahal import rig_plant  # pcahal imports runner, which imports this module
+    return rig_plant(cfg, params, q0, seed)
+
+
+def _pca_hal(*args: Any, **kw: Any) -> Any:
+    from armbridge.emulator.pcahal import PcaSimHal
+    return PcaSimHal(*args, **kw)
+
+
+ESP32_RIGS: dict[str, Rig] = {
+    "effort": Rig("continuous servos driven by effort, potentiometer feedback (hal_esp32.Esp32Hal)",
+                  servo_plant, SimHal, ("cpython", "micropython")),
+    # The MicroPython bridge replays write_outputs only: this rig runs under CPython.
+    "pca9685": Rig("positional hobby servos behind a PCA9685 on I2C, the paper's rig (hal_pca9685.Pca9685Hal)",
+                   _pca_plant, _pca_hal, ("cpython",)),
+}
+
+
+@dataclass(frozen=True)
 class BoardSpec:
     """One emulated board; see the module docstring.
 
@@ -89,6 +124,7 @@ class BoardSpec:
     factories; q0 / plant_params: defaults handed to the plant (None: the plant's own).
     tick_us: one emulator iteration in sim time; baud: the UART's (8N1 pacing);
     persist_bytes: memory that survives a reset (RTC memory on the ESP32).
+    rig: the rig this spec emulates; rigs: every rig of the board (see rig_spec).
     """
 
     name: str
@@ -102,6 +138,8 @@ class BoardSpec:
     tick_us: int = 1000
     baud: int = 115200
     persist_bytes: int = RTC_MEMORY_SIZE
+    rig: str = "effort"
+    rigs: Mapping[str, Rig] = field(default_factory=dict)
 
     @property
     def interpreters(self) -> tuple[str, ...]:
@@ -116,6 +154,7 @@ BOARDS: dict[str, BoardSpec] = {
             description="3R servo arm, ESP32, MicroPython",
             identity="arm3r",
             firmware=MicroPythonFirmware(dirs=("esp32", "common")),
+            rigs=ESP32_RIGS,
         ),
     )
 }
@@ -133,3 +172,18 @@ def board_spec(device: str | BoardSpec) -> BoardSpec:
         return BOARDS[device]
     except (KeyError, TypeError):
         raise ArmbridgeError(f"unknown device {device!r}; known devices: {known_boards()}") from None
+
+
+def rig_spec(spec: BoardSpec, name: str | None) -> BoardSpec:
+    """`spec`'s board on the rig `name` (None: as it is). An unknown rig is one
+    ArmbridgeError naming the board's rigs."""
+    if name is None or name == spec.rig:
+        return spec
+    rig = spec.rigs.get(name)
+    if rig is None:
+        known = ", ".join(sorted(set(spec.rigs) | {spec.rig}))
+        raise ArmbridgeError(f"unknown rig {name!r} for the {spec.name} board; known rigs: {known}")
+    fw = spec.firmware
+    if isinstance(fw, MicroPythonFirmware):
+        fw = replace(fw, interpreters=rig.interpreters)
+    return replace(spec, plant=rig.plant, hal=rig.hal, plant_params=None, rig=name, firmware=fw)

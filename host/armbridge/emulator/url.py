@@ -1,8 +1,10 @@
 """`emu:DEVICE[?key=value&...]`: an emulated board as a port, in this process.
 
     emu:esp32?speed=4&drop=0.01&delay=0.01:20&seed=3&reset_at=2.5&stall=2@4
+    emu:esp32?servos=pca9685
 
 Parameters (all optional):
+  servos=RIG       the board's rig (registry.rig_spec): effort (default) or pca9685
   speed=K          clock mode: 1 wall clock (default), K times faster, 0 as fast as it goes
   interpreter=I    firmware runner: cpython (default) or micropython
   drop=R corrupt=R dup=R   byte fault rates in [0, 1]
@@ -13,7 +15,8 @@ Parameters (all optional):
   stall=J@S[,J@S]  joint J (1..n) stalls at sim second S
   link=PATH        a symlink to the pty (owned while the port is open)
 
-`parse_emu_url` turns the text into EmulatedBoard arguments (every bad part is
+`parse_emu_url` turns the text into EmulatedBoard arguments (the device is its
+name, or the rig's BoardSpec when servos= picks another rig; every bad part is
 one ArmbridgeError naming the URL and the parameter); `open_emu_port` starts
 the emulator on its pty and opens it like any serial port.
 """
@@ -25,10 +28,10 @@ from urllib.parse import parse_qsl, urlsplit
 import serial  # type: ignore[import-untyped]
 
 from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
-from armbridge.emulator.registry import board_spec
+from armbridge.emulator.registry import BoardSpec, board_spec, rig_spec
 from armbridge.errors import ArmbridgeError
 
-PARAMETERS = ("speed", "interpreter", "seed", "link", "drop", "corrupt", "dup", "delay", "delay_ms",
+PARAMETERS = ("servos", "speed", "interpreter", "seed", "link", "drop", "corrupt", "dup", "delay", "delay_ms",
               "lanes", "reset_at", "stall")
 
 
@@ -70,8 +73,9 @@ def _fault_kw(key: str, value: str) -> dict[str, Any]:
     return {"stall": tuple(parse_stall(x) for x in value.split(",") if x)}
 
 
-def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
-    """'emu:esp32?speed=4&drop=0.01' -> ('esp32', {EmulatedBoard keyword arguments})."""
+def parse_emu_url(url: str) -> tuple[str | BoardSpec, dict[str, Any]]:
+    """'emu:esp32?speed=4&drop=0.01' -> ('esp32', {EmulatedBoard keyword arguments});
+    'emu:esp32?servos=pca9685' -> (the pca9685 rig's BoardSpec, {})."""
     parts = urlsplit(url.strip())
     device = parts.path or parts.netloc
     if parts.scheme != "emu" or not device:
@@ -81,6 +85,11 @@ def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
         params = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
     except ValueError as exc:
         raise ArmbridgeError(f"bad port {url!r}: {exc}") from None
+    rigs = [value for key, value in params if key == "servos"]
+    try:
+        spec = rig_spec(spec, rigs[-1] if rigs else None)
+    except ArmbridgeError as exc:
+        raise ArmbridgeError(f"bad port {url!r}, parameter servos: {exc}") from None
     kw: dict[str, Any] = {}
     fk: dict[str, Any] = {}
     for key, value in params:
@@ -88,8 +97,10 @@ def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
             raise ArmbridgeError(f"bad port {url!r}: unknown parameter {key!r}; known: {', '.join(PARAMETERS)}")
         try:
             if key == "interpreter" and value not in spec.interpreters:
-                raise ArmbridgeError(f"{value!r} cannot run the {device} firmware; "
+                raise ArmbridgeError(f"{value!r} cannot run the {device} firmware on the {spec.rig} rig; "
                                      f"interpreters: {', '.join(spec.interpreters)}")
+            if key == "servos":
+                continue
             if key in ("speed", "seed", "link", "interpreter"):
                 kw[key] = _board_kw(key, value)
             else:
@@ -101,7 +112,7 @@ def parse_emu_url(url: str) -> tuple[str, dict[str, Any]]:
             kw["faults"] = Faults(**fk)
         except ArmbridgeError as exc:
             raise ArmbridgeError(f"bad port {url!r}: {exc}") from None
-    return device, kw
+    return (device if spec is board_spec(device) else spec), kw
 
 
 def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
