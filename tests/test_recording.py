@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import uuid
 from datetime import datetime
 from pathlib import Path
 
@@ -12,8 +13,9 @@ from rerun.chunk import RrdReader
 
 from armbridge.errors import ArmbridgeError
 from armbridge.plans.format import make_plan
-from armbridge.robots import ARM3R
+from armbridge.robots import ARM3R, get_robot
 from armbridge.telemetry import command as view
+from armbridge.telemetry.layout import run_layout
 from armbridge.telemetry.recording import Recording, default_rrd_path
 
 MID = np.array([math.pi / 2, -math.pi / 2, 0.0])
@@ -33,6 +35,50 @@ def read(path: Path) -> dict[str, dict]:
                 col = col.cast(pa.int64())
             e["columns"].setdefault(name, []).extend(col.to_pylist())
     return out
+
+
+def layout(path: Path) -> dict:
+    """The file's one blueprint read back as a tree: {"kind", "name", "children"} per container,
+    {"view", "name", "origin", "contents"} per view, from the root container of the viewport."""
+    reader = RrdReader(path)
+    (store,) = reader.blueprints()
+    parts: dict[str, dict] = {}
+    root = None
+
+    def one(rb, col):
+        return rb.column(col).to_pylist()[0] if col in rb.schema.names else None
+
+    for chunk in reader.stream(store=store):
+        rb, ent = chunk.to_record_batch(), chunk.entity_path.lstrip("/")
+        if ent == "viewport":
+            root = f"container/{uuid.UUID(bytes=bytes(one(rb, 'ViewportBlueprint:root_container')[0]))}"
+        elif ent.endswith("/ViewContents"):
+            parts.setdefault(ent.rsplit("/", 1)[0], {})["contents"] = one(rb, "ViewContents:query")
+        elif ent.startswith("view/"):
+            parts.setdefault(ent, {}).update(view=one(rb, "ViewBlueprint:class_identifier")[0],
+                                             name=one(rb, "ViewBlueprint:display_name")[0],
+                                             origin=one(rb, "ViewBlueprint:space_origin")[0])
+        elif ent.startswith("container/"):
+            kind = {1: "Tabs", 2: "Horizontal", 3: "Vertical", 4: "Grid"}[one(rb, "ContainerBlueprint:container_kind")[0]]
+            name = one(rb, "ContainerBlueprint:display_name")
+            parts.setdefault(ent, {}).update(kind=kind, name=name and name[0],
+                                             children=one(rb, "ContainerBlueprint:contents"))
+
+    def tree(key: str) -> dict:
+        node = dict(parts[key])
+        if "children" in node:
+            node["children"] = [tree(c) for c in node["children"]]
+        return node
+
+    assert root is not None, "no viewport in the blueprint"
+    return tree(root)
+
+
+def names(node: dict) -> list:
+    """A layout tree as nested lists of view names (containers as (kind, [children]))."""
+    if "view" in node:
+        return node["name"]
+    return [node["kind"], [names(c) for c in node["children"]]]
 
 
 def _plan():
@@ -139,17 +185,23 @@ def test_view_starts_the_rerun_viewer(tmp_path, monkeypatch):
 
 @pytest.mark.hil
 def test_rerun_verifies_the_file(tmp_path):
-    """The file is a valid .rrd for the rerun CLI itself (`rerun rrd verify`)."""
+    """The file, blueprint and all, is a valid .rrd for the rerun CLI itself (`rerun rrd verify`)."""
     import subprocess
 
-    rrd = tmp_path / "v.rrd"
-    with Recording(rrd, ARM3R, _plan()) as rec:
-        for i in range(60):
-            rec.telemetry(i * 0.02, MID, MID, [0, 0, 0], done=None)
-        rec.event(0.5, "DONE 0 32")
-    r = subprocess.run([view.rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True,
-                       timeout=60)
-    assert r.returncode == 0, r.stdout + r.stderr
+    from armbridge.demos.arm3r_ft_log import FtLog
+
+    for name, robot, lay in (("v", ARM3R, None), ("ft", ARM3R, FtLog.layout(ARM3R)),  # a joint plan's, the demo's
+                             ("s4", get_robot("spatial4r"), None)):                    # and a 3-D arm's layout
+        rrd = tmp_path / f"{name}.rrd"
+        q = MID if robot is ARM3R else np.zeros(robot.dof)
+        with Recording(rrd, robot, _plan() if robot is ARM3R else None, layout=lay) as rec:
+            for i in range(60):
+                rec.telemetry(i * 0.02, q, q, np.zeros(robot.dof), done=None)
+            rec.event(0.5, "DONE 0 32")
+        assert layout(rrd)["kind"] == "Horizontal"
+        r = subprocess.run([view.rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True,
+                           timeout=60)
+        assert r.returncode == 0, name + ": " + r.stdout + r.stderr
 
 
 @pytest.mark.parametrize("name", ["masr5", "spatial4r", "planar3r"])
@@ -184,3 +236,83 @@ def test_any_robot_goes_plan_file_to_recording(tmp_path, name):
     np.testing.assert_allclose(path, robot.ee_point(q), atol=1e-6)
     for jn in robot.joint_names:
         assert data[f"/joints/{jn}/q"]["rows"] == n
+    # Its layout: the arm in 2-D or 3-D as the robot draws, one plot per joint (its own names).
+    tree = layout(rrd)
+    arm = tree["children"][0]["children"][0]
+    assert arm["view"] == ("2D" if robot.draw_dim == 2 else "3D") and "arm/**" in arm["contents"]
+    grids = tree["children"][1]["children"]
+    assert [names(g) for g in grids] == [["Grid", [f"{j}{s}" for j in robot.joint_names]]
+                                         for s in ("", " error", " effort")]
+
+
+def test_a_joint_plan_opens_in_its_own_layout(tmp_path):
+    """A plan without pen flags (a joint plan): the .rrd holds a blueprint made for it (the
+    arm over the logs, beside per-joint grids of position, error and effort) and the arm's
+    line strips through FK of the measured q."""
+    plan = _plan()
+    rrd = tmp_path / "j.rrd"
+    with Recording(rrd, ARM3R, plan, flush_every=4) as rec:
+        for i in range(10):
+            rec.telemetry(0.1 * i, plan.q[i], plan.q[min(i + 1, 9)], [0.1, 0, 0], done=i)
+        rec.event(0.5, "DONE 4 0")
+    joints = list(ARM3R.joint_names)
+    tree = layout(rrd)
+    assert names(tree) == ["Horizontal", [
+        ["Vertical", ["arm", ["Tabs", ["events", "errors", "plan", "done waypoint"]]]],
+        ["Tabs", [["Grid", joints], ["Grid", [f"{j} error" for j in joints]],
+                  ["Grid", [f"{j} effort" for j in joints]]]]]]
+    arm = tree["children"][0]["children"][0]
+    assert arm["view"] == "2D" and arm["origin"] == "/"
+    assert set(arm["contents"]) == {"arm/**", "plan/path", "plan/waypoints", "trace/**", "workspace"}
+    logs = tree["children"][0]["children"][1]["children"]
+    assert [(v["view"], v["origin"]) for v in logs] == [("TextLog", "events"), ("TextLog", "errors"),
+                                                        ("TextDocument", "plan/info"), ("TimeSeries", "board")]
+    pos, err, eff = tree["children"][1]["children"]
+    assert [g["name"] for g in (pos, err, eff)] == ["position", "error", "effort"]
+    # the position plot is the joint's series less error and effort: q, the set point (and a caller's extras)
+    assert pos["children"][1]["origin"] == "joints/elbow"
+    assert pos["children"][1]["contents"] == ["+ joints/elbow/**", "- joints/elbow/error", "- joints/elbow/effort"]
+    assert err["children"][2]["contents"] == ["joints/wrist/error"]
+    assert eff["children"][0]["contents"] == ["joints/shoulder/effort"]
+    # what the views show is in the file: the arm's strips (FK of the measured q), the series, the log
+    data = read(rrd)
+    strips = [np.array(r[0]) for r in data["/arm/links"]["columns"]["LineStrips2D:strips"]]
+    assert len(strips) == 10
+    for i, strip in enumerate(strips):
+        np.testing.assert_allclose(strip, ARM3R.joint_points(plan.q[i]), atol=1e-6)
+    assert strips[0].shape == (ARM3R.n + 1, 2)
+    for j in joints:
+        for series in ("q", "target", "error", "effort"):
+            assert data[f"/joints/{j}/{series}"]["rows"] == 10
+    assert [x for r in data["/events"]["columns"]["TextLog:text"] for x in r] == ["DONE 4 0"]
+
+
+def test_a_caller_passes_its_own_layout(tmp_path):
+    """layout=: the run's layout with a caller's entities in the arm view and views of its own
+    (the fault-tolerant demo's: the task in the arm view, one view per joint plane)."""
+    from armbridge.demos.arm3r_ft_log import FtLog
+
+    rrd = tmp_path / "c.rrd"
+    with Recording(rrd, ARM3R, _plan(), layout=FtLog.layout(ARM3R)) as rec:
+        rec.telemetry(0.0, MID, MID, [0, 0, 0])
+    tree = layout(rrd)
+    left = tree["children"][0]
+    arm, planes, logs = left["children"]
+    assert {"task/**", "recovery/**", "arm/**"} <= set(arm["contents"])
+    assert [(v["view"], v["name"], v["origin"]) for v in planes["children"]] == [
+        ("2D", "shoulder-elbow", "joint_space/shoulder-elbow"), ("2D", "elbow-wrist", "joint_space/elbow-wrist"),
+        ("2D", "shoulder-wrist", "joint_space/shoulder-wrist")]
+    assert names(logs)[0] == "Tabs"
+    rrd2 = tmp_path / "d.rrd"
+    with Recording(rrd2, ARM3R, None, layout=run_layout(ARM3R, spatial=("extra/**",))) as rec:
+        rec.telemetry(0.0, MID, MID, [0, 0, 0])
+    assert "extra/**" in layout(rrd2)["children"][0]["children"][0]["contents"]
+
+
+def test_a_run_without_a_plan_has_the_layout_too(tmp_path):
+    rrd = tmp_path / "n.rrd"
+    with Recording(rrd, get_robot("spatial4r"), None) as rec:
+        rec.telemetry(0.0, np.zeros(4), np.zeros(4), np.zeros(4))
+    tree = layout(rrd)
+    assert tree["children"][0]["children"][0]["view"] == "3D"
+    assert names(tree["children"][1]["children"][0])[1] == list(get_robot("spatial4r").joint_names)

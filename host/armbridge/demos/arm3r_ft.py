@@ -302,7 +302,7 @@ def run_ft_demo(port_url: str = "emu:esp32", rrd: str | Path | None = None, seed
     stall: dict[str, Any] = {}
 
     with ExitStack() as stack:
-        rec = stack.enter_context(Recording(res.rrd, robot, sc.plan))
+        rec = stack.enter_context(Recording(res.rrd, robot, sc.plan, layout=FtLog.layout(robot)))
         log = FtLog(rec, robot, sc, limits(robot))
 
         def note(t: float | None, text: str, level: str = "info") -> None:

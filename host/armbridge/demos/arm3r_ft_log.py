@@ -3,11 +3,12 @@
 task/target, task/smm (the arm along its SMM within the limits), task/recovery,
 recovery/path, joint_space/<a>-<b>/smm, /limits, /box and /q (Fig. 2 style
 projections on joint planes), joints/<name>/box_lo and box_hi while the
-artificial limits hold.
+artificial limits hold. The recording opens in `FtLog.layout`: the run's layout with
+these in the arm view and the joint planes under it.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
@@ -19,6 +20,10 @@ from armbridge.telemetry.recording import Recording
 
 if TYPE_CHECKING:
     from armbridge.demos.arm3r_ft import FtScenario
+
+
+def _pair(robot: PlanarChain, a: int, b: int) -> str:
+    return f"joint_space/{robot.joint_names[a]}-{robot.joint_names[b]}"
 
 
 class FtLog:
@@ -35,7 +40,19 @@ class FtLog:
         self._static()
 
     def _pair(self, a: int, b: int) -> str:
-        return f"joint_space/{self.robot.joint_names[a]}-{self.robot.joint_names[b]}"
+        return _pair(self.robot, a, b)
+
+    @classmethod
+    def layout(cls, robot: PlanarChain) -> Any:
+        """The recording's layout: the run's (telemetry.layout.run_layout) with the task, the SMMs and
+        the recovery in the arm view and one view per joint plane under it."""
+        from rerun import blueprint as rrb
+
+        from armbridge.telemetry.layout import run_layout
+
+        planes = [rrb.Spatial2DView(origin=_pair(robot, a, b), name=_pair(robot, a, b).split("/")[1])
+                  for a, b in cls.PAIRS]
+        return run_layout(robot, spatial=("task/**", "recovery/**"), views=planes)
 
     def _static(self) -> None:
         s, robot = self.stream, self.robot

@@ -25,10 +25,15 @@ arm is `robot.joint_points(q)` (one strip per sample), the tip is
 spatial chain (`draw_dim` 3), as the 3-D archetypes. `joints/<joint>` are the
 robot's coordinate names (a MASR's d is in m).
 
-A plan with pen flags (a drawing, draw/) also gets the `drawing/` entities
-and a layout (a Rerun blueprint saved as the file's default): the canvas
-beside the joint plots. The pen state of a sample is the flag of the plan
-segment the executor says is active (`telemetry(..., active=i)`).
+Every recording opens in a layout made for it (a Rerun blueprint saved as the
+file's default, `telemetry.layout`): a plan with pen flags (a drawing, draw/)
+gets the `drawing/` entities and the drawing canvas beside the joint plots;
+any other run gets the arm view (the arm, its set point, the plan's path, the
+tip trace) over the event and error logs, beside per-joint grids of position
+vs set point, error and effort. A caller with entities of its own passes its
+layout (`layout=`, e.g. `telemetry.layout.run_layout(robot, spatial, views)`).
+The pen state of a sample is the flag of the plan segment the executor says
+is active (`telemetry(..., active=i)`).
 
 Telemetry is buffered and sent in columns (`send_columns`) every `flush_every`
 samples, so recording costs little time in the executor's loop; events and
@@ -46,6 +51,7 @@ import numpy as np
 import rerun as rr
 
 from armbridge.errors import ArmbridgeError
+from armbridge.telemetry.layout import drawing_layout, run_layout
 
 APPLICATION_ID = "armbridge"
 TIMELINE = "board_time"
@@ -61,10 +67,11 @@ def default_rrd_path(plan_stem: str, runs_dir: Path | str = "runs", now: datetim
 
 
 class Recording:
-    """One .rrd file for one run. Use as a context manager, or call close()."""
+    """One .rrd file for one run. Use as a context manager, or call close(). layout: the
+    blueprint the file opens in (default: the drawing's or the run's, `telemetry.layout`)."""
 
     def __init__(self, path: Path | str, robot, plan=None, *, flush_every: int = 50,
-                 recording_id: str | None = None) -> None:
+                 recording_id: str | None = None, layout: Any = None) -> None:
         self.path = Path(path)
         self.robot = robot
         self.plan = plan
@@ -79,9 +86,10 @@ class Recording:
             raise ArmbridgeError(f"{self.path.parent}: cannot create the recording folder: {exc.strerror}") from None
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()))
         self._pen = None if plan is None or plan.pen is None or self._dim != 2 else np.asarray(plan.pen)
+        if layout is None:
+            layout = drawing_layout(self.joint_names) if self._pen is not None else run_layout(robot)
         try:
-            self.rec.save(str(self.path), default_blueprint=drawing_layout(self.joint_names) if self._pen is not None
-                          else None)
+            self.rec.save(str(self.path), default_blueprint=layout)
         except Exception as exc:  # noqa: BLE001 - rerun raises plain exceptions for I/O
             raise ArmbridgeError(f"{self.path}: cannot write the recording: {exc}") from None
         self._closed = False
@@ -221,17 +229,3 @@ class Recording:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-
-def drawing_layout(joint_names: list[str]):
-    """The layout of a drawing's recording: the canvas (strokes, trace, arm) beside
-    one plot per joint (measured and set point) over board time."""
-    import rerun.blueprint as rrb
-
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial2DView(origin="/", contents=["drawing/**", "arm/**", "workspace"], name="canvas"),
-            rrb.Vertical(*[rrb.TimeSeriesView(origin=f"joints/{n}", contents=[f"joints/{n}/q", f"joints/{n}/target"],
-                                              name=n) for n in joint_names]),
-            column_shares=[3, 2],
-        ),
-    )
