@@ -1,4 +1,4 @@
-"""`armbridge draw ... --port`: a text drawn on the emulated arm end to end, the
+"""`armbridge draw ... --port`: the paper's "ROBOTICS" drawn on the emulated arm end to end, the
 drawing's recording read back, and the drawing-error function on worked cases."""
 from __future__ import annotations
 
@@ -110,10 +110,11 @@ def drawing_bounds(plan) -> tuple[float, float]:
     return fwd, fwd + v / RATE_HZ
 
 
-def test_draw_text_on_the_emulated_arm(tmp_path):
-    out, rrd, js = tmp_path / "io.json", tmp_path / "io.rrd", tmp_path / "sum.json"
-    r = CliRunner().invoke(build_app(), ["draw", "IO", "--size", "0.06", "--speed", "0.03", "--out", str(out),
-                                         "--port", "emu:esp32?speed=4", "--rrd", str(rrd), "--json", str(js),
+def test_draw_robotics_on_the_emulated_arm(tmp_path):
+    """The paper's sample 9, "ROBOTICS", drawn end to end (issue 10 §6)."""
+    out, rrd, js = tmp_path / "robotics.json", tmp_path / "robotics.rrd", tmp_path / "sum.json"
+    r = CliRunner().invoke(build_app(), ["draw", "--sample", "text-robotics", "--speed", "0.03", "--out", str(out),
+                                         "--port", "emu:esp32?speed=0", "--rrd", str(rrd), "--json", str(js),
                                          "--rate", str(RATE_HZ), "--no-progress"])
     assert r.exit_code == 0, r.output
     assert "drawing error" in r.output and "time per character" in r.output
@@ -126,7 +127,7 @@ def test_draw_text_on_the_emulated_arm(tmp_path):
     assert d["trace_points"] > 100
     assert d["trace_max_mm"] <= fwd * 1000 and d["target_max_mm"] <= back * 1000, (d, fwd, back)
     assert d["trace_mean_mm"] <= d["trace_max_mm"] and d["target_mean_mm"] <= d["target_max_mm"]
-    assert d["characters"] == 2 and d["s_per_character"] == pytest.approx(s["measured_duration_s"] / 2, abs=2e-3)
+    assert d["characters"] == 8 and d["s_per_character"] == pytest.approx(s["measured_duration_s"] / 8, abs=2e-3)
 
     # The recording: the target strokes (static) and the pen trace over time, and a layout.
     strips: dict[str, list] = {}
@@ -139,7 +140,7 @@ def test_draw_text_on_the_emulated_arm(tmp_path):
             if chunk.entity_path == "/drawing/trace":
                 assert not chunk.is_static and "board_time" in chunk.timeline_names
     target = strips["/drawing/target"][-1]
-    assert len(target) == len(pen_strips(plan.ee_path(), plan.pen)) == 2  # "I" and "O"
+    assert len(target) == len(pen_strips(plan.ee_path(), plan.pen)) == 10  # the strokes of ROBOTICS
     traces = strips["/drawing/trace"]
     assert len(traces) > 3  # logged as it grew
     last = [np.array(x) for x in traces[-1]]

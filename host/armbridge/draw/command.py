@@ -30,6 +30,14 @@ def _list_samples() -> None:
         typer.echo(f"  {s.number:2d}  {name:15s} {s.source:6s} {s.plot}")
 
 
+def _sample_text(sample: str | None) -> str | None:
+    """The text a text sample writes (its characters time the drawing), else None."""
+    from armbridge.draw.samples import SAMPLES
+
+    s = SAMPLES.get(sample.lower()) if sample is not None else None
+    return s.plot if s is not None and s.source == "Text" else None
+
+
 def _lines(text, svg, csv, image, shape, sample, font):
     """(lines, source description, default name) of the one source given."""
     from armbridge.draw import samples, sources
@@ -110,10 +118,11 @@ def draw_cmd(
     lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
     d = build(lines, get_robot(robot_name), name=name, source=source, size=size,
               at=None if at is None else _parse_at(at), speed=speed)
-    if text is not None:
+    written = text.replace("\\n", "\n") if text is not None else _sample_text(sample)
+    if written is not None:
         from armbridge.draw.error import characters
 
-        d.plan.provenance["drawing"]["characters"] = characters(text.replace("\\n", "\n"))
+        d.plan.provenance["drawing"]["characters"] = characters(written)
     try:
         if png is not None:
             from armbridge.draw.figure import draw_png
