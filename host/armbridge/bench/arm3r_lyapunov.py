@@ -53,7 +53,7 @@ def _holds(tr: LyapunovTrace, lengths: list[int]) -> tuple[np.ndarray, np.ndarra
     return np.concatenate(ratio), np.concatenate(active)
 
 
-def fig13_png(tr: LyapunovTrace, names: list[str], lengths: list[int], out: Path | str, dpi: int = 110,
+def fig13_png(tr: LyapunovTrace, names: list[str], lengths: list[int], out: Path | str, dpi: int = 90,
               window_s: float = 3.0) -> Path:
     """One panel per row of tr: V over its first window_s (blue: after each step; red: right
     after each target update; orange rings: the constraint active), log scale; a last panel
