@@ -12,10 +12,11 @@ transfer first, and after every write hands it the new widths from the start
 of the next PWM period. Its busy-waits (the oscillator's 500 us after wake)
 advance the sim clock.
 
-Records, besides SimHal's (outputs_off_at / outputs_on_at, estop_byte_at):
-`positions` ((t, q) of every write_positions), `pen_writes` ((t, down) of every
-write_pen), `calibrations` ((t, j0, us_a, mrad_a, us_b, mrad_b)), and
-`pen_changes` ((t, down) when the pen servo physically crossed over).
+Records, besides SimHal's (outputs_off_at / outputs_on_at, estop_byte_at, and
+pen_log: (t, down) of every write_pen): `positions` ((t, q) of every
+write_positions), `calibrations` ((t, j0, us_a, mrad_a, us_b, mrad_b)) and
+`pen_changes` ((t, down) when the pen servo crossed the midpoint of its up and
+down angles); `pen_down_at(t)` answers from those, the servo's own travel.
 """
 from __future__ import annotations
 
@@ -82,7 +83,6 @@ class PcaSimHal(SimHal):
         self._channels = chans
         max_log = int(kw.get("max_log", 200_000))
         self.positions: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
-        self.pen_writes: list[tuple[float, bool]] = []
         self.calibrations: list[tuple[float, int, int, int, int, int]] = []
         self.driver = fw["pca9685"].Pca9685(self.bus, cfg.PCA9685_ADDR, cfg.SERVO_FREQ_HZ,
                                             sleep_us=self._busy_wait)
@@ -100,6 +100,16 @@ class PcaSimHal(SimHal):
     @property
     def pen_changes(self) -> list[tuple[float, bool]]:
         return self.rig.pen_changes
+
+    def pen_down_at(self, t: float) -> bool:
+        """Whether the pen touched the paper at time t (s): the pen servo's position."""
+        self._sync()
+        down = False
+        for at, d in self.rig.pen_changes:
+            if at > t:
+                break
+            down = d
+        return down
 
     # the HAL -------------------------------------------------------------
     def write_positions(self, q) -> None:
@@ -126,4 +136,4 @@ class PcaSimHal(SimHal):
 
     def write_pen(self, down: bool) -> None:
         self.servos.pen(down)
-        self.pen_writes.append((self.clock.t, bool(down)))
+        super().write_pen(down)
