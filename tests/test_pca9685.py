@@ -333,3 +333,66 @@ def test_the_rig_is_named_by_url_and_cli_and_bad_rigs_are_one_error():
         assert "\n" not in str(result.exception)
         for w in words:
             assert w in str(result.exception)
+
+
+# ---------------------------------------------------------------- under the real MicroPython
+
+SCENARIO = '''
+def scenario(config, pca9685, servos):
+    class Bus:                      # records every transfer; reads return what was written
+        def __init__(self):
+            self.regs = bytearray(256)
+            self.log = []
+
+        def writeto_mem(self, addr, reg, buf):
+            self.log.append([addr, reg, list(buf)])
+            for i in range(len(buf)):
+                self.regs[(reg + i) & 0xFF] = buf[i]
+
+        def readfrom_mem(self, addr, reg, n):
+            return bytes(self.regs[reg:reg + n])
+
+    bus = Bus()
+    waits = []
+    pca = pca9685.Pca9685(bus, config.PCA9685_ADDR, config.SERVO_FREQ_HZ, sleep_us=waits.append)
+    bank = servos.ServoBank(pca, config)
+    for k in range(60):
+        bank.write([0.05 + 0.051 * k, -3.1 + 0.05 * k, -1.55 + 0.052 * k])
+    bank.pen(True)
+    bank.set_calibration(0, 600, 0, 2400, 3000)
+    bank.write([1.0, -1.0, 0.0])
+    bank.off()
+    bank.write([1.0, -1.0, 0.0])
+    return {"log": bus.log, "waits": waits, "prescale": pca.prescale}
+'''
+
+
+def test_driver_and_servo_bank_write_the_same_bytes_under_micropython():
+    """The firmware's pca9685.py and servos.py under the MicroPython WebAssembly
+    interpreter (32-bit floats there, as on the chip) send the same transfers as
+    under CPython, which the register tests above check against the chip."""
+    import json
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    from require import missing
+
+    root = Path(__file__).resolve().parents[1]
+    pkg = root / "node_modules" / "@micropython" / "micropython-webassembly-pyscript" / "micropython.mjs"
+    node = shutil.which("node")
+    if node is None or not pkg.is_file():
+        missing("node and the npm package @micropython/micropython-webassembly-pyscript (make setup)")
+    ns: dict = {}
+    exec(SCENARIO, ns)
+    fw = load_firmware([firmware_dir() / "esp32"], ("config", "pca9685", "servos"))
+    want = json.loads(json.dumps(ns["scenario"](fw["config"], fw["pca9685"], fw["servos"])))
+    script = (SCENARIO + "\nimport json, config, pca9685, servos\n"
+              "with open('/io/out.json', 'w') as f:\n    json.dump(scenario(config, pca9685, servos), f)\n")
+    proc = subprocess.run([node, str(root / "tests" / "mpy" / "run_script.mjs"), str(root)], input=script,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout)
+    assert got["prescale"] == want["prescale"] == 121 and got["waits"] == want["waits"] == [500]
+    assert len(want["log"]) > 60
+    assert got["log"] == want["log"]
