@@ -48,7 +48,7 @@ from armbridge.emulator.plant import PlantParams
 from armbridge.emulator.pty import Pty, open_pty
 from armbridge.emulator.registry import BoardSpec, board_spec
 from armbridge.emulator.runner import firmware_config, make_runner
-from armbridge.emulator.simhal import PersistentMemory, SimClock
+from armbridge.emulator.simhal import PersistentMemory, SimClock, board_files
 from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir
@@ -113,7 +113,7 @@ class EmulatedBoard:
         self.uart = PacedUart(spec.baud, self.faults.link, self.faults.lanes, seed)
         self.persist = PersistentMemory(size=spec.persist_bytes)
         self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,
-                            tick_offset_ms=tick_offset_ms, on_line=self._tap)
+                            tick_offset_ms=tick_offset_ms, on_line=self._tap, files=board_files(self.cfg))
 
         # (board_ms, id, (q1..qn) in milli-units as the W line carried them) of every
         # completed waypoint (the firmware's on_done hook), across resets.

@@ -13,7 +13,11 @@ the bytes the UART delivered and the joint readings, the firmware runs one pass
 of its main loop there, and the answer (the firmware's HAL calls, in order: UART
 writes, outputs, outputs off, persisted memory, completed waypoints, and its
 state) is replayed on the emulator's `SimHal`, so plant, UART lanes and the
-board's records are the same objects as under CPython. About 60 us of the round
+board's records are the same objects as under CPython. Before each boot the
+emulator HAL's files (`hal.files`: the IK weights) are written into the
+interpreter's filesystem, where the firmware's `hal.read_file` opens them as on
+the chip, and its pen servo (`hal.has_pen`) is announced; pen moves come back
+in the log and are replayed on `hal.write_pen`. About 60 us of the round
 trip is the pipe; the rest is MicroPython.
 
 A boot starts a fresh Node process (a fresh interpreter: a reset loses all
@@ -226,7 +230,21 @@ class MicroPythonBoard:
         self.state = "RESET"
         self.on_done: Callable[..., None] | None = None
         self._q = [0.0] * n
+        self._flash(hal)
         self._answer(self._request("B", hal.load_persist() or b""))
+
+    def _flash(self, hal: Any) -> None:
+        """The HAL's optional parts and its files into the fresh interpreter (F, H requests)."""
+        caps = json.dumps({"has_pen": bool(getattr(hal, "has_pen", False))}).encode()
+        calls = ["H 0 0 " + caps.hex()]
+        for name, data in (getattr(hal, "files", None) or {}).items():
+            if not name or any(c.isspace() for c in name):
+                raise ArmbridgeError(f"a board file name must be non-empty without spaces, got {name!r}")
+            calls.append("F 0 0 %s %s" % (bytes(data).hex() or "-", name))
+        for line in calls:
+            answer = self.proc.call(line)
+            if answer != "OK":
+                raise BridgeError(f"the MicroPython bridge answered {answer[:200]!r} to {line[:40]!r}...")
 
     def poll(self) -> bool:
         """One pass of the firmware's main loop: UART bytes in, lines handled,
@@ -260,6 +278,9 @@ class MicroPythonBoard:
                 hal.outputs_off()
             elif kind == "P":
                 hal.save_persist(bytes.fromhex(body))
+            elif kind == "N":
+                if hasattr(hal, "write_pen"):
+                    hal.write_pen(body == "1")
             elif kind == "D":
                 if self.on_done is not None:
                     self.on_done(*json.loads(body))

@@ -66,7 +66,7 @@ class Plant(Protocol):
 
 
 PlantFactory = Callable[..., Plant]   # (cfg, params, q0, seed) -> Plant
-HalFactory = Callable[..., Any]       # (clock, plant, uart, persist, *, tick_offset_ms, on_line) -> HAL
+HalFactory = Callable[..., Any]       # (clock, plant, uart, persist, *, tick_offset_ms, on_line, files) -> HAL
 
 
 def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:

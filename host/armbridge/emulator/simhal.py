@@ -18,11 +18,16 @@ The pen-lift servo (config PEN_PIN) is a fourth output: `write_pen(down)`
 logs (time, down) in `pen_log`; `pen_down_at(t)` is where the pen was at time
 t, taking PEN_SETTLE_MS of servo travel after each command (the pen touches
 the paper when the travel ends, and leaves it at once).
+
+Files: `read_file(name)` serves the board's filesystem from `files` (name ->
+bytes; None for a name it lacks). `board_files(cfg)` is what the emulator
+flashes by default: the config's IK_WEIGHTS -> the shipped
+models/onnx/arm3r-ik/int8.bin (the board IK's net, firmware/esp32/ik3r.py).
 """
 from __future__ import annotations
 
 from collections import deque
-from typing import Callable
+from typing import Any, Callable
 
 from armbridge.emulator.plant import ServoPlant
 from armbridge.emulator.uart import PacedUart
@@ -87,7 +92,9 @@ class SimHal:
         tick_offset_ms: int = 0,
         on_line: Callable[[float, bytes], None] | None = None,
         max_log: int = 200_000,
+        files: dict[str, bytes] | None = None,
     ) -> None:
+        self.files: dict[str, bytes] = dict(files) if files is not None else {}
         self.clock = clock
         self.plant = plant
         self.uart = uart
@@ -160,6 +167,11 @@ class SimHal:
                 down = False
         return down
 
+    # files ---------------------------------------------------------------
+    def read_file(self, name) -> bytes | None:
+        """A file of the board's filesystem, None when it has none of that name."""
+        return self.files.get(str(name))
+
     # uart ----------------------------------------------------------------
     def uart_read(self) -> bytes | None:
         lane = self.uart.rx
@@ -196,3 +208,14 @@ class SimHal:
 
     def save_persist(self, data) -> None:
         self.persist.save(data)
+
+
+def board_files(cfg: Any) -> dict[str, bytes]:
+    """The files an emulated board starts with: its IK weights (cfg.IK_WEIGHTS) when
+    its config names them (ik.board_ik.shipped_weights, the file the chip is flashed with)."""
+    name = getattr(cfg, "IK_WEIGHTS", None)
+    if not name:
+        return {}
+    from armbridge.ik.board_ik import shipped_weights
+
+    return {str(name): shipped_weights().read_bytes()}

@@ -5,18 +5,23 @@ The HAL holds plain values that one round trip per emulator tick fills and
 drains: the emulator's clock (`ms`, `us`), the bytes the UART received since
 the last poll (`rx`), the joint readings (`q`), and a log of what the firmware
 did, in order (`ops`: UART writes, outputs written, outputs off, persisted
-memory written, completed waypoints). The CPython side replays that log on the
+memory written, pen moves, completed waypoints). The CPython side replays that log on the
 emulator's own HAL, so the plant, the UART lanes and the board's records see
 exactly what they see when the firmware runs under CPython.
 
 Request lines (one per round trip, from armbridge.emulator.micropython):
+    F 0 0 DATA NAME             before a boot: write DATA to the file NAME of the
+                                interpreter's filesystem (the board's files: the IK
+                                weights); answered `OK`
+    H 0 0 CAPS                  before a boot: the emulator HAL's optional parts, a
+                                JSON object in hex ({"has_pen": bool}); answered `OK`
     B ms us PERSIST q1 .. qn    boot: import the firmware, construct the board
     S ms us RX q1 .. qn         one pass of the main loop: board.poll()
     E ms us - q1 .. qn          the board's estop()
 PERSIST and RX are hex, "-" for none. The answer is one line of tab-separated
 fields: the board's state, then the log in order: `T<hex>` UART bytes,
 `O<e1>,..,<en>` outputs written, `X` outputs off, `P<hex>` persisted memory
-written, `D<json list>` the arguments of the completion hook; and last, when
+written, `N1` / `N0` pen down / up, `D<json list>` the arguments of the completion hook; and last, when
 the firmware raised, `!<json string>` its traceback.
 """
 
@@ -39,12 +44,14 @@ OUT = 1
 OFF = 2
 PERSIST = 3
 DONE = 4
+PEN = 5
 
 
 class BridgeHal:
     """The HAL of docs/architecture.md over values set from outside."""
 
-    def __init__(self, n, persist=b""):
+    def __init__(self, n, persist=b"", has_pen=False):
+        self.has_pen = bool(has_pen)
         self.ms = 0
         self.us = 0
         self.rx = None
@@ -90,6 +97,18 @@ class BridgeHal:
         self.persist = bytes(data)
         self.ops.append((PERSIST, self.persist))
 
+    def write_pen(self, down):
+        self.ops.append((PEN, bool(down)))
+
+    def read_file(self, name):
+        """A file of the interpreter's filesystem (written by F requests), None if missing:
+        the same call as the chip's HAL (firmware/esp32/hal_esp32.py)."""
+        try:
+            with open(name, "rb") as f:
+                return f.read()
+        except OSError:
+            return None
+
     def on_done(self, *args):
         """The board's completion hook (its arguments are passed on as they are)."""
         self.ops.append((DONE, args))
@@ -100,6 +119,7 @@ class BridgeHal:
 _board = None
 _hal = None
 _modules = ("arm", "config")
+_caps = {}  # type: dict
 
 
 def setup(board_module, config_module):
@@ -128,6 +148,8 @@ def _drain(hal, state, error=None):
             out.append("X")
         elif kind == PERSIST:
             out.append("P" + _hex(v))
+        elif kind == PEN:
+            out.append("N1" if v else "N0")
         else:
             out.append("D" + json.dumps(list(v)))
     if tx:
@@ -150,13 +172,20 @@ def _traceback(e):
 
 def step(line):
     """One request line -> one answer line (see the module docstring)."""
-    global _board, _hal
+    global _board, _hal, _caps
     parts = line.split(" ")
     cmd = parts[0]
     data = None if parts[3] == "-" else binascii.unhexlify(parts[3])
+    if cmd == "F":
+        with open(parts[4], "wb") as f:
+            f.write(data or b"")
+        return "OK"
+    if cmd == "H":
+        _caps = json.loads((data or b"{}").decode())
+        return "OK"
     q = [float(x) for x in parts[4:]]
     if cmd == "B":
-        _hal = BridgeHal(len(q), data or b"")
+        _hal = BridgeHal(len(q), data or b"", _caps.get("has_pen", False))
     hal = _hal
     if hal is None:
         return "RESET\t!" + json.dumps("the bridge got %r before a boot" % cmd)
