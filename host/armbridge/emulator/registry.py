@@ -139,7 +139,7 @@ class BoardSpec:
     baud: int = 115200
     persist_bytes: int = RTC_MEMORY_SIZE
     rig: str = "effort"
-    rigs: Mapping[str, Rig] = field(default_factory=dict)
+    rigs: Mapping[str, Rig] = field(default_factory=dict, hash=False)
 
     @property
     def interpreters(self) -> tuple[str, ...]:
