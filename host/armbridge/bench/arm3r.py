@@ -27,7 +27,8 @@ and joint-limit violations of the CBF over `random_targets` random targets in a
 square twice the disk's diameter around it (four in five outside); the CBF's Lyapunov
 function along the samples drawn in turn, checked to decrease and plotted as Fig. 13
 (`bench.arm3r_lyapunov`, key "lyapunov"); and the int8 nets (the board's flat file and
-the int8 ONNX) against the float net.
+the int8 ONNX) against the float net; and "ROBOTICS" drawn on the emulated arm on
+both rigs and with the board's own IK (`bench.arm3r_drawing`, key "drawing").
 """
 from __future__ import annotations
 
@@ -62,10 +63,11 @@ class Arm3rBenchSize:
     cbf_steps: int  # CBF steps per drawing target
     single_points: int  # targets per sample timed one a call
     rtb_points: int  # targets per sample for RTB LM
+    drawing_speed: float  # m/s of the ROBOTICS drawing on the emulated rigs (bench/arm3r_drawing.py)
 
 
-FULL = Arm3rBenchSize((), 100_000, 150, 100, 100, 100)
-QUICK = Arm3rBenchSize(("csv-circle", "image-square", "text-robotics"), 2_000, 100, 100, 10, 10)
+FULL = Arm3rBenchSize((), 100_000, 150, 100, 100, 100, 0.03)
+QUICK = Arm3rBenchSize(("csv-circle", "image-square", "text-robotics"), 2_000, 100, 100, 10, 10, 0.1)
 ROWS = ("ann", "ann_fabrik", "ann_fabrik_cbf", "closed_form", "rtb_lm")
 COLS = ("x", "y", "q1", "q2", "q3", "theta")
 
@@ -216,6 +218,7 @@ def _int8(chain, ann, poses: np.ndarray, phi: float) -> dict[str, Any]:
 
 def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, seed: int = 10,
         lyapunov_png: Path | None = None) -> dict[str, Any]:
+    from armbridge.bench.arm3r_drawing import drawing_runs
     from armbridge.bench.arm3r_lyapunov import section as lyapunov_section
     from armbridge.draw.samples import SAMPLES
 
@@ -242,6 +245,7 @@ def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, 
     random = _random_cbf(chain, ann, region, phi, size.random_targets, size.random_steps, seed)
     violations = random["region_violations"] + random["limit_violations"] + sum(
         s["cbf"]["h_min"] < 0 or s["cbf"]["limit_margin_min_rad"] < 0 for s in per)
+    drawing = drawing_runs(size.drawing_speed, progress=progress)
     timing = {r: {k: float(np.mean([s["timing"][r][k] for s in per if r in s["timing"]]))
                   for k in per[0]["timing"].get(r, {})} for r in per[0]["timing"]}
     return {
@@ -250,11 +254,13 @@ def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, 
         "units": {"x, y": "mm", "q1-q3, theta": "deg", "time": "ms per point"},
         "cbf": asdict(CBF), "place_fraction": PLACE_FRACTION,
         "samples": per, "overall": overall, "timing_mean_over_samples": timing,
-        "random_cbf": random, "lyapunov": lyapunov, "int8": _int8(chain, ann, poses, phi), "paper": PAPER,
+        "random_cbf": random, "lyapunov": lyapunov, "int8": _int8(chain, ann, poses, phi),
+        "drawing": drawing, "paper": PAPER,
         "targets": {"ann_fabrik_mean_under_0.1mm_every_sample":
                     all(s["rows"]["ann_fabrik"]["tip_mm"]["mean"] < 0.1 for s in per),
                     "zero_cbf_violations": violations == 0,
                     "ann_fabrik_under_0.1ms_batched": timing["ann_fabrik"]["batched_ms"] < 0.1,
-                    "lyapunov_decreasing": lyapunov["decreasing"]},
+                    "lyapunov_decreasing": lyapunov["decreasing"],
+                    "robotics_drawn_on_every_rig": all(r.get("completed") for r in drawing["runs"].values())},
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
     }

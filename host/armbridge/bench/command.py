@@ -97,6 +97,12 @@ def masr_ik_cmd(
                 sub.add_row(r["row"], f"{s['mean_dp_mm']:.2f}", f"{s['success_rate']:.1f}",
                             f"{s['mean_action_time_s']:.2f}")
         console.print(sub)
+    dr = result["drawing"]
+    for name, run in dr["runs"].items():
+        console.print(f"ROBOTICS at {dr['speed_m_s']:g} m/s on {name}: " + (
+            f"trace from strokes {run['trace_mean_mm']:.2f} / {run['trace_max_mm']:.2f} mm, strokes from trace "
+            f"{run['target_mean_mm']:.2f} / {run['target_max_mm']:.2f} mm (mean / max), "
+            f"{run['s_per_character']:.2f} s per character" if run.get("completed") else f"FAILED: {run.get('error')}"))
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
 
@@ -253,6 +259,12 @@ def smm_cmd(
             if isinstance(o, dict):
                 table.add_row(name, f"{o['latency_s']:.4f}", f"{100 * o['success'] / o['trials']:.1f}")
         console.print(table)
+    dr = result["drawing"]
+    for name, run in dr["runs"].items():
+        console.print(f"ROBOTICS at {dr['speed_m_s']:g} m/s on {name}: " + (
+            f"trace from strokes {run['trace_mean_mm']:.2f} / {run['trace_max_mm']:.2f} mm, strokes from trace "
+            f"{run['target_mean_mm']:.2f} / {run['target_max_mm']:.2f} mm (mean / max), "
+            f"{run['s_per_character']:.2f} s per character" if run.get("completed") else f"FAILED: {run.get('error')}"))
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
     console.print(f"wrote {json_out}")
     if png is not None:
@@ -319,5 +331,34 @@ def arm3r_cmd(
     console.print(f"Lyapunov V on {ly['rows']} samples, {ly['checked']:,} filter steps: {ly['violations']} rises "
                   f"(max change {ly['max_increase']:.3g} rad^2), {ly['constrained_steps']} steps constrained"
                   + (f"; wrote {ly['png']}" if "png" in ly else ""))
+    dr = result["drawing"]
+    for name, run in dr["runs"].items():
+        console.print(f"ROBOTICS at {dr['speed_m_s']:g} m/s on {name}: " + (
+            f"trace from strokes {run['trace_mean_mm']:.2f} / {run['trace_max_mm']:.2f} mm, strokes from trace "
+            f"{run['target_mean_mm']:.2f} / {run['target_max_mm']:.2f} mm (mean / max), "
+            f"{run['s_per_character']:.2f} s per character" if run.get("completed") else f"FAILED: {run.get('error')}"))
     console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")
+
+
+@bench_app.command("board-ik")
+def board_ik_cmd(
+    points: int = typer.Option(2000, "--points", min=10, help="Random targets per set (two sets: at the pen "
+                               "angle, and +- 0.25 rad around it)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the random targets."),
+    json_out: Path = typer.Option(Path("runs/bench-board-ik.json"), "--out", "--json",
+                                  help="Where to write the results."),
+) -> None:
+    """The ESP32's Cartesian IK (int8 net + FABRIK, firmware/esp32/ik3r.py) under the
+    real MicroPython interpreter and CPython: net size, multiply-adds and time per
+    point, answers against the host's int8 reference and the float net, tip errors."""
+    from rich.console import Console
+
+    from armbridge.bench import board_ik
+
+    console = Console()
+    result = board_ik.board_ik_report(points, seed,
+                                      progress=lambda text: console.print(f"[dim]bench board-ik: {text}[/]"))
+    write_json(result, json_out)
+    board_ik.print_report(result, console)
     console.print(f"wrote {json_out}")

@@ -140,6 +140,8 @@ def run_plan(
                 client = c
                 assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
+                if cartesian:
+                    _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
                 bar = _progress_bar(plan, console) if progress else None
                 try:
@@ -203,6 +205,20 @@ def cartesian_rows(plan: Plan) -> list[list[int]]:
     theta = plan.q.sum(axis=1)
     rows = np.column_stack([np.rint(xy * 1e6), np.rint(theta * 1e3)]).astype(int)
     return rows.tolist()
+
+
+def _check_board_ik(client: BoardClient) -> None:
+    """--cartesian needs a board that solves X itself. Asked with an X far outside any
+    arm's safe region, which moves nothing: REACH says the board has its IK, VERB that
+    it has none (no weights on its filesystem, or a firmware without the verb)."""
+    ans = client.ask("X", 0, 1, -1000000, -1000000, 0)
+    if isinstance(ans, P.Er) and ans.code == P.REACH:
+        return
+    if isinstance(ans, P.Er) and ans.code == P.VERB:
+        raise ArmbridgeError("--cartesian: the board cannot solve Cartesian waypoints (it refused X with VERB: "
+                             "no IK weights on its filesystem, or a firmware without the board IK)")
+    raise ArmbridgeError(f"--cartesian: the board answered a probe X outside its safe region with {ans}; "
+                         "expected REACH")
 
 
 def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> list[int] | None:

@@ -145,7 +145,7 @@ class Stream:
     def refusal(self, cmd: Cmd, er: P.Er, state: str | None) -> ArmbridgeError:
         """A refused W (RANGE, FULL, LATCHED ...) is fatal: the error says why."""
         if cmd.wp is not None:
-            what = f"waypoint {cmd.wp - self.base} (W seq {cmd.seq})"
+            what = f"waypoint {cmd.wp - self.base} ({cmd.verb} seq {cmd.seq})"
         else:
             what = f"{cmd.verb} (seq {cmd.seq})"
         why = {
