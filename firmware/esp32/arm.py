@@ -29,6 +29,7 @@ ramp at vmax into a narrowed range) or by being put at the measured position
 (a stop where the arm is, which moves nothing): never in a jump.
 """
 
+import ik3r
 import link as L
 import proto
 import protodef as P
@@ -284,7 +285,6 @@ def _load_ik(hal, cfg):
     if not data:
         return None
     try:
-        import ik3r
         return ik3r.BoardIK(cfg, data)
     except Exception:   # noqa: BLE001 - any bad file: no IK, the board runs on
         return None
