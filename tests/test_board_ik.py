@@ -1,6 +1,6 @@
 """The board's Cartesian IK (firmware/esp32/ik3r.py + mlp.py, issue 10 section 3)
 against its numpy reference (host/armbridge/ik/board_ik.py), under CPython and
-under the real MicroPython WebAssembly interpreter (tests/mpy/board_ik.mjs).
+under the real MicroPython WebAssembly interpreter (emulator/mpbridge/boardik.mjs).
 
 Tolerance. The integer core of the net is exact on both sides; the floats are
 not: the chip computes in float32 (unit roundoff 6e-8), the reference in
@@ -12,9 +12,7 @@ rad is ten times the measured float32 effect (19 um at the full reach of 0.38 m)
 The answer/refusal decision must agree except where the tip error lies within
 TOL_EDGE of IK_TOL_UM (the rounding can put it either side there).
 """
-import json
 import shutil
-import subprocess
 from array import array
 from pathlib import Path
 
@@ -22,6 +20,8 @@ import numpy as np
 import pytest
 from require import missing
 
+from armbridge.bench.board_ik import under_micropython
+from armbridge.emulator.micropython import find_micropython
 from armbridge.emulator.runner import load_firmware
 from armbridge.errors import ArmbridgeError
 from armbridge.ik.board_ik import BoardIKReference, board_forward, quant_levels, shipped_weights
@@ -29,8 +29,6 @@ from armbridge.ik.flat_int8 import flat_int8_forward, read_flat_int8
 from armbridge.resources import firmware_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-RUNNER = ROOT / "tests" / "mpy" / "board_ik.mjs"
-PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pyscript" / "micropython.mjs"
 TOL_Q = 5e-5  # rad (module docstring)
 TOL_EDGE = 1e-6  # m
 
@@ -178,37 +176,33 @@ def _bad_file(data):
     return Path(f.name)
 
 
-def run_micropython(poses, time_net=False, config=None):
-    """The firmware's BoardIK on `poses` under the MicroPython WebAssembly interpreter."""
-    node = shutil.which("node")
-    if node is None:
+def run_micropython(poses, timing=False):
+    """The firmware's BoardIK on `poses` under the MicroPython WebAssembly interpreter
+    (armbridge.bench.board_ik.under_micropython: emulator/mpbridge/boardik.mjs)."""
+    if shutil.which("node") is None:
         missing("node is not installed")
-    if not PKG.exists():
-        missing("npm package @micropython/micropython-webassembly-pyscript missing (run `make setup`)")
-    inp = {"targets": np.asarray(poses).tolist(), "time_net": time_net, "config": config or {}}
-    proc = subprocess.run([node, str(RUNNER), str(ROOT), str(shipped_weights())], input=json.dumps(inp),
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout)
+    try:
+        find_micropython()
+    except ArmbridgeError as exc:
+        missing(str(exc))
+    return under_micropython(poses, timing=timing)
 
 
 def test_micropython_matches_reference(ref):
     """2,000 targets (about 15-30 s: the net is ~5 ms a point in that interpreter)."""
     poses = targets(ref, 2000, seed=6)
-    out = run_micropython(poses)
+    out = run_micropython(poses, timing=True)
     assert out["native"] is False  # the port strips the viper decorator: the plain kernel ran
     assert out["macs"] == 3 * 100 + 100 * 100 + 100 * 3
     _, got, _ = compare(ref, poses, out["q"])
     assert 0.8 < got.mean() < 0.95
+    assert np.abs(np.array(out["guess"]) - ref.net(poses)).max() <= TOL_Q  # the net alone, too
+    assert out["ram_bytes"] == 12260 - 12 - 3 * 8 + 8 * 100 and out["heap_bytes"] > out["ram_bytes"]
 
 
 # ---------------------------------------------------------------- the board's files in the emulator
 
-@pytest.mark.parametrize("interpreter", [
-    pytest.param("cpython", marks=pytest.mark.xfail(strict=True, reason=(
-        "arm.py imports ik3r inside _load_ik, at Board() time; the CPython runner has restored "
-        "sys.path by then (runner.load_firmware), so the import fails and X/XY answer VERB"))),
-    "micropython"])
+@pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
 def test_emulated_board_solves_xy_from_its_flashed_weights(interpreter, ref, weights):
     """The emulator flashes the shipped weights as cfg.IK_WEIGHTS (SimHal files; under
     MicroPython written into the interpreter's filesystem at boot): XY at a disc point
