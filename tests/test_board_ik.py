@@ -12,15 +12,20 @@ rad is ten times the measured float32 effect (19 um at the full reach of 0.38 m)
 The answer/refusal decision must agree except where the tip error lies within
 TOL_EDGE of IK_TOL_UM (the rounding can put it either side there).
 """
+import json
 import shutil
+import subprocess
+import sys
 from array import array
 from pathlib import Path
 
 import numpy as np
 import pytest
+from emu_host import Codec, is_reply
 from require import missing
 
 from armbridge.bench.board_ik import under_micropython
+from armbridge.emulator.board import EmulatedBoard
 from armbridge.emulator.micropython import find_micropython
 from armbridge.emulator.runner import load_firmware
 from armbridge.errors import ArmbridgeError
@@ -208,13 +213,6 @@ def test_emulated_board_solves_xy_from_its_flashed_weights(interpreter, ref, wei
     MicroPython written into the interpreter's filesystem at boot): XY at a disc point
     runs to the reference's joint angles, a point outside is refused REACH, and a pen
     move comes back through the bridge onto the emulator's HAL."""
-    import sys
-
-    sys.path.insert(0, str(ROOT / "tests"))
-    from emu_host import Codec, is_reply
-
-    from armbridge.emulator.board import EmulatedBoard
-
     if interpreter == "micropython":
         run_micropython([])  # node and the package, or skip / fail under ARMBRIDGE_REQUIRE_HIL
     emu = EmulatedBoard("esp32", speed=0, interpreter=interpreter)
@@ -253,3 +251,20 @@ def test_emulated_board_solves_xy_from_its_flashed_weights(interpreter, ref, wei
         assert [down for _, down in emu.hal.pen_log[pen_before:]] == [True]
     finally:
         emu.stop()
+
+
+def test_bench_board_ik_cli_writes_its_numbers(tmp_path):
+    run_micropython([])  # node and the package, or skip / fail under ARMBRIDGE_REQUIRE_HIL
+    out = tmp_path / "b.json"
+    proc = subprocess.run([str(Path(sys.executable).with_name("armbridge")), "bench", "board-ik", "--points", "30",
+                           "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    r = json.loads(out.read_text())
+    assert r["net"]["file_bytes"] == len(shipped_weights().read_bytes()) and r["net"]["macs_per_point"] == 10600
+    for name in ("pen_angle", "pen_angle_spread"):
+        for who in ("micropython", "cpython"):
+            c = r[name][who]
+            assert c["targets"] == 30 and c["agree_with_reference"] == 30
+            assert c["vs_int8_reference_rad"]["max"] <= TOL_Q and c["tip_error_um"]["max"] <= r["tol_um"]
+    assert r["pen_angle"]["micropython"]["answered"] == 30 and r["pen_angle"]["converged_by_passes"]["128"] == 1.0
+    assert "multiply-adds" in proc.stdout
