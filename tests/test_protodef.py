@@ -77,7 +77,7 @@ def test_table_rules():
         for a, b in D.ORDERED.get(verb, ()):
             assert a in names and b in names
     assert set(D.READ_ONLY) <= set(D.COMMANDS)
-    assert sorted(D.ERROR_NAMES) == list(range(1, 14))
+    assert sorted(D.ERROR_NAMES) == list(range(1, 15))
     assert D.EPOCH_MAX == 2 ** 30 - 1 and D.TICKS_PERIOD == 2 ** 30
     assert D.MAX_EPOCH_COMMANDS <= D.SEQ_MOD // 2
 

@@ -33,7 +33,8 @@
 #define AB_ERR_STALE 11
 #define AB_ERR_PROTO 12
 #define AB_ERR_REACH 13
-#define AB_N_ERRORS 14
+#define AB_ERR_UNHOMED 14
+#define AB_N_ERRORS 15
 
 /* Argument kinds: a plain integer in [lo, hi]; a joint index 1..n; n joint
    values, each in [lo, hi] (always the last argument). */
@@ -75,7 +76,15 @@ static const ab_arg_spec AB_ARGS_XY[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", 
 static const ab_arg_spec AB_ARGS_PEN[] = {{"down", AB_ARG_INT, 0, 1}};
 #define AB_VERB_CAL 15
 static const ab_arg_spec AB_ARGS_CAL[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"us_a", AB_ARG_INT, 500, 2500}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"us_b", AB_ARG_INT, 500, 2500}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
-#define AB_N_COMMANDS 16
+#define AB_VERB_MV 16
+static const ab_arg_spec AB_ARGS_MV[] = {{"id", AB_ARG_INT, 0, 65535L}, {"d", AB_ARG_INT, 0, 1000000L}};
+#define AB_VERB_ROT 17
+static const ab_arg_spec AB_ARGS_ROT[] = {{"id", AB_ARG_INT, 0, 65535L}, {"joint", AB_ARG_JOINT, 1, 0}, {"angle", AB_ARG_INT, -1000000L, 1000000L}};
+#define AB_VERB_GRIP 18
+static const ab_arg_spec AB_ARGS_GRIP[] = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
+#define AB_VERB_HOME 19
+static const ab_arg_spec AB_ARGS_HOME[] = {{"id", AB_ARG_INT, 0, 65535L}};
+#define AB_N_COMMANDS 20
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -93,8 +102,12 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"XY", AB_ARGS_XY, 4, 0, -1, -1},
     {"PEN", AB_ARGS_PEN, 1, 0, -1, -1},
     {"CAL", AB_ARGS_CAL, 5, 0, 1, 3},
+    {"MV", AB_ARGS_MV, 2, 0, -1, -1},
+    {"ROT", AB_ARGS_ROT, 3, 0, -1, -1},
+    {"GRIP", AB_ARGS_GRIP, 2, 0, -1, -1},
+    {"HOME", AB_ARGS_HOME, 1, 0, -1, -1},
 };
 
-static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH"};
+static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH", "UNHOMED"};
 
 #endif

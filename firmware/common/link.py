@@ -27,7 +27,13 @@ The board object gives the link:
   control(mode)             one control period: OFF (read sensors, write no
                             output), ZERO (write zero effort), DRIVE (advance the
                             motion, run the loops, check faults)
-  telemetry() -> list       its fields of a T line, after `ms state done free`
+  telemetry() -> list       its fields of a T line, after `ms state done free`:
+                            3n joint columns (measured, set point, output), then
+                            any columns of its own (documented with its verbs)
+  persist_extra() -> str    optional: one token (no spaces) of its own state to
+                            persist with the link's record (the MA's position and
+                            joint angles); restore(token or None) is called with it
+                            at boot, before hold_here()
 
 and calls back:
   link.event(kind, args)    an event: sent after the reply of the command that
@@ -38,6 +44,7 @@ and calls back:
                             `reason` (one token) is kept for STAT and persisted
   link.queued               set by the board to the id of its last accepted move
   link.ms()                 board time in ms
+  link.save()               persist now (the record, with persist_extra())
 
 Rules the link keeps for every board:
   * after any boot the outputs stay off until a HELLO is accepted, and while a
@@ -45,8 +52,8 @@ Rules the link keeps for every board:
   * ESTOP, WDOG and FAULT latch, survive a reset (persisted) and refuse motion;
     only CLR releases them, never a HELLO;
   * the watchdog (RUN/HOLD only) is fed only by lines answered OK;
-  * the persist record is `AB2 session epoch hello_seq done latch reason`;
-    anything else reads as power on.
+  * the persist record is `AB2 session epoch hello_seq done latch reason [extra]`
+    (extra: the board's persist_extra()); anything else reads as power on.
 """
 
 try:
@@ -86,11 +93,11 @@ def _int_or_none(s: str) -> int:
 
 
 def parse_persist(data):
-    """The persist record -> (session, epoch, hello_seq, done, latch, reason),
-    or None when it is not a valid AB2 record (power on)."""
+    """The persist record -> (session, epoch, hello_seq, done, latch, reason, extra),
+    or None when it is not a valid AB2 record (power on). extra: None when absent."""
     try:
         parts = bytes(data).decode().split()
-        if len(parts) != 7 or parts[0] != _PERSIST_TAG:
+        if len(parts) not in (7, 8) or parts[0] != _PERSIST_TAG:
             return None
         sid = int(parts[1])
         epoch = int(parts[2])
@@ -104,7 +111,7 @@ def parse_persist(data):
         return None
     if latch != "-" and latch not in LATCHED_STATES:
         return None
-    return sid, epoch, hseq, done, latch, parts[6]
+    return sid, epoch, hseq, done, latch, parts[6], parts[7] if len(parts) == 8 else None
 
 
 class BoardLink:
@@ -118,7 +125,7 @@ class BoardLink:
         self.reader = proto.LineReader(P.MAX_HOST_LINE)
         rec = parse_persist(hal.load_persist())
         if rec is None:
-            rec = (0, 0, -1, -1, "-", "-")
+            rec = (0, 0, -1, -1, "-", "-", None)
         self.session = sess.Session(rec[0], rec[1], rec[2])
         self.done = rec[3]
         self.state = IDLE if rec[4] == "-" else rec[4]
@@ -140,6 +147,9 @@ class BoardLink:
         self.last_ok = now
         self.next_tick = now
         hal.outputs_off()
+        restore = getattr(board, "restore", None)
+        if restore is not None:
+            restore(rec[6])
         board.hold_here()
         # The lone LF ends any line a reset cut short, so BOOT always decodes.
         hal.uart_write(b"\n")
@@ -366,12 +376,17 @@ class BoardLink:
     def _send(self, data: bytes) -> None:
         self.hal.uart_write(data)
 
-    def _save(self) -> None:
+    def save(self) -> None:
         s = self.session
         latch = self.state if self.state in LATCHED_STATES else "-"
         text = "%s %d %d %s %s %s %s" % (_PERSIST_TAG, s.session, s.epoch, wid(s.hello_seq),
                                          wid(self.done), latch, self.reason)
+        extra = getattr(self.board, "persist_extra", None)
+        if extra is not None:
+            text += " " + extra()
         self.hal.save_persist(text.encode())
+
+    _save = save
 
 
 def _er_fields(seq: int, e) -> list:

@@ -38,6 +38,7 @@ NOSESSION = const(10)
 STALE = const(11)
 PROTO = const(12)
 REACH = const(13)
+UNHOMED = const(14)
 
 ERROR_NAMES = {
     1: 'PARSE',
@@ -53,6 +54,7 @@ ERROR_NAMES = {
     11: 'STALE',
     12: 'PROTO',
     13: 'REACH',
+    14: 'UNHOMED',
 }
 
 COMMANDS = {
@@ -72,6 +74,10 @@ COMMANDS = {
     'XY': (('id', 0, 65535), ('dur', 1, 60000), ('x', -1000000, 1000000), ('y', -1000000, 1000000)),
     'PEN': (('down', 0, 1),),
     'CAL': (('joint', 1, 0), ('us_a', 500, 2500), ('a', -1000000, 1000000), ('us_b', 500, 2500), ('b', -1000000, 1000000)),
+    'MV': (('id', 0, 65535), ('d', 0, 1000000)),
+    'ROT': (('id', 0, 65535), ('joint', 1, 0), ('angle', -1000000, 1000000)),
+    'GRIP': (('id', 0, 65535), ('open', 0, 1)),
+    'HOME': (('id', 0, 65535),),
 }
 
 READ_ONLY = ('STAT', 'LIM', 'PING')
@@ -100,4 +106,4 @@ STATES = ('IDLE', 'RUN', 'HOLD', 'ESTOP', 'WDOG', 'FAULT')
 
 LATCHED_STATES = ('ESTOP', 'WDOG', 'FAULT')
 
-EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN')
+EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN', 'MAGNET')

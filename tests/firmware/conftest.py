@@ -12,11 +12,18 @@ import sys
 
 _ROOT = pathlib.Path(__file__).resolve().parents[2]
 _PATHS = [str(_ROOT / sub) for sub in ("firmware/esp32", "firmware/common", "tests/firmware")]
-_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil")
+_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil", "ik3r", "mlp")
 
 for _p in _PATHS:
     if _p not in sys.path:
         sys.path.insert(0, _p)
+
+try:  # the firmware's `import micropython` (const, viper): the emulator's CPython stand-in
+    import micropython  # noqa: F401
+except ImportError:
+    from armbridge.emulator.runner import _micropython_shim
+
+    sys.modules["micropython"] = _micropython_shim()
 
 
 def pytest_collection_finish(session):

@@ -222,7 +222,33 @@ def test_unreadable_persist_is_power_on():
         board = arm.Board(hal, config)
         s = board.link.session
         assert (s.session, s.epoch, board.done, board.state) == (0, 0, -1, "IDLE")
-    assert link.parse_persist(b"AB2 9 8 7 - WDOG -") == (9, 8, 7, -1, "WDOG", "-")
+    assert link.parse_persist(b"AB2 9 8 7 - WDOG -") == (9, 8, 7, -1, "WDOG", "-", None)
+    # a board's own token rides as an eighth field; a ninth is not a record
+    assert link.parse_persist(b"AB2 9 8 7 - WDOG - 1,2,3") == (9, 8, 7, -1, "WDOG", "-", "1,2,3")
+    assert link.parse_persist(b"AB2 9 8 7 - WDOG - 1,2,3 x") is None
+
+
+class _Keeping(arm.Board):
+    """A board with persisted state of its own (as the MASR actuator's position)."""
+
+    seen = "unset"
+
+    def persist_extra(self):
+        return "42,-7"
+
+    def restore(self, token):
+        self.seen = token
+
+
+def test_a_boards_own_state_is_persisted_and_restored():
+    hal = FakeHal()
+    board = _Keeping(hal, config)
+    assert board.seen is None                      # power on: nothing to restore
+    board.link.save()
+    assert hal.persist.split()[-1] == b"42,-7"
+    again = _Keeping(FakeHal(persist=hal.persist), config)
+    assert again.seen == "42,-7"
+    assert again.link.session.session == board.link.session.session
 
 
 # ---------------------------------------------------------------- watchdog

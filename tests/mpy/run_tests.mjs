@@ -6,7 +6,7 @@
 //
 // The repo layout is mirrored in the interpreter's filesystem under /repo
 // (firmware/common/*.py, the generated protocol table protodef.py among them,
-// firmware/esp32/{config,arm}.py, tests/firmware/*.py, tests/vectors/lines.json), so the tests find the vectors relative to their
+// firmware/esp32/{config,arm,ik3r,mlp}.py, tests/firmware/*.py, tests/vectors/lines.json), so the tests find the vectors relative to their
 // own files, as under CPython. `@micropython.native` / `@micropython.viper`
 // decorators are commented out (this port has no native emitter).
 // Prints one line per test, `PASS module::name` or `FAIL module::name: error`
@@ -45,7 +45,7 @@ async function main() {
     console.error("firmware/common/protodef.py missing (python -m armbridge.link.codegen writes it)");
     process.exit(2);
   }
-  copyRepo(FS, "firmware/esp32", (n) => n === "config.py" || n === "arm.py");
+  copyRepo(FS, "firmware/esp32", (n) => ["config.py", "arm.py", "ik3r.py", "mlp.py"].includes(n));
   const tests = copyRepo(FS, "tests/firmware", (n) => n !== "conftest.py");
   mkdirs(FS, "/repo/tests/vectors");
   FS.writeFile("/repo/tests/vectors/lines.json",

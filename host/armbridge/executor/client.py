@@ -199,6 +199,7 @@ class BoardClient:
         ok = hello(self.arq, self.session, timeout if timeout is not None else self.connect_timeout)
         info = parse_hello(ok)
         check_identity(info, self.robot)
+        self.arq.joints = info.n
         self.state = info.state
         # Same session as a board that ran waypoints already (an earlier run):
         # our ids follow on from its newest, so its `done` never names one of ours.

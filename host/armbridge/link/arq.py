@@ -129,6 +129,7 @@ class Arq:
         self.epoch = 0  # the epoch every non-HELLO line is framed with
         self.out: list[Cmd] = []  # unanswered commands, in seq order
         self.refused: list[tuple[Cmd, P.Er]] = []  # ER answers of commands nobody waits for
+        self.joints: int | None = None  # the board's n, once HELLO said it (T lines' joint columns)
 
         self._splitter = P.LineSplitter(P.MAX_BOARD_LINE)
         # The first piece the port delivers may be the tail of a line the board
@@ -372,7 +373,7 @@ class Arq:
                 continue  # an empty line (the board starts its BOOT with one): not an error
             try:
                 line = P.decode(item)  # board lines: epoch 0
-                msg = P.parse_board_line(line)
+                msg = P.parse_board_line(line, self.joints)
             except P.ProtocolError as exc:
                 if _V1_FRAME.fullmatch(item):
                     st.v1_lines += 1

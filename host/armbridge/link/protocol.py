@@ -15,7 +15,7 @@ import numpy as np
 
 from armbridge.link import protodef as D
 from armbridge.link.protodef import (  # noqa: F401  (re-exported: the codes users name)
-    ARGS, CRC, FULL, LATCHED, LONG, NOSESSION, PARSE, PROTO, RANGE, REACH, SEQ, STALE, VERB,
+    ARGS, CRC, FULL, LATCHED, LONG, NOSESSION, PARSE, PROTO, RANGE, REACH, SEQ, STALE, UNHOMED, VERB,
 )
 
 PROTOCOL_VERSION = D.PROTOCOL_VERSION
@@ -216,6 +216,7 @@ class Telemetry:
     q: np.ndarray  # measured, SI
     target: np.ndarray  # set point, SI
     effort: np.ndarray  # [-1, 1]
+    extra: tuple[int, ...] = ()  # a board's own columns after the 3n (docs/protocol.md §4), as sent
 
 
 @dataclass(frozen=True)
@@ -242,8 +243,12 @@ def optional_id(text: str) -> int | None:
     return None if text == "-" else parse_int(text, 0, 65535, "id")
 
 
-def parse_board_line(line: Line) -> BoardLine:
-    """Types a decoded board line; raises ProtocolError(ARGS) when malformed."""
+def parse_board_line(line: Line, joints: int | None = None) -> BoardLine:
+    """Types a decoded board line; raises ProtocolError(ARGS) when malformed.
+
+    `joints`: the board's n from HELLO, once known: a T line then holds 3n joint
+    columns and the board's own extra columns after them (the MA's j_d, d_link,
+    speed). Before HELLO (None) a T line must be exactly 3n columns."""
     a = line.args
     try:
         if line.verb == "OK":
@@ -252,12 +257,18 @@ def parse_board_line(line: Line) -> BoardLine:
             seq = None if a[0] == "-" else int(a[0])
             return Er(line.seq, seq, int(a[1]), a[2], a[3:])
         if line.verb == "T":
-            n, rem = divmod(len(a) - 4, 3)
-            if rem or n < 1:
-                raise ValueError("joint columns")
-            ints = np.array([int(x) for x in a[4:]], dtype=float)
+            if joints is None:
+                n, rem = divmod(len(a) - 4, 3)
+                if rem or n < 1:
+                    raise ValueError("joint columns")
+            else:
+                n = joints
+                if n < 1 or len(a) < 4 + 3 * n:
+                    raise ValueError(f"{len(a) - 4} columns, a board of {n} joints sends at least {3 * n}")
+            ints = np.array([int(x) for x in a[4:4 + 3 * n]], dtype=float)
             return Telemetry(line.seq, int(a[0]), a[1], optional_id(a[2]), int(a[3]),
-                             ints[:n] / 1000.0, ints[n:2 * n] / 1000.0, ints[2 * n:] / 1000.0)
+                             ints[:n] / 1000.0, ints[n:2 * n] / 1000.0, ints[2 * n:] / 1000.0,
+                             tuple(int(x) for x in a[4 + 3 * n:]))
         if line.verb == "EV":
             return Event(line.seq, int(a[0]), a[1], a[2:])
         if line.verb == "BOOT":

@@ -48,11 +48,12 @@ NOSESSION = 10
 STALE = 11
 PROTO = 12
 REACH = 13  # a Cartesian target outside the board's safe region, or one its IK did not reach
+UNHOMED = 14  # the MASR actuator does not know where it is (a reset mid-move, a localisation fault): HOME
 
 ERROR_NAMES = {
     1: "PARSE", 2: "CRC", 3: "LONG", 4: "VERB", 5: "ARGS", 6: "RANGE",
     7: "SEQ", 8: "FULL", 9: "LATCHED", 10: "NOSESSION", 11: "STALE", 12: "PROTO",
-    13: "REACH",
+    13: "REACH", 14: "UNHOMED",
 }
 
 # Host -> board commands: verb -> argument specs (name, lo, hi), in order.
@@ -85,6 +86,14 @@ COMMANDS = {
     # CAL: a positional servo's calibration, pulse us_a (us) at angle a, us_b at b (mrad).
     "CAL": (("joint", 1, 0), ("us_a", 500, 2500), ("a", -1000000, 1000000), ("us_b", 500, 2500),
             ("b", -1000000, 1000000)),
+    # The MASR mobile actuator's actions, queued like waypoints (credits, DONE id).
+    # Its coordinates are joints 1..n-1 (mrad) and d (the last, in mm) along the arm.
+    # MV: drive the MA to d. ROT: turn joint j to angle (the MA drives onto joint j's
+    # magnet first). GRIP: the gripper (0 closed, 1 open). HOME: drive to the base, zero d.
+    "MV": (("id", 0, 65535), ("d", 0, 1000000)),
+    "ROT": (("id", 0, 65535), ("joint", 1, 0), ("angle", -1000000, 1000000)),
+    "GRIP": (("id", 0, 65535), ("open", 0, 1)),
+    "HOME": (("id", 0, 65535),),
 }
 
 # Verbs that change nothing: a retransmitted copy is answered afresh, not replayed.
@@ -119,4 +128,4 @@ BOARD_LINES = {
 STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
 LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
 
-EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN")
+EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET")
