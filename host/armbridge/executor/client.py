@@ -339,19 +339,21 @@ class BoardClient:
         *,
         verb: str = "W",
         pen: Sequence[int] | None = None,
+        commands: Sequence[tuple[str, Sequence[int]]] | None = None,
     ) -> None:
         """Stream waypoints (W id dur q...; with verb="X", q_milli holds x y (um)
         theta (mrad) and the board solves them) under credits and return when the
         last one is DONE. `pen`: a flag per waypoint, sent as modal PEN lines
         (the board must have a pen servo: see can("PEN", 0)). Ids continue across
-        the plans of a session. `timeout` (clock seconds) defaults to 30 s + 5 x
-        the plan's duration."""
+        the plans of a session. `commands`: one (verb, arguments after the id) per
+        waypoint instead (the MASR actuator's MV/ROT actions; durations_ms then only
+        time them). `timeout` (clock seconds) defaults to 30 s + 5 x the plan's duration."""
         if not self.connected:
             raise ArmbridgeError("not connected: call connect() first")
         if self.robot is None:
             raise ArmbridgeError("this session has no robot: a plan needs one (open the session with the plan's "
                                  "robot)")
-        stream = Stream(durations_ms, q_milli, self._base, on_progress, verb=verb, pen=pen)
+        stream = Stream(durations_ms, q_milli, self._base, on_progress, verb=verb, pen=pen, commands=commands)
         self._stream, self._streaming = stream, True
         arq = self.arq
         planned = sum(stream.durations) / 1000.0

@@ -18,6 +18,7 @@ carries the Summary (`error`, `final_state`, and `fault` for a FAULT).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.executor.summary import JointTracking, Summary, fill, plan_error
 from armbridge.link import protocol as P
-from armbridge.plans.format import Plan, load_plan, validate
+from armbridge.plans.format import Plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
 
@@ -75,10 +76,18 @@ def run_plan(
     serial device), before anything was sent and with nothing written.
     """
     # 1. Validate before anything touches a port.
-    if isinstance(plan, Plan):
-        plan = validate(plan)
-    else:
-        plan = load_plan(plan)
+    from armbridge.executor.masr import load_any_plan, masr_commands
+
+    if isinstance(plan, (str, Path)):
+        plan = load_any_plan(plan)
+    masr: Any = None
+    commands = None
+    if not isinstance(plan, Plan):  # a MASR plan: its steps as the MA's actions
+        if cartesian:
+            raise ArmbridgeError("--cartesian is for the drawing arm; a MASR plan's actions are MV and ROT")
+        masr = plan
+        plan, commands = masr_commands(masr)
+    plan = validate(plan)
     if not isinstance(rate_hz, int) or not RATE_MIN <= rate_hz <= RATE_MAX:
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
     if pen not in PEN_MODES:
@@ -101,6 +110,8 @@ def run_plan(
         planned_duration_s=plan.total_duration,
         ik="board" if cartesian else "host",
     )
+    if masr is not None:
+        summary.planned_duration_s = masr.total_time
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg
     rec: Recording | None = None
@@ -114,6 +125,9 @@ def run_plan(
         samples.append((t, m.state, m.q, m.target, active))
         if rec is not None:
             rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
+            if masr is not None and len(m.extra) >= 3:  # the MA's own columns: jd dlink speed
+                rec.series(t, {"ma/link": m.extra[0], "ma/d_link": m.extra[1] / 1000.0,
+                               "ma/speed": m.extra[2] / 1000.0})
             if m.state != last_state[0]:
                 rec.event(t, f"state {m.state}")
         last_state[0] = m.state
@@ -131,7 +145,7 @@ def run_plan(
     failure: BaseException | None = None
     bar = None
     with stop_on_signals():
-        rec = Recording(rrd, robot, plan)  # an unwritable --rrd is bad input: nothing sent yet
+        rec = _recording(rrd, robot, plan, masr)  # an unwritable --rrd is bad input: nothing sent yet
         summary.rrd = str(rrd)
         try:
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
@@ -146,7 +160,7 @@ def run_plan(
                 bar = _progress_bar(plan, console) if progress else None
                 try:
                     c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
-                              verb=verb, pen=pen_flags)
+                              verb=verb, pen=pen_flags, commands=commands)
                     if pen_flags is not None:
                         c.command("PEN", 0)  # the drawing is done: lift the pen
                     # Let the last samples (the arm settling on the final waypoint) arrive.
@@ -163,6 +177,11 @@ def run_plan(
                     fill(summary, c, plan, samples, names)
                     if plan.pen is not None:
                         summary.drawing = _drawing(plan, samples, summary.measured_duration_s)
+                    if masr is not None:
+                        from armbridge.executor.masr import masr_report
+
+                        summary.masr = masr_report(masr, samples[-1][2] if samples else None,
+                                                   summary.measured_duration_s)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)
@@ -235,6 +254,25 @@ def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> 
                              "run with --pen auto or off to draw with pen-up moves only marked")
     summary.pen = "marked"
     return None
+
+
+def _recording(rrd: Path, robot, plan: Plan, masr):
+    """The run's recording; a MASR plan's adds its obstacles beside the arm and the MA's series."""
+    from armbridge.telemetry.recording import Recording
+
+    if masr is None:
+        return Recording(rrd, robot, plan)
+    import rerun.blueprint as rrb
+
+    from armbridge.telemetry.layout import run_layout
+
+    layout = run_layout(robot, spatial=["world/obstacles"],
+                        views=[rrb.TimeSeriesView(origin="ma", contents=["ma/speed"], name="MA speed"),
+                               rrb.TimeSeriesView(origin="ma", contents=["ma/link", "ma/d_link"], name="MA link")])
+    rec = Recording(rrd, robot, plan, layout=layout)
+    if masr.env is not None:
+        rec.obstacles(masr.env.obstacles)
+    return rec
 
 
 def _progress_bar(plan: Plan, console):

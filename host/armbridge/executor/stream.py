@@ -34,14 +34,21 @@ class Stream:
 
     def __init__(self, durations_ms: Sequence[int], q_milli: Sequence[Sequence[int]], base: int = 0,
                  on_progress: Callable[[int], None] | None = None, *, verb: str = "W",
-                 pen: Sequence[int] | None = None) -> None:
-        if len(durations_ms) != len(q_milli):
-            raise ValueError(f"{len(durations_ms)} durations for {len(q_milli)} waypoints")
+                 pen: Sequence[int] | None = None,
+                 commands: Sequence[tuple[str, Sequence[int]]] | None = None) -> None:
+        """`q_milli`: the arguments after `id dur` of each `verb` line; or `commands`,
+        one (verb, arguments after the id) per waypoint (the MASR actuator's actions,
+        MV d / ROT j angle, which take no duration), with q_milli unused."""
+        if commands is None:
+            if len(durations_ms) != len(q_milli):
+                raise ValueError(f"{len(durations_ms)} durations for {len(q_milli)} waypoints")
+            commands = [(verb, [int(d), *(int(v) for v in row)]) for d, row in zip(durations_ms, q_milli)]
+        if len(commands) != len(durations_ms):
+            raise ValueError(f"{len(durations_ms)} durations for {len(commands)} commands")
         if pen is not None and len(pen) != len(durations_ms):
             raise ValueError(f"{len(pen)} pen flags for {len(durations_ms)} waypoints")
         self.durations = [int(d) for d in durations_ms]
-        self.q = [[int(v) for v in row] for row in q_milli]  # the arguments after dur
-        self.verb = verb
+        self.commands = [(v, [int(x) for x in args]) for v, args in commands]
         self.pen = None if pen is None else [int(x) for x in pen]
         self._pen_sent: int | None = None  # the board's modal pen state as last sent
         self.k = len(self.durations)
@@ -81,7 +88,8 @@ class Stream:
                 arq.issue("PEN", self.pen[i])
                 self._pen_sent = self.pen[i]
                 continue
-            arq.issue(self.verb, self.wid(i), self.durations[i], *self.q[i], wp=self.base + i)
+            verb, args = self.commands[i]
+            arq.issue(verb, self.wid(i), *args, wp=self.base + i)
             self.next_wp += 1
 
     # ------------------------------------------------------------------ board news

@@ -58,6 +58,7 @@ class Summary:
     drawing: dict | None = None  # a plan with pen flags: draw/error.py run_drawing_report
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
+    masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)
 
     @property
     def completed(self) -> bool:
@@ -114,6 +115,11 @@ class Summary:
             t.add_row("pen", "pen-lift servo (PEN)" if self.pen == "servo" else "no pen-lift servo: pen-up moves marked")
         if self.ik == "board":
             t.add_row("IK", "on the board (X waypoints)")
+        if self.masr:
+            m = self.masr
+            t.add_row("MA pose error at the end (dp / dphi)", f"{_f(m.get('dp_mm'), 2)} mm / {_f(m.get('dphi_deg'), 2)} deg")
+            t.add_row("action time (executed / planned tau)",
+                      f"{_f(m.get('executed_s'), 2)} s / {_f(m.get('tau_s'), 2)} s")
         if self.drawing:
             d = self.drawing
             t.add_row("drawing error, trace from strokes (mean / max)",

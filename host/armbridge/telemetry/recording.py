@@ -143,6 +143,23 @@ class Recording:
         if len(self._buf) >= self.flush_every:
             self.flush()
 
+    def obstacles(self, polygons) -> None:
+        """The environment's obstacles, (k, 2) vertex arrays in m, as closed outlines
+        (static, `world/obstacles`); the run layout of a MASR plan shows them with the arm."""
+        rings = [np.vstack([np.asarray(p, float), np.asarray(p, float)[:1]]) for p in polygons]
+        if rings and self._dim == 2:
+            self.rec.log("world/obstacles", rr.LineStrips2D(rings, colors=[(200, 60, 60)], radii=0.001), static=True)
+
+    def series(self, t: float, values: dict[str, float]) -> None:
+        """A board's own scalar columns at board time t (the MA's speed, link, d_link),
+        one time series per entity path."""
+        if self._closed:
+            return
+        self._t = max(self._t, float(t))
+        self.rec.set_time(TIMELINE, duration=float(t))
+        for path, v in values.items():
+            self.rec.log(path, rr.Scalars(float(v)))
+
     def event(self, t: float | None, text: str, level: str = "info") -> None:
         """A board event (or a state change) as a line of the `events` log.
         t None: at the latest board time seen."""

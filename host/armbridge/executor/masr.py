@@ -1,0 +1,92 @@
+"""A MASR plan (docs/formats.md §4) as the executor streams it to the MA's board.
+
+A MASR has no servo joints to stream waypoints to: its mobile actuator (MA)
+drives along the arm and turns one passive joint at a time. Every step of the
+plan's actions becomes one queued board action with its own id, in order:
+`move` -> `MV id d` (mm) and `rotate` -> `ROT id j angle` (mrad), the board's
+own verbs (docs/protocol.md §3). Between two steps the configuration q =
+(theta_1..theta_n, d) changes in one coordinate only, linearly in time, so the
+configuration after each step is an ordinary joint-space waypoint: the Plan
+built here (one waypoint a step, its duration the step's) is what the rest of
+the executor (tracking statistics, the recording, the summary) reads, exactly
+as for a servo arm. The board, not the host, times the steps (its speeds are
+its limits), so the Plan's durations are the plan's model, eq. (7)-(8).
+
+`masr_report` is the summary's `masr` section: the MA's final pose against
+the plan's goal (eq. 9) and the executed action time against tau.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+from armbridge.geometry import wrap_angle
+from armbridge.jsonfile import read_json
+from armbridge.plans.format import DURATION_MIN, Plan, load_plan, make_plan
+
+MASR_FORMAT = "armbridge-masr-plan"
+
+
+def load_any_plan(path: str | Path):
+    """A plan file of either format: a Plan, or a MasrPlan (by its `format` field)."""
+    doc = read_json(path, "plan file")
+    if isinstance(doc, dict) and doc.get("format") == MASR_FORMAT:
+        from armbridge.planning.masr_plan import plan_from_document
+
+        return plan_from_document(doc, Path(path))
+    return load_plan(path)
+
+
+def masr_commands(mp) -> tuple[Plan, list[tuple[str, list[int]]]]:
+    """(the Plan of the configuration after each step, the board commands) of a MasrPlan."""
+    arm = mp.arm
+    q = np.array(mp.q[0], dtype=float)
+    configs, durations, commands = [], [], []
+    for step in mp.steps():
+        if step["op"] == "move":
+            q[-1] = step["d_to"]
+            commands.append(("MV", [int(round(step["d_to"] * 1000.0))]))
+        elif step["op"] == "rotate":
+            j = int(step["joint"])
+            q[j - 1] = step["theta_to"]
+            commands.append(("ROT", [j, int(round(step["theta_to"] * 1000.0))]))
+        else:
+            raise ArmbridgeError(f"{mp.source or 'MASR plan'}: unknown step op {step['op']!r}")
+        configs.append(q.copy())
+        durations.append(max(DURATION_MIN, float(step["duration"])))
+    if not commands:
+        raise ArmbridgeError(f"{mp.source or 'MASR plan'}: the plan has no steps: nothing to run")
+    prov = dict(mp.provenance)
+    prov["masr_plan"] = {"tau": mp.total_time, "steps": len(commands),
+                         "goal_pose": [float(x) for x in goal_pose(mp)]}
+    plan = make_plan(arm, np.array(configs), np.array(durations), prov, tool="armbridge run")
+    plan.source = mp.source
+    return plan, commands
+
+
+def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, Any]:
+    """The MA's final pose error (dp in mm, dphi in deg) against the plan's goal, and the
+    executed action time against the planned tau (s)."""
+    out: dict[str, Any] = {"tau_s": mp.total_time, "executed_s": executed_s,
+                           "time_ratio": executed_s / mp.total_time if mp.total_time > 0 else None}
+    if mp.env is not None:
+        out.update(e_p_mm=mp.env.e_p * 1000.0, e_phi_deg=float(np.degrees(mp.env.e_phi)))
+    if final_q is None:
+        out.update(dp_mm=None, dphi_deg=None)
+        return out
+    goal = goal_pose(mp)
+    pose = mp.arm.fk(np.asarray(final_q, float))
+    out.update(dp_mm=float(np.hypot(*(pose[:2] - goal[:2])) * 1000.0),
+               dphi_deg=float(np.degrees(abs(wrap_angle(pose[2] - goal[2])))))
+    return out
+
+
+def goal_pose(mp) -> np.ndarray:
+    """The goal pose (x, y, phi): the environment's goal, or (no environment) the MA pose the
+    plan's last waypoint puts it in."""
+    if mp.env is not None:
+        return np.asarray(mp.env.goal_pose, dtype=float)
+    return np.asarray(mp.arm.fk(mp.q[-1]), dtype=float)
