@@ -48,3 +48,13 @@ def test_bench_arm3r_quick(tmp_path):
     assert set(res["overall"]) == set(arm3r.ROWS)
     assert res["safe_region"]["radius_m"] > 0.08
     assert "overall (Tables 5, 8)" in r.output
+    # ROBOTICS on the emulated arm: both rigs and the board's own IK, each drawn whole
+    dr = res["drawing"]
+    assert set(dr["runs"]) == {"effort", "pca9685", "effort, board IK (--cartesian)"}
+    for name, run in dr["runs"].items():
+        assert run["completed"] and run["pen"] == "servo", (name, run)
+        assert run["characters"] == 8 and run["trace_points"] > 100
+        assert 0 < run["trace_mean_mm"] <= run["trace_max_mm"] < 10, (name, run)
+    assert dr["runs"]["effort, board IK (--cartesian)"]["ik"] == "board"
+    assert res["targets"]["robotics_drawn_on_every_rig"]
+    assert "ROBOTICS at 0.1 m/s on pca9685" in r.output

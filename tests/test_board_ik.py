@@ -13,6 +13,7 @@ The answer/refusal decision must agree except where the tip error lies within
 TOL_EDGE of IK_TOL_UM (the rounding can put it either side there).
 """
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -268,3 +269,22 @@ def test_bench_board_ik_cli_writes_its_numbers(tmp_path):
             assert c["vs_int8_reference_rad"]["max"] <= TOL_Q and c["tip_error_um"]["max"] <= r["tol_um"]
     assert r["pen_angle"]["micropython"]["answered"] == 30 and r["pen_angle"]["converged_by_passes"]["128"] == 1.0
     assert "multiply-adds" in proc.stdout
+
+
+def test_the_boards_disc_is_the_hosts_safe_region():
+    """config.IK_REGION_UM is ik.region.safe_region(arm3r) in um, its radius rounded up and 1 um
+    more, so that every target the host places in the region (then rounds to um for an X line)
+    is one the board accepts, and the board's disc is no more than 2 um larger."""
+    from armbridge.ik.region import safe_region
+    from armbridge.robots import get_robot
+
+    from armbridge.emulator.runner import load_firmware
+    from armbridge.resources import firmware_dir
+
+    cfg = load_firmware([firmware_dir() / "esp32"], ("config",))["config"]
+    reg = safe_region(get_robot("arm3r"))
+    cx, cy, r = cfg.IK_REGION_UM
+    off = math.hypot(cx - reg.center[0] * 1e6, cy - reg.center[1] * 1e6)
+    assert off < 0.5
+    assert r - off - math.sqrt(0.5) >= reg.radius * 1e6   # host disc + X's rounding inside
+    assert r - reg.radius * 1e6 < 2.0

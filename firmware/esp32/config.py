@@ -88,6 +88,6 @@ PEN_SETTLE_MS = 150                 # a pen change waits this long before the ne
 # IK_WEIGHTS); without it X and XY are refused VERB.
 IK_WEIGHTS = "arm3r_ik.bin"
 IK_THETA_MRAD = 0                   # the pen angle XY uses (host: ik.region.pen_angle)
-IK_REGION_UM = (76000, 190000, 114851)   # safe disc (cx, cy, r), host: ik.region.safe_region
+IK_REGION_UM = (76000, 190000, 114853)   # safe disc (cx, cy, r): host ik.region.safe_region, r rounded up + 1 um (X rounds x, y to um)
 IK_FABRIK_PASSES = 128              # fixed passes: every disc target at IK_THETA within IK_TOL (100,000 of 100,000, max 40 um)
 IK_TOL_UM = 100                     # a solve that ends farther than this from the target: REACH
