@@ -1,6 +1,7 @@
 """`armbridge demo`: the CLI front of the demo registry (armbridge.demos), one demo per robot.
 
-Defaults: the arm3r square on the emulated ESP32 (`emu:esp32`).
+Defaults: the arm3r square on the emulated ESP32 (`emu:esp32`); each robot's
+demo runs on its own emulated board unless --port names another.
 """
 from __future__ import annotations
 
@@ -8,13 +9,13 @@ from pathlib import Path
 
 import typer
 
-from armbridge.demos import DemoOptions, names, run_demo
+from armbridge.demos import DemoOptions, default_port, names, run_demo
 
 
 def demo_cmd(
     robot: str = typer.Option("arm3r", help=f"Robot whose demo runs: {', '.join(names())}."),
-    port: str = typer.Option("emu:esp32", help="Board to run on: emu:esp32 (built-in emulator), a serial device "
-                                               "or a pyserial URL."),
+    port: str = typer.Option(None, help="Board to run on [default: the robot's emulated board: emu:esp32 for "
+                                        "arm3r, emu:masr_ma for masr5], a serial device or a pyserial URL."),
     rrd: Path = typer.Option(None, help="Rerun recording to write [default: runs/<time>-<plan>.rrd]."),
     write_plan: Path = typer.Option(None, "--write-plan", help="Only write the demo's plan to this file and exit."),
     fault_tolerant: bool = typer.Option(
@@ -30,6 +31,6 @@ def demo_cmd(
 ) -> None:
     """Run a robot's demo on the emulated board and record it to Rerun (arm3r: draw a square, or with
     --fault-tolerant reach a target despite a joint that stalls on the way)."""
-    opts = DemoOptions(port=port, rrd=rrd, write_plan=write_plan, fault_tolerant=fault_tolerant, seed=seed,
+    opts = DemoOptions(port=port or default_port(robot), rrd=rrd, write_plan=write_plan, fault_tolerant=fault_tolerant, seed=seed,
                        smm=smm, clear=clear)
     run_demo(opts, robot)

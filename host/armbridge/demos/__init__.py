@@ -22,7 +22,17 @@ from armbridge.errors import ArmbridgeError
 #: robot name -> the module whose DEMO runs it.
 MODULES: dict[str, str] = {
     "arm3r": "armbridge.demos.arm3r",
+    "masr5": "armbridge.demos.masr",
+    "masr": "armbridge.demos.masr",  # the MASR's demo by its kind
 }
+
+#: robot name -> the port its demo runs on by default (its emulated board).
+PORTS: dict[str, str] = {"arm3r": "emu:esp32", "masr5": "emu:masr_ma", "masr": "emu:masr_ma"}
+
+
+def default_port(robot: str) -> str:
+    """The emulated board a robot's demo runs on unless --port names another."""
+    return PORTS.get(str(robot).lower(), "emu:esp32")
 
 
 @dataclass(frozen=True)
@@ -46,6 +56,7 @@ class Demo:
     summary: str  # one line for `armbridge demo --help`
     run: Callable[[DemoOptions, Any], None]
     fault_tolerant: bool = False  # has a --fault-tolerant variant
+    aliases: tuple[str, ...] = ()  # other --robot names for it (the MASR's "masr")
 
 
 def names() -> list[str]:
@@ -59,7 +70,7 @@ def get_demo(robot: str) -> Demo:
     if module is None:
         raise ArmbridgeError(f"--robot {robot!r}: no demo for that robot; demos: {', '.join(names())}")
     demo = importlib.import_module(module).DEMO
-    assert isinstance(demo, Demo) and demo.robot == robot.lower(), module
+    assert isinstance(demo, Demo) and robot.lower() in (demo.robot, *demo.aliases), module
     return demo
 
 
