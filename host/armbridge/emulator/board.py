@@ -110,6 +110,12 @@ class EmulatedBoard:
             if j > self.n:
                 raise ArmbridgeError(f"stall joint {j} does not exist; the {self.device} board has joints 1..{self.n}")
             self.plant.stall(j - 1, t)
+        if self.faults.plant_faults:  # the MA's own (missed magnets, slip bursts): its plant's inject
+            inject = getattr(self.plant, "inject", None)
+            if inject is None:
+                raise ArmbridgeError(f"{' and '.join(self.faults.plant_faults)}: faults of the masr_ma board; "
+                                     f"the {self.device} board has none")
+            inject(self.faults)
         self.uart = PacedUart(spec.baud, self.faults.link, self.faults.lanes, seed)
         self.persist = PersistentMemory(size=spec.persist_bytes)
         self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,

@@ -10,7 +10,8 @@ from typing import List, Optional
 import typer
 
 from armbridge.emulator.board import EmulatedBoard
-from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
+from armbridge.emulator.faults import (Faults, parse_delay, parse_lanes, parse_missed, parse_rate, parse_seconds,
+                                       parse_slip, parse_stall)
 from armbridge.emulator.registry import BOARDS, board_spec, rig_spec
 from armbridge.errors import ArmbridgeError
 
@@ -52,7 +53,9 @@ def emulate_cmd(
     delay: Optional[str] = typer.Option(None, "--delay", metavar="R:MS", help="Fraction R of bytes held MS ms longer."),
     lanes: str = typer.Option("rx,tx", "--lanes", help="Directions with link faults: rx (host->board), tx, or rx,tx."),
     reset_at: List[float] = typer.Option([], "--reset-at", metavar="SECONDS", help="Reset the board at this sim time (repeatable)."),
-    stall: List[str] = typer.Option([], "--stall", metavar="J@SECONDS", help="Stall joint J (1..n) at this sim time (repeatable)."),
+    stall: List[str] = typer.Option([], "--stall", metavar="J@SECONDS", help="Stall joint J (1..n) at this sim time (repeatable). masr_ma: joint J's worm drive seizes (the rotation motor stalls on it), J = n: the wheel."),
+    missed: List[str] = typer.Option([], "--missed-magnet", metavar="J", help="masr_ma: joint J's magnet never fires (repeatable)."),
+    slip: List[str] = typer.Option([], "--slip-burst", metavar="S:D:F", help="masr_ma: from sim second S for D seconds the wheel slips by the fraction F in [0, 1]: the MA advances by its travel times 1 - F (repeatable)."),
     seed: int = typer.Option(0, "--seed", help="Seed of sensor noise and link faults."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
@@ -74,6 +77,8 @@ def emulate_cmd(
         lanes=parse_lanes(lanes, "--lanes"),
         reset_at=tuple(parse_seconds(t, "--reset-at") for t in reset_at),
         stall=tuple(parse_stall(s, "--stall") for s in stall),
+        missed=tuple(parse_missed(j, "--missed-magnet") for j in missed),
+        slip=tuple(parse_slip(x, "--slip-burst") for x in slip),
     )
 
     held: list[str] | None = []  # lines from before the first line of output

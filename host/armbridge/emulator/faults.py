@@ -22,6 +22,9 @@ class Faults:
     dup, delay (rate) with delay_ms extra.
     Board: reset_at (sim seconds at which the board resets).
     Plant: stall ((joint, sim seconds), ...), joints numbered 1..n as in the protocol.
+    The MASR actuator's plant (ma_plant.py) only: missed (joints 1..n-1 whose
+    magnet never fires), slip ((from sim seconds, for seconds, fraction F), ...):
+    bursts in which the wheel slips by F (the MA advances by its travel times 1 - F).
     """
 
     drop: float = 0.0
@@ -32,6 +35,8 @@ class Faults:
     lanes: tuple[str, ...] = LANES
     reset_at: tuple[float, ...] = ()
     stall: tuple[tuple[int, float], ...] = ()
+    missed: tuple[int, ...] = ()
+    slip: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         try:
@@ -45,6 +50,17 @@ class Faults:
         for j, t in self.stall:
             if j < 1 or not t >= 0:
                 raise ArmbridgeError(f"stall {j}@{t}: joint is numbered from 1, time must be >= 0")
+        for j in self.missed:
+            parse_missed(str(j))
+        for burst in self.slip:
+            if len(burst) != 3:
+                raise ArmbridgeError(f"slip burst {burst}: expected (start s, duration s, fraction)")
+            check_slip(*burst, label=f"slip burst {burst}")
+
+    @property
+    def plant_faults(self) -> tuple[str, ...]:
+        """The names of the set faults that only a plant with `inject(faults)` takes (the MA's)."""
+        return tuple(name for name in ("missed", "slip") if getattr(self, name))
 
     @property
     def link(self) -> LinkFaults:
@@ -59,6 +75,8 @@ class Faults:
             parts.append("on " + "+".join(self.lanes))
         parts += [f"reset at {t:g} s" for t in self.reset_at]
         parts += [f"joint {j} stalls at {t:g} s" for j, t in self.stall]
+        parts += [f"magnet {j} missed" for j in self.missed]
+        parts += [f"wheel slips {f:g} from {s:g} s for {d:g} s" for s, d, f in self.slip]
         return ", ".join(parts) if parts else "none"
 
 
@@ -100,6 +118,37 @@ def parse_stall(value: str, name: str = "stall") -> tuple[int, float]:
     if jj < 1 or not tt >= 0:
         raise ArmbridgeError(f"{name} {value!r}: joints are numbered from 1 and the time must be >= 0")
     return jj, tt
+
+
+def parse_missed(value: str, name: str = "missed") -> int:
+    """'J' -> joint J (>= 1) whose magnet never fires (the MASR actuator)."""
+    try:
+        j = int(str(value))
+    except ValueError:
+        raise ArmbridgeError(f"{name} {value!r}: expected a JOINT number (1..n-1), e.g. 3") from None
+    if j < 1:
+        raise ArmbridgeError(f"{name} {value!r}: joints are numbered from 1")
+    return j
+
+
+def parse_slip(value: str, name: str = "slip") -> tuple[float, float, float]:
+    """'S:D:F' -> (from sim second S, for D seconds, slip fraction F in [0, 1]) (the MASR actuator)."""
+    parts = str(value).split(":")
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        s, d, f = (float(x) for x in parts)
+    except ValueError:
+        raise ArmbridgeError(f"{name} {value!r}: expected START:DURATION:FRACTION, e.g. 2:0.5:0.3 "
+                             "(from 2 s for 0.5 s the wheel slips 30 %)") from None
+    return check_slip(s, d, f, label=f"{name} {value!r}")
+
+
+def check_slip(s: float, d: float, f: float, label: str = "slip") -> tuple[float, float, float]:
+    """A slip burst's (start >= 0 s, duration > 0 s, fraction in [0, 1]), or one error naming `label`."""
+    if not (s >= 0 and d > 0 and 0 <= f <= 1):
+        raise ArmbridgeError(f"{label}: START must be >= 0 s, DURATION > 0 s and FRACTION in [0, 1]")
+    return float(s), float(d), float(f)
 
 
 def parse_lanes(value: str, name: str = "lanes") -> tuple[str, ...]:

@@ -105,6 +105,16 @@ def _pca_hal(*args: Any, **kw: Any) -> Any:
     return PcaSimHal(*args, **kw)
 
 
+def _ma_plant(cfg, params, q0, seed: int) -> Any:
+    from armbridge.emulator.ma_plant import ma_plant
+    return ma_plant(cfg, params, q0, seed)
+
+
+def _ma_hal(*args: Any, **kw: Any) -> Any:
+    from armbridge.emulator.ma_hal import MaSimHal
+    return MaSimHal(*args, **kw)
+
+
 ESP32_RIGS: dict[str, Rig] = {
     "effort": Rig("continuous servos driven by effort, potentiometer feedback (hal_esp32.Esp32Hal)",
                   servo_plant, SimHal, ("cpython", "micropython")),
@@ -155,6 +165,16 @@ BOARDS: dict[str, BoardSpec] = {
             identity="arm3r",
             firmware=MicroPythonFirmware(dirs=("esp32", "common")),
             rigs=ESP32_RIGS,
+        ),
+        # The MicroPython bridge carries the arm's HAL (joint readings in, efforts
+        # out), not the MA's (counts and hall edges in, loco/rot/grip out): cpython only.
+        BoardSpec(
+            name="masr_ma",
+            description="MASR mobile actuator, ESP32, MicroPython",
+            identity="masr_ma",
+            firmware=MicroPythonFirmware(dirs=("masr_ma", "common"), board_module="ma", interpreters=("cpython",)),
+            plant=_ma_plant,
+            hal=_ma_hal,
         ),
     )
 }

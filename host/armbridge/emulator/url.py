@@ -2,6 +2,7 @@
 
     emu:esp32?speed=4&drop=0.01&delay=0.01:20&seed=3&reset_at=2.5&stall=2@4
     emu:esp32?servos=pca9685
+    emu:masr_ma?speed=0&missed=3&slip=2:0.5:0.3&stall=2@4
 
 Parameters (all optional):
   servos=RIG       the board's rig (registry.rig_spec): effort (default) or pca9685
@@ -12,7 +13,10 @@ Parameters (all optional):
   lanes=rx,tx      which directions get the link faults (default both)
   seed=N           seed of plant noise and link faults
   reset_at=S[,S]   sim seconds at which the board resets
-  stall=J@S[,J@S]  joint J (1..n) stalls at sim second S
+  stall=J@S[,J@S]  joint J (1..n) stalls at sim second S (masr_ma: joint J's worm
+                   drive seizes, J = n: the wheel)
+  missed=J[,J]     masr_ma: joint J's magnet never fires
+  slip=S:D:F[,..]  masr_ma: from sim second S for D seconds the wheel slips by F
   link=PATH        a symlink to the pty (owned while the port is open)
 
 `parse_emu_url` turns the text into EmulatedBoard arguments (the device is its
@@ -27,12 +31,13 @@ from urllib.parse import parse_qsl, urlsplit
 
 import serial  # type: ignore[import-untyped]
 
-from armbridge.emulator.faults import Faults, parse_delay, parse_lanes, parse_rate, parse_seconds, parse_stall
+from armbridge.emulator.faults import (Faults, parse_delay, parse_lanes, parse_missed, parse_rate, parse_seconds,
+                                       parse_slip, parse_stall)
 from armbridge.emulator.registry import BoardSpec, board_spec, rig_spec
 from armbridge.errors import ArmbridgeError
 
 PARAMETERS = ("servos", "speed", "interpreter", "seed", "link", "drop", "corrupt", "dup", "delay", "delay_ms",
-              "lanes", "reset_at", "stall")
+              "lanes", "reset_at", "stall", "missed", "slip")
 
 
 def _number(text: str, name: str) -> float:
@@ -70,6 +75,10 @@ def _fault_kw(key: str, value: str) -> dict[str, Any]:
         return {key: parse_lanes(value)}
     if key == "reset_at":
         return {key: tuple(parse_seconds(x, key) for x in value.split(",") if x)}
+    if key == "missed":
+        return {key: tuple(parse_missed(x) for x in value.split(",") if x)}
+    if key == "slip":
+        return {key: tuple(parse_slip(x) for x in value.split(",") if x)}
     return {"stall": tuple(parse_stall(x) for x in value.split(",") if x)}
 
 
