@@ -29,7 +29,8 @@ PEN_HELP = ("Plans with pen flags: 'auto' drives the board's pen-lift servo when
 
 
 def run_cmd(
-    plan: Path = typer.Argument(..., help="Plan file (armbridge-plan JSON, see docs/formats.md)."),
+    plan: Path = typer.Argument(..., help="Plan file: armbridge-plan JSON, or an armbridge-masr-plan (its actions "
+                                          "run on the MASR actuator), see docs/formats.md."),
     port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, rfc2217://, loop://) or "
                                                "emu:DEVICE."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Recording to write [default: runs/<time>-<plan>.rrd]."),
