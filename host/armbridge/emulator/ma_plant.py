@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -389,9 +389,17 @@ class MaPlant:
 
 
 def ma_plant(cfg: Any, params: MaParams | None, q0, seed: int) -> MaPlant:
-    """The MA's plant from its firmware config (the registry's plant factory)."""
+    """The MA's plant from its firmware config (the registry's plant factory).
+    Without `params`, MaParams with the config's SLIP_MAX as slip_bound and
+    HALL_RING as edge_ring when it has them (the numbers the firmware was built for)."""
     if params is not None and not isinstance(params, MaParams):
         raise ArmbridgeError(f"the masr_ma plant takes MaParams, not {type(params).__name__}")
+    if params is None:
+        params = MaParams()
+        if hasattr(cfg, "SLIP_MAX"):
+            params = replace(params, slip_bound=float(cfg.SLIP_MAX))
+        if hasattr(cfg, "HALL_RING"):
+            params = replace(params, edge_ring=int(cfg.HALL_RING))
     need = ("LINK_LENGTHS_MM", "WHEEL_MM_PER_COUNT", "GEAR_MRAD_PER_COUNT", "HALL_WINDOW_MM", "BACKLASH_MRAD")
     missing = [k for k in need if not hasattr(cfg, k)]
     if missing:

@@ -1,0 +1,170 @@
+"""The emulated MASR actuator (`armbridge emulate masr_ma`, `emu:masr_ma`):
+its HAL over the plant end to end, its faults from the CLI and the URL, and
+the board's firmware (firmware/masr_ma) on it.
+
+The first part runs a tiny stand-in firmware (tests/ma_standin.py: the real
+link, one MV verb, a P loop on the wheel encoder) so the emulator's side is
+tested on its own; the second runs the MA's own firmware."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from armbridge.emulator import EmulatedBoard
+from armbridge.emulator.faults import Faults
+from armbridge.emulator.ma_hal import MaSimHal
+from armbridge.emulator.ma_plant import MaPlant
+from armbridge.emulator.registry import board_spec
+from armbridge.emulator.url import parse_emu_url
+from armbridge.errors import ArmbridgeError
+from ma_standin import standin_firmware
+from test_emulator import Lockstep
+
+ARMBRIDGE = str(Path(sys.executable).parent / "armbridge")
+
+
+@pytest.fixture
+def standin(tmp_path):
+    standin_firmware(tmp_path)
+    return tmp_path
+
+
+def board(root, **kw) -> EmulatedBoard:
+    return EmulatedBoard("masr_ma", speed=0, firmware_root=root, **kw)
+
+
+def move_to(emu, h, wid, d_mm, max_s=15.0):
+    assert h.request("MV", wid, d_mm)[1] == "OK"
+    return h.wait("EV", lambda a: a[1] in ("DONE", "FAULT") and (a[1] == "FAULT" or a[2] == str(wid)),
+                  max_s=max_s)
+
+
+# ---------------------------------------------------------------- the emulator's side, on the stand-in
+
+def test_the_ma_board_boots_on_its_plant_and_hal(standin):
+    emu = board(standin)
+    boot = Lockstep(emu).wait("BOOT", max_s=1.0)
+    assert boot[2][0] == "masr_ma" and emu.n == 6 and emu.interpreter == "cpython"
+    assert isinstance(emu.plant, MaPlant) and isinstance(emu.hal, MaSimHal)
+    assert emu.positions().tolist() == [0.0] * 6           # at the base, every joint 0
+    assert board_spec("masr_ma").interpreters == ("cpython",)
+    with pytest.raises(ArmbridgeError, match="'micropython' cannot run the masr_ma firmware"):
+        board(standin, interpreter="micropython")
+
+
+def test_a_move_is_tracked_truth_against_telemetry(standin):
+    emu = board(standin, seed=2)
+    h = Lockstep(emu)
+    h.wait("BOOT")
+    assert h.hello(1)[1] == "OK"
+    ev = move_to(emu, h, 1, 450)
+    assert ev[2][1] == "DONE"
+    assert abs(emu.positions()[5] - 0.450) < 0.003
+    assert [j for _, j, _, _ in emu.hal.hall_log] == [2, 3]
+    assert [a[2] for _, v, a in h.lines if v == "EV" and a[1] == "MAGNET"] == ["2", "3"]
+    track = list(emu.hal.track)
+    assert len(track) > 50
+    err = np.array([abs(true[5] - est[5]) for _, true, est in track])
+    # encoder travel within the slip bound of the truth, re-zeroed at each magnet, plus a mm of rounding
+    assert err.max() < 0.01 * 0.2 + 0.0015 + 0.001
+    assert emu.hal.telemetry[-1][1][-3:][0] == 3           # jd: on link 3
+    assert emu.hal.loco_log and emu.hal.outputs_on_at
+
+
+def test_faults_reach_the_plant(standin):
+    emu = board(standin, faults=Faults(missed=(3,), slip=((0.5, 0.5, 0.3),)))
+    h = Lockstep(emu)
+    h.wait("BOOT")
+    h.hello(1)
+    move_to(emu, h, 1, 450)
+    assert [j for _, j, _, _ in emu.hal.hall_log] == [2]
+    kinds = [(k, v) for _, k, v in emu.hal.faults_applied]
+    assert kinds == [("missed", 3), ("slip", 0.3), ("slip", 0.0)]
+
+
+def test_a_stalled_wheel_keeps_the_ma_at_the_base(standin):
+    emu = board(standin, faults=Faults(stall=((6, 0.0),)))
+    h = Lockstep(emu)
+    h.wait("BOOT")
+    h.hello(1)
+    assert h.request("MV", 1, 100)[1] == "OK"
+    emu.run_for(1.0)
+    assert emu.positions()[5] == 0.0 and emu.hal.loco_log[-1][1] > 0
+    assert [(k, v) for _, k, v in emu.hal.faults_applied] == [("stall", 6)]
+
+
+def test_a_reset_keeps_the_plant(standin):
+    emu = board(standin, faults=Faults(reset_at=(1.5,)))
+    h = Lockstep(emu)
+    h.wait("BOOT")
+    h.hello(1)
+    assert h.request("MV", 1, 600)[1] == "OK"
+    emu.run_until(lambda: emu.now() >= 1.45)
+    d = emu.positions()[5]
+    assert 0.05 < d < 0.5 and emu.resets == []
+    emu.run_for(1.0)
+    assert emu.hal.outputs_off_at and emu.resets == [pytest.approx(1.5, abs=0.002)]
+    assert emu.positions()[5] == pytest.approx(d, abs=0.005)  # coasted to a stop, stays there
+    assert len(emu.boots) == 2
+
+
+def test_the_arms_hal_calls_are_not_the_mas(standin):
+    emu = board(standin)
+    with pytest.raises(ArmbridgeError, match="no write_outputs"):
+        emu.hal.write_outputs([0.0] * 6)
+    with pytest.raises(ArmbridgeError, match="no read_positions"):
+        emu.hal.read_positions([0.0] * 6)
+
+
+# ---------------------------------------------------------------- faults from text
+
+def test_url_parameters():
+    device, kw = parse_emu_url("emu:masr_ma?speed=0&missed=3,4&slip=2:0.5:0.3&stall=2@4")
+    assert device == "masr_ma" and kw["speed"] == 0
+    f = kw["faults"]
+    assert f.missed == (3, 4) and f.slip == ((2.0, 0.5, 0.3),) and f.stall == ((2, 4.0),)
+    assert f.describe() == ("joint 2 stalls at 4 s, magnet 3 missed, magnet 4 missed, "
+                            "wheel slips 0.3 from 2 s for 0.5 s")
+
+
+@pytest.mark.parametrize("url, words", [
+    ("emu:masr_ma?slip=2:0.5", "parameter slip: slip '2:0.5': expected START:DURATION:FRACTION"),
+    ("emu:masr_ma?slip=2:0.5:1.5", "FRACTION in [0, 1]"),
+    ("emu:masr_ma?slip=2:0:0.5", "DURATION > 0 s"),
+    ("emu:masr_ma?missed=x", "parameter missed: missed 'x': expected a JOINT number"),
+    ("emu:masr_ma?missed=0", "joints are numbered from 1"),
+])
+def test_bad_url_parameters_are_one_clear_error(url, words):
+    with pytest.raises(ArmbridgeError) as e:
+        parse_emu_url(url)
+    assert words in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_mas_faults_on_another_board_or_joint(standin):
+    with pytest.raises(ArmbridgeError, match="missed and slip: faults of the masr_ma board; the esp32 board has none"):
+        EmulatedBoard("esp32", speed=0, faults=Faults(missed=(1,), slip=((0, 1, 0.5),)))
+    with pytest.raises(ArmbridgeError, match="missed magnet 6: the arm has joints 1..5"):
+        board(standin, faults=Faults(missed=(6,)))
+    with pytest.raises(ArmbridgeError, match="stall joint 7 does not exist"):
+        board(standin, faults=Faults(stall=((7, 0.0),)))
+
+
+def test_cli_help_names_the_mas_faults():
+    out = subprocess.run([ARMBRIDGE, "emulate", "masr_ma", "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    text = " ".join(out.stdout.split())
+    for words in ("--missed-magnet", "--slip-burst", "masr_ma (MASR mobile actuator", "J = n: the wheel"):
+        assert words in text, words
+
+
+def test_cli_bad_fault_is_one_clear_line():
+    out = subprocess.run([ARMBRIDGE, "emulate", "masr_ma", "--slip-burst", "1:2", "--for", "1"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode != 0 and "Traceback" not in out.stderr
+    err = out.stderr.strip().splitlines()
+    assert len(err) == 1 and "--slip-burst '1:2': expected START:DURATION:FRACTION" in err[0], out.stderr
+    assert "emulator on" not in out.stdout
