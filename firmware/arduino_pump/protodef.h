@@ -84,7 +84,13 @@ static const ab_arg_spec AB_ARGS_ROT[] = {{"id", AB_ARG_INT, 0, 65535L}, {"joint
 static const ab_arg_spec AB_ARGS_GRIP[] = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
 #define AB_VERB_HOME 19
 static const ab_arg_spec AB_ARGS_HOME[] = {{"id", AB_ARG_INT, 0, 65535L}};
-#define AB_N_COMMANDS 20
+#define AB_VERB_DBAND 20
+static const ab_arg_spec AB_ARGS_DBAND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"mrad", AB_ARG_INT, 0, 1000}};
+#define AB_VERB_BEND 21
+static const ab_arg_spec AB_ARGS_BEND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
+#define AB_VERB_MODBUS 22
+static const ab_arg_spec AB_ARGS_MODBUS[] = {{"addr", AB_ARG_INT, 1, 247}};
+#define AB_N_COMMANDS 23
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -106,6 +112,9 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"ROT", AB_ARGS_ROT, 3, 0, -1, -1},
     {"GRIP", AB_ARGS_GRIP, 2, 0, -1, -1},
     {"HOME", AB_ARGS_HOME, 1, 0, -1, -1},
+    {"DBAND", AB_ARGS_DBAND, 2, 0, -1, -1},
+    {"BEND", AB_ARGS_BEND, 5, 0, 1, 3},
+    {"MODBUS", AB_ARGS_MODBUS, 1, 0, -1, -1},
 };
 
 static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH", "UNHOMED"};

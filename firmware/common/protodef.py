@@ -78,6 +78,9 @@ COMMANDS = {
     'ROT': (('id', 0, 65535), ('joint', 1, 0), ('angle', -1000000, 1000000)),
     'GRIP': (('id', 0, 65535), ('open', 0, 1)),
     'HOME': (('id', 0, 65535),),
+    'DBAND': (('joint', 1, 0), ('mrad', 0, 1000)),
+    'BEND': (('joint', 1, 0), ('adc_a', 0, 1023), ('a', -1000000, 1000000), ('adc_b', 0, 1023), ('b', -1000000, 1000000)),
+    'MODBUS': (('addr', 1, 247),),
 }
 
 READ_ONLY = ('STAT', 'LIM', 'PING')
@@ -85,6 +88,7 @@ READ_ONLY = ('STAT', 'LIM', 'PING')
 ORDERED = {
     'SETLIM': (('min', 'max'),),
     'CAL': (('us_a', 'us_b'),),
+    'BEND': (('adc_a', 'adc_b'),),
 }
 
 REPLIES = {
@@ -106,4 +110,4 @@ STATES = ('IDLE', 'RUN', 'HOLD', 'ESTOP', 'WDOG', 'FAULT')
 
 LATCHED_STATES = ('ESTOP', 'WDOG', 'FAULT')
 
-EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN', 'MAGNET')
+EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN', 'MAGNET', 'ENDSTOP')

@@ -154,14 +154,18 @@ SPEC = {
     "ROT": [("id", 0, 65535), ("joint", 1, None), ("angle", -1000000, 1000000)],
     "GRIP": [("id", 0, 65535), ("open", 0, 1)],
     "HOME": [("id", 0, 65535)],
+    "DBAND": [("joint", 1, None), ("mrad", 0, 1000)],
+    "BEND": [("joint", 1, None), ("adc_a", 0, 1023), ("a", -1000000, 1000000), ("adc_b", 0, 1023),
+             ("b", -1000000, 1000000)],
+    "MODBUS": [("addr", 1, 247)],
 }
 # value i <= value j, else RANGE (docs/protocol.md §3: SETLIM's min <= max, CAL's us_a <= us_b)
-ORDER = {"SETLIM": (1, 2), "CAL": (1, 3)}
+ORDER = {"SETLIM": (1, 2), "CAL": (1, 3), "BEND": (1, 3)}
 # A valid value for each argument (SETLIM's min/max and CAL's pulses must stay ordered).
 TYPICAL = {"proto": 2, "session": 4242, "epoch": 1, "joint": 2, "id": 7, "dur": 500, "q": 0,
            "hz": 25, "kp": 2000, "ki": 0, "kd": 50, "min": -3000, "max": 3000, "vmax": 2000, "ms": 1000,
            "x": 76000, "y": 190000, "theta": 0, "down": 1, "us_a": 1000, "a": -785, "us_b": 2000, "b": 2356,
-           "d": 400, "angle": -453, "open": 1}
+           "d": 400, "angle": -453, "open": 1, "mrad": 35, "adc_a": 100, "adc_b": 900, "addr": 1}
 
 
 def expanded(verb: str, n: int) -> list:

@@ -94,6 +94,14 @@ COMMANDS = {
     "ROT": (("id", 0, 65535), ("joint", 1, 0), ("angle", -1000000, 1000000)),
     "GRIP": (("id", 0, 65535), ("open", 0, 1)),
     "HOME": (("id", 0, 65535),),
+    # The syringe-pump board (the soft arm, firmware/arduino_pump). DBAND: joint j's
+    # dead band (mrad) of its proportional controller. BEND: joint j's bend-sensor
+    # calibration, ADC count adc_a at angle a, adc_b at b (mrad), kept in EEPROM.
+    # MODBUS: after the OK, the UART speaks Modbus RTU as device addr (kept in EEPROM).
+    "DBAND": (("joint", 1, 0), ("mrad", 0, 1000)),
+    "BEND": (("joint", 1, 0), ("adc_a", 0, 1023), ("a", -1000000, 1000000), ("adc_b", 0, 1023),
+             ("b", -1000000, 1000000)),
+    "MODBUS": (("addr", 1, 247),),
 }
 
 # Verbs that change nothing: a retransmitted copy is answered afresh, not replayed.
@@ -105,6 +113,7 @@ READ_ONLY = ("STAT", "LIM", "PING")
 ORDERED = {
     "SETLIM": (("min", "max"),),
     "CAL": (("us_a", "us_b"),),
+    "BEND": (("adc_a", "adc_b"),),
 }
 
 # OK payloads of the commands that have one (names, in order).
@@ -128,4 +137,4 @@ BOARD_LINES = {
 STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
 LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
 
-EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET")
+EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET", "ENDSTOP")
