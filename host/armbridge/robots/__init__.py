@@ -4,6 +4,7 @@ from armbridge.robots.base import Robot
 from armbridge.robots.catalog import (
     ARM3R,
     MASR5,
+    SOFT3,
     get_masr,
     get_robot,
     is_registered,
@@ -15,5 +16,5 @@ from armbridge.robots.catalog import (
 from armbridge.robots.masr import MasrArm
 from armbridge.robots.planar import PlanarChain
 
-__all__ = ["ARM3R", "MASR5", "MasrArm", "PlanarChain", "Robot", "get_masr", "get_robot", "is_registered", "names",
+__all__ = ["ARM3R", "MASR5", "SOFT3", "MasrArm", "PlanarChain", "Robot", "get_masr", "get_robot", "is_registered", "names",
            "register", "robot_from_dict", "robot_to_dict", "wrap_angle"]

@@ -36,6 +36,16 @@ serial robot", section V-A):
   (Fig. 3a) but never gives w. 30 mm is a plausible 3D-printed link with an
   MA track; change it when the real arm is measured.
 
+SOFT3 (planar) is the three-joint soft arm of the WJRRT paper (Khan, Li,
+Kadry, Nam, section V-B/C): polypropylene links bent at polychloroprene joints
+inflated by 100 mL syringes on the syringe-pump board (firmware/arduino_pump):
+
+- Joint ranges 0-30, 0-55 and 0-60 deg (section V-C): a joint only bends one
+  way, from straight (deflated) to its largest bend (inflated).
+- Links 0.10 m each and v_max 0.5 rad/s are our choices: the paper gives
+  neither; 0.5 rad/s is about what a 12 V linear motor on a 100 mL syringe
+  inflates a joint at (docs/emulator.md, the pneumatic plant).
+
 The SMM arms (dh) of Clark and Xie's self-motion-manifold paper; each has one
 degree of redundancy (n = m + 1), so its SMMs are 1-D loops (section III-B).
 Their joints have no stops (the DHChain defaults); SMMs ignore limits anyway.
@@ -98,6 +108,15 @@ MASR5 = MasrArm(
     link_width=0.03,
 )
 
+SOFT3 = PlanarChain(
+    name="soft3",
+    link_lengths=np.array([0.10, 0.10, 0.10]),
+    q_min=np.zeros(3),
+    q_max=np.deg2rad([30.0, 55.0, 60.0]),
+    v_max=np.full(3, 0.5),
+    joint_names=("joint1", "joint2", "joint3"),
+)
+
 # name -> description (with its kind); built robots are kept in _BUILT.
 _DATA: dict[str, dict[str, Any]] = {
     "planar3r": {"kind": "dh", "name": "planar3r", "a": [1.0, 1.0, 1.0], "alpha": [0.0] * 3, "d": [0.0] * 3,
@@ -125,7 +144,7 @@ def register(robot: Robot) -> Robot:
     return robot
 
 
-for _r in (ARM3R, MASR5):
+for _r in (ARM3R, MASR5, SOFT3):
     register(_r)
 
 
