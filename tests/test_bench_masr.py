@@ -26,7 +26,8 @@ def test_bench_masr_ik_quick_cli_writes_json(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     rows = {r["row"]: r for r in data["rows"]}
-    expected = ["IK-NN (11)", "IK-NN (12)", "IK-NN (12) + refinement", "int8 IK-NN (12)", "NR m=30"]
+    expected = ["IK-NN (11)", "IK-NN (12)", "IK-NN (12) + refinement", "IK-NN (12) + refinement + fallback",
+                "int8 IK-NN (12)", "NR m=30"]
     assert list(rows) == expected
     for name in expected:
         r = rows[name]
@@ -40,8 +41,16 @@ def test_bench_masr_ik_quick_cli_writes_json(tmp_path, monkeypatch):
         assert _finite(r["single"]["median_ms"]) and r["single"]["median_ms"] > 0
     # refinement never makes a pose worse than the network's own answer
     assert rows["IK-NN (12) + refinement"]["mean_dp_mm"] <= rows["IK-NN (12)"]["mean_dp_mm"] + 1e-9
-    assert set(data["targets"]) >= {"iknn12_success_ge_87", "refined_success_ge_99", "int8_within_1pt"}
+    assert set(data["targets"]) >= {"iknn12_success_ge_87", "refined_success_ge_99.5", "int8_within_1pt"}
     assert all(isinstance(v, bool) for v in data["targets"].values())
+    # the goal check is over the robot's joint margin, and every row's answers hold it
+    assert data["d_margin_m"] == 0.005
+    for name in expected:
+        if "missing" not in rows[name]:
+            assert rows[name]["holds_margin"] == 100.0 and rows[name]["margin_mm"] == 5.0, name
+    fb = rows["IK-NN (12) + refinement + fallback"]
+    assert 0 <= fb["fallback"]["solved"] <= fb["fallback"]["queries"] <= 30
+    assert fb["success_rate"] >= rows["IK-NN (12) + refinement"]["success_rate"]
 
 
 def test_bench_masr_plan_quick_cli_writes_json_and_pngs(tmp_path, monkeypatch):

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from require import missing
 
 try:
@@ -18,7 +20,17 @@ except ImportError as exc:
 
 from armbridge.ik import export as ex  # noqa: E402
 from armbridge.ik.masr_data import GridSpec, generate, largest_enclosed_vacancy  # noqa: E402
-from armbridge.ik.masr_ik import MasrIK, evaluate, pose_errors, random_trials, refine  # noqa: E402
+from armbridge.ik.masr_ik import (  # noqa: E402
+    E_P,
+    E_PHI,
+    SNAP_MARGIN,
+    MasrIK,
+    evaluate,
+    pose_errors,
+    random_trials,
+    refine,
+    span_scores,
+)
 from armbridge.ik.masr_nn import (  # noqa: E402
     MasrIKLoss,
     MasrIKNet,
@@ -258,12 +270,13 @@ def test_refinement_sparsifies_within_margin():
     start = q_true.copy()
     start[:, :5] = np.clip(start[:, :5] + rng.normal(0, 0.03, (200, 5)), -ARM.theta_b, ARM.theta_b)
     plain = refine(ARM, xg, start, q_c=q_c, snap_margin=0.0)
-    sparse = refine(ARM, xg, start, q_c=q_c, snap_margin=0.5)
+    sparse = refine(ARM, xg, start, q_c=q_c, snap_margin=SNAP_MARGIN)
     changed = np.any(sparse != plain, axis=1)
     assert changed.sum() > 20  # most random goals leave some joint that need not turn
     assert np.all(ARM.action_cost(q_c, sparse)[changed] < ARM.action_cost(q_c, plain)[changed])
-    dp, dphi = pose_errors(ARM, xg, sparse)
-    assert np.all(np.maximum(dp / 0.008, dphi / math.radians(4))[changed] <= 0.5 + 1e-9)
+    # the sparser answers pass the goal check over the joint margin with headroom
+    assert np.all(span_scores(ARM, xg, sparse)[changed] <= SNAP_MARGIN + 1e-9)
+    assert ARM.holds_margin(sparse[:, -1]).all() and ARM.holds_margin(plain[:, -1]).all()
     turned = lambda q: (np.abs(q[:, :5] - q_c[:, :5]) > 1e-9).sum(axis=1)  # noqa: E731
     assert np.all(turned(sparse)[changed] <= turned(plain)[changed])
     assert ARM.within_limits(sparse).all()
@@ -296,6 +309,7 @@ def test_nr_baseline_solves_reachable_goals(backend):
     q = nr.solve(xg, q0)
     m = evaluate(ARM, xg, q0, q)
     assert m["success_rate"] == 100.0 and ARM.within_limits(q).all()
+    assert ARM.holds_margin(q[:, -1]).all()  # the same joint margin as the IK-NN: a fair comparison
     # the answer is the least-eq.-(12) one among those found: joints past the MA stay at q_c
     j, _ = ARM.locate(q[:, -1])
     for i in range(4):
@@ -312,16 +326,18 @@ def test_shipped_model_meets_its_card():
         entry = card["files"][key]
         assert ex.sha256(CARD.parent / entry["path"]) == entry["sha256"]
     xg, q0 = random_trials(ARM, 400, 777)  # fresh: not the card's seed
-    nn = evaluate(ARM, xg, q0, ik.solve(xg, q0))
+    # the card measured the networks' raw answers by eq. (9) at d: compare like with like (margin 0)
+    nn = evaluate(ARM, xg, q0, ik.predict(xg, q0), margin=0.0)
     acc = card["accuracy"]
     # 400 trials: a binomial standard error of ~1.7 points at 90 %; allow 6 points and 30 % on means
     assert nn["success_rate"] >= acc["nn"]["success_rate"] - 6
     assert nn["mean_dp_mm"] <= acc["nn"]["mean_dp_mm"] * 1.3 + 0.3
     assert nn["mean_dphi_deg"] <= acc["nn"]["mean_dphi_deg"] * 1.3 + 0.3
+    # refined: the goal check over the joint margin, with the fallback, as high as the card's eq. (9) figure
     ref = evaluate(ARM, xg, q0, ik.solve(xg, q0, refine=True))
-    assert ref["success_rate"] >= acc["nn_refined"]["success_rate"] - 3
+    assert ref["success_rate"] >= acc["nn_refined"]["success_rate"] - 1 and ref["holds_margin"] == 100.0
     layers = ex.read_flat_int8(CARD.parent / card["files"]["int8_flat"]["path"])
-    flat = evaluate(ARM, xg, q0, ex.flat_int8_solve(layers, card, xg, q0))
+    flat = evaluate(ARM, xg, q0, ex.flat_int8_solve(layers, card, xg, q0), margin=0.0)
     assert flat["success_rate"] >= acc["int8_flat"]["success_rate"] - 6
 
 
@@ -349,3 +365,76 @@ def test_train_command_end_to_end(tmp_path):
     again = CliRunner().invoke(app, [*args, "--resume"])  # all epochs done: export only
     assert again.exit_code == 0, again.output
     assert json.loads((tmp_path / "out" / "masr5-iknn-card.json").read_text())["training"]["steps"] == card["training"]["steps"]
+
+
+# ------------------------------------------------------------------ the joint margin
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return MasrIK.load(CARD)
+
+
+def _sweep_ok(q, xg, m=ARM.d_margin, k=41):
+    """Reference goal check: fk at k points of [d - m, d + m] (clipped to the arm), all within (e_p, e_phi)."""
+    ds = np.clip(q[:, -1:] + np.linspace(-m, m, k), 0, ARM.total_length)
+    qs = np.repeat(q[:, None], k, axis=1)
+    qs[..., -1] = ds
+    dp, dphi = pose_errors(ARM, xg[:, None], qs)
+    return np.all((dp <= E_P + 1e-12) & (dphi <= E_PHI + 1e-12), axis=1)
+
+
+_SHIPPED: list = []
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_every_ik_answer_holds_the_margin(seed):
+    """Every answer of solve() (network, refined, unsparsified, fallback) keeps d at least d_margin from
+    every joint, and an answer the goal check accepts reaches the goal for every d within the margin."""
+    if not _SHIPPED:
+        _SHIPPED.append(MasrIK.load(CARD))
+    ik = _SHIPPED[0]
+    xg, q0 = random_trials(ARM, 64, seed)
+    answers = [ik.solve(xg, q0), ik.solve(xg, q0, refine=True), ik.solve(xg, q0, refine=True, sparsify=False),
+               ik.solve(xg, q0, hold_distal=True)]
+    for q in answers:
+        assert ARM.holds_margin(q[:, -1]).all() and ARM.within_limits(q).all()
+        ok = ARM.reaches(q, xg, E_P, E_PHI)
+        assert np.array_equal(ok, _sweep_ok(q, xg) & ARM.holds_margin(q[:, -1]))
+
+
+def test_goals_on_a_joint_get_answers_off_it(shipped):
+    """The issue's case: goals whose sampled configuration has the MA on a joint or 1e-12 m before it.
+    The answers hold the margin, and moving d by 1e-9 m or rounding it to 1 um keeps every hit a hit."""
+    rng = np.random.default_rng(12)
+    k = 200
+    q_goal = np.concatenate([rng.uniform(-ARM.theta_b, ARM.theta_b, (k, ARM.n)), np.zeros((k, 1))], axis=1)
+    q_goal[:, -1] = ARM.r[rng.integers(1, ARM.n, k)] - np.where(rng.random(k) < 0.5, 0.0, 1e-12)
+    xg = ARM.fk(q_goal)
+    q0 = np.concatenate([rng.uniform(-ARM.theta_b, ARM.theta_b, (k, ARM.n)),
+                         rng.uniform(0, ARM.total_length, (k, 1))], axis=1)
+    q = shipped.solve(xg, q0, refine=True)
+    assert ARM.holds_margin(q[:, -1]).all()
+    assert ARM.joint_clearance(q[:, -1]).min() >= ARM.d_margin - 1e-12
+    hit = ARM.reaches(q, xg, E_P, E_PHI)
+    # on joints 2 and 3 many such goals are out of reach with the margin (docs/benchmarks.md): not 100 %
+    assert hit.mean() >= 0.7
+    for moved in (q[:, -1] + 1e-9, q[:, -1] - 1e-9, np.round(q[:, -1], 6)):
+        qm = q.copy()
+        qm[:, -1] = np.clip(moved, 0, ARM.total_length)
+        dp, dphi = pose_errors(ARM, xg, qm)
+        assert np.all(((dp <= E_P) & (dphi <= E_PHI))[hit])
+
+
+def test_fallback_closes_what_refinement_misses(shipped):
+    xg, q0 = random_trials(ARM, 600, 31)
+    plain = shipped.solve(xg, q0, refine=True, use_fallback=False)
+    shipped.fallbacks = shipped.fallbacks_solved = 0
+    full = shipped.solve(xg, q0, refine=True)
+    missed = span_scores(ARM, xg, plain) > 1
+    assert missed.sum() == shipped.fallbacks >= 3  # about 2 % of random goals need it
+    assert shipped.fallbacks_solved >= 1
+    np.testing.assert_array_equal(full[~missed], plain[~missed])  # the fallback touches only the misses
+    assert ARM.reaches(full, xg, E_P, E_PHI).sum() == ARM.reaches(plain, xg, E_P, E_PHI).sum() + shipped.fallbacks_solved
+    assert ARM.holds_margin(full[:, -1]).all()

@@ -58,7 +58,13 @@ def test_round_trip_through_json():
         d = json.loads(json.dumps(a.to_dict()))
         assert MasrArm.from_dict(d) == a
         assert hash(MasrArm.from_dict(d)) == hash(a)
-    assert set(MASR5.to_dict()) == {"name", "link_lengths", "theta_b", "ma_speed", "joint_speed", "link_width"}
+    assert set(MASR5.to_dict()) == {"name", "link_lengths", "theta_b", "ma_speed", "joint_speed", "link_width",
+                                    "d_margin"}
+    assert MASR5.d_margin == 0.005  # the MA firmware's localisation bound (docs/masr.md)
+    # older descriptions (model cards, plan files) have no d_margin: the default applies
+    old = {k: v for k, v in MASR5.to_dict().items() if k != "d_margin"}
+    assert MasrArm.from_dict(old) == MASR5
+    assert MasrArm.from_dict({**MASR5.to_dict(), "d_margin": 0.002}) != MASR5
 
 
 @pytest.mark.parametrize(
@@ -80,6 +86,9 @@ def test_round_trip_through_json():
         ({"joint_speed": -0.2}, "joint_speed must be > 0 rad/s"),
         ({"joint_speed": float("inf")}, "joint_speed must be finite"),
         ({"link_width": -0.01}, "link_width must be >= 0 m"),
+        ({"d_margin": -0.001}, r"d_margin must be in \[0, 0.075\) m"),
+        ({"d_margin": 0.075}, r"d_margin must be in \[0, 0.075\) m .*shortest link"),
+        ({"d_margin": "5mm"}, "d_margin must be a number"),
     ],
 )
 def test_bad_descriptions(overrides, message):
@@ -428,3 +437,52 @@ def test_fig4c_regulariser():
     assert MASR5.reg_joint(q_c, q_t) == pytest.approx(11 * alpha)
     uniform = MasrArm.from_dict({**MASR5.to_dict(), "name": "uniform5", "link_lengths": [l] * 5})
     assert uniform.reg_action(q_c, q_t) == pytest.approx(13.5 * tau_l * tau_theta)
+
+
+# ------------------------------------------------------------------ joint margin
+def test_joint_clearance_and_margin_range():
+    a = arm()  # r = 0, 0.3, 0.55, 0.75; l = 0.9; d_margin 5 mm
+    np.testing.assert_allclose(a.joint_clearance([0.0, 0.29, 0.3, 0.5, 0.9]), [0.3, 0.01, 0.0, 0.05, 0.15])
+    assert a.holds_margin([0.0, 0.295, 0.9, 0.555]).tolist() == [True, True, True, True]  # the ends are no joints
+    assert a.holds_margin([0.2951, 0.3, 0.5549, 0.3 + 1e-12]).tolist() == [False] * 4
+    lo, hi = a.margin_range(np.arange(4))
+    np.testing.assert_allclose(lo, [0.0, 0.305, 0.555, 0.755], atol=2e-9)
+    np.testing.assert_allclose(hi, [0.295, 0.545, 0.745, 0.9], atol=2e-9)
+    assert np.all(a.holds_margin(lo)) and np.all(a.holds_margin(hi))
+    one = MasrArm(name="one", link_lengths=np.array([0.5]), theta_b=np.array([1.0]), ma_speed=0.1,
+                  joint_speed=0.5, link_width=0.0)
+    assert one.joint_clearance(0.25) == np.inf and one.holds_margin(0.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles=st.lists(UNIT, min_size=5, max_size=5), u=st.floats(0, 1), goal=st.lists(UNIT, min_size=3, max_size=3))
+def test_span_pose_errors_are_the_worst_over_the_margin(angles, u, goal):
+    """span_pose_errors = the max of fk's errors over a dense sweep of [d - m, d + m] (d holding the margin)."""
+    th = np.array(angles) * MASR5.theta_b
+    link = int(u * 4.999)
+    lo, hi = MASR5.margin_range(link)
+    d = float(lo + (hi - lo) * ((u * 4.999) % 1))
+    x_goal = MASR5.fk(np.r_[th, d]) + np.array(goal) * [0.01, 0.01, 0.05]
+    dp, dphi = MASR5.span_pose_errors(np.r_[th, d], x_goal)
+    m = MASR5.d_margin
+    sweep = np.clip(np.linspace(d - m, d + m, 401), 0, MASR5.total_length)
+    qs = np.tile(np.r_[th, d], (sweep.size, 1))
+    qs[:, -1] = sweep
+    x = MASR5.fk(qs)
+    ref_dp = np.linalg.norm(x[:, :2] - x_goal[:2], axis=1)
+    ref_dphi = np.abs((x[:, 2] - x_goal[2] + np.pi) % (2 * np.pi) - np.pi)
+    assert np.all(MASR5.locate(sweep)[0] == link)  # the margin keeps the whole interval on the link
+    assert dp == pytest.approx(ref_dp.max(), abs=1e-12)
+    assert dphi == pytest.approx(ref_dphi.max(), abs=1e-12) and np.ptp(ref_dphi) < 1e-12  # constant heading
+    ok = MASR5.reaches(np.r_[th, d], x_goal, 0.008, math.radians(4))
+    assert ok == bool((ref_dp.max() <= 0.008) & (ref_dphi.max() <= math.radians(4)))
+
+
+def test_reaches_refuses_an_answer_on_a_joint():
+    q_on = np.array([0.2, 0.1, -0.3, 0.2, 0.1, 0.6])  # exactly on joint 4
+    goal = MASR5.fk(q_on)
+    assert not MASR5.reaches(q_on, goal, 0.008, math.radians(4))
+    assert MASR5.reaches(q_on, goal, 0.008, math.radians(4), margin=0.0)  # eq. (9) alone accepts it
+    q_in = q_on.copy()
+    q_in[-1] = 0.65  # mid-link: exact, and 5 mm either way stays within 8 mm
+    assert MASR5.reaches(q_in, MASR5.fk(q_in), 0.008, math.radians(4))

@@ -143,6 +143,18 @@ def test_cost_kernel_is_eq8():
 
 
 # ------------------------------------------------------------------ planner
+def _assert_goal_holds_margin(env, q_goal, k=41):
+    """A planned goal: d at least d_margin from every joint, and the MA within (e_p, e_phi) of the goal
+    for every d in [d - m, d + m] (a dense sweep of fk, independent of span_pose_errors)."""
+    m = ARM.d_margin
+    assert ARM.joint_clearance(q_goal[-1]) >= m - 1e-12
+    qs = np.tile(q_goal, (k, 1))
+    qs[:, -1] = np.clip(q_goal[-1] + np.linspace(-m, m, k), 0, ARM.total_length)
+    dp, dphi = env.pose_errors(qs)
+    assert np.all(dp <= env.e_p) and np.all(dphi <= env.e_phi)
+    assert len(set(ARM.locate(qs[:, -1])[0].tolist())) == 1  # the interval stays on one link
+
+
 @pytest.fixture(scope="module")
 def e1_result(goal_ik):
     env = fixed_environment("E1")
@@ -154,7 +166,8 @@ def test_planner_finds_a_valid_path(e1_result):
     assert res.success, res.summary()
     P = res.path
     np.testing.assert_array_equal(P[0], env.start)
-    assert env.in_goal(P[-1])  # eq. (9)
+    assert env.in_goal(P[-1])  # eq. (9) for every d within the joint margin
+    _assert_goal_holds_margin(env, P[-1])
     assert np.all(ARM.within_limits(P))
     chk = env.checker()
     assert chk.path_problem(P) is None
@@ -286,6 +299,29 @@ def test_plan_file_round_trip_and_checks(tmp_path, e1_result):
     bad["actions"][0]["steps"] = bad["actions"][0]["steps"][::-1]
     with pytest.raises(ArmbridgeError, match="action 0"):
         plan_from_document(bad, "p.json")
+    # a last waypoint within d_margin of a joint is refused, in one line naming the margin
+    bad = json.loads(json.dumps(doc))
+    bad.pop("environment")
+    last = bad["waypoints"][-1]["q"]
+    j = int(np.argmin(np.abs(ARM.r[1:] - last[-1]))) + 1
+    bad["waypoints"][-1]["q"][-1] = float(ARM.r[j] - 0.002)
+    bad.pop("goal")
+    fixed = masr_plan_document(env, np.array([w["q"] for w in bad["waypoints"]]))
+    fixed.pop("environment")
+    fixed.pop("goal")
+    with pytest.raises(ArmbridgeError, match=r"^p.json: the last waypoint puts the MA at d = .*, 2.000 mm from a "
+                                             r"joint, inside the robot's d_margin = 5 mm") as exc:
+        plan_from_document(fixed, "p.json")
+    assert "\n" not in str(exc.value)
+    # a goal check that holds at d but not for every d within the margin is refused too
+    q_last = res.path[-1].copy()
+    x = ARM.fk(q_last)
+    u = np.array([np.cos(x[2]), np.sin(x[2])])
+    shifted = json.loads(json.dumps(doc))
+    shifted["goal"]["pose"] = [float(v) for v in (*(x[:2] + 0.0045 * u), x[2])]  # 4.5 mm along the link
+    shifted.pop("environment")
+    with pytest.raises(ArmbridgeError, match=r"the last waypoint puts the MA up to (9\.[5-9]\d|1\d\.\d\d) mm .* within d_margin"):
+        plan_from_document(shifted, "p.json")
     bad = json.loads(json.dumps(doc))
     bad["environment"]["obstacles"].append([[0.0, 0.05], [0.8, 0.05], [0.8, 0.6], [0.0, 0.6]])
     bad["environment"]["start"] = [0, 0, 0, 0, 0, 0.1]
@@ -321,6 +357,36 @@ def test_shipped_iknn_drives_masr_rrt_star():
     res = rrt_star.plan(env, planner="masr-rrt*", iterations=1000, goal_ik=ik, seed=0)
     assert res.success and res.ik_calls > 0
     assert env.checker().path_problem(res.path) is None and env.in_goal(res.path[-1])
+    assert res.settings["d_margin_m"] == ARM.d_margin
+
+
+@pytest.mark.parametrize("planner", ["masr-rrt*", "rrt*"])
+def test_every_goal_node_holds_the_margin(goal_ik, dls, planner):
+    """Every goal node either planner makes (GoalFix), with the IK-NN and the numeric IK, on E1-E3 and a
+    random environment, holds the joint margin and passes the goal check across [d - m, d + m]."""
+    envs = [fixed_environment(n) for n in FIXED] + [random_environment(ARM, seed=3)]
+    found = 0
+    for env in envs:
+        for ik in ((goal_ik, dls) if planner == "masr-rrt*" else (None,)):
+            res = rrt_star.plan(env, planner=planner, iterations=600, goal_ik=ik, seed=1)
+            if res.success:
+                found += 1
+                _assert_goal_holds_margin(env, res.path[-1])
+    assert found >= (6 if planner == "masr-rrt*" else 1)
+
+
+def test_numeric_ik_answers_hold_the_margin():
+    rng = np.random.default_rng(4)
+    q_true = rand_q(rng, 300)
+    q_true[::3, -1] = ARM.r[rng.integers(1, ARM.n, 100)]  # a third of the goals sampled on a joint
+    xg = ARM.fk(q_true)
+    q, score = dls_ik.solve(ARM, xg, rand_q(rng, 300))
+    assert ARM.holds_margin(q[:, -1]).all()
+    ok = ARM.reaches(q, xg, 0.008, np.radians(4))
+    np.testing.assert_array_equal(ok, score <= 1.0)
+    assert ok[1::3].mean() > 0.9  # goals away from the joints are found
+    one = dls_ik.goal_ik(ARM)(xg[1], rand_q(rng, 1)[0])
+    assert ARM.holds_margin(one[-1])
 
 
 def test_ompl_comparison_runs():

@@ -2,12 +2,19 @@
 
 Protocol: `trials` random trials (armbridge.ik.masr_ik.random_trials): q0
 uniform in C_f and a reachable goal pose x_goal = f(q) of an independent
-uniform q. A trial succeeds when the answer's MA pose is within e_p = 8 mm
-and e_phi = 4 deg of the goal (eq. 9). Rows:
+uniform q. A trial succeeds when the answer passes the goal check
+(MasrArm.reaches): its d at least the arm's d_margin (5 mm: the MA's
+localisation bound) from every joint, and the MA pose within e_p = 8 mm and
+e_phi = 4 deg of the goal (eq. 9) for every d within that margin. Every
+solver's answers hold the margin (the NR baseline's too). Rows:
 
 * IK-NN (11): the network trained with the joint regulariser eq. (11);
 * IK-NN (12): the shipped network, action-time regulariser eq. (12);
-* IK-NN (12) + refinement: then a few DLS steps (MasrIK.solve(refine=True));
+* IK-NN (12) + refinement: then a few DLS steps (MasrIK.solve(refine=True,
+  use_fallback=False));
+* IK-NN (12) + refinement + fallback: the queries that still miss go to the
+  multi-start fallback (masr_ik.fallback); the row reports how many did, how
+  many it solved, and the time it adds (batched, against the row above);
 * int8 IK-NN (12): the weight-only int8 ONNX of the same card;
 * NR m = 10^3: the numeric baseline (armbridge.ik.masr_nr.MasrNR), on the
   first `nr_trials` trials (it is ~10^4 times slower); the IK-NN rows are
@@ -103,9 +110,23 @@ def run(size: MasrIKBenchSize, card12: Path = CARD_12, card11: Path | None = CAR
     add("IK-NN (12)", card12.name, ik12.solve, ik12.solve)
 
     def refined(x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return ik12.solve(x, q, refine=True, use_fallback=False)
+
+    def with_fallback(x: np.ndarray, q: np.ndarray) -> np.ndarray:
         return ik12.solve(x, q, refine=True)
 
     add("IK-NN (12) + refinement", card12.name, refined, refined)
+    ik12.fallbacks = ik12.fallbacks_solved = 0
+    ik12.solve(xg, q0, refine=True)
+    used, solved = ik12.fallbacks, ik12.fallbacks_solved
+    add("IK-NN (12) + refinement + fallback", card12.name, with_fallback, with_fallback)
+    plain, fb = rows[-2], rows[-1]
+    fb["fallback"] = {"queries": used, "share_pct": used / size.trials * 100, "solved": solved,
+                      "added_ms_per_query_batched": (1 / fb["batched_queries_per_s"] - 1 / plain["batched_queries_per_s"])
+                      * 1e3,
+                      "added_ms_per_fallback_query": ((size.trials / fb["batched_queries_per_s"]
+                                                       - size.trials / plain["batched_queries_per_s"]) / max(used, 1)
+                                                      * 1e3)}
     ik8 = MasrIK.load(card12, int8=True)
     add("int8 IK-NN (12)", ik8.onnx_path.name, ik8.solve, ik8.solve)
 
@@ -124,11 +145,11 @@ def run(size: MasrIKBenchSize, card12: Path = CARD_12, card11: Path | None = CAR
         rows.append(nr_row)
 
     by = {r["row"]: r for r in rows}
-    f12, r12, i12 = by["IK-NN (12)"], by["IK-NN (12) + refinement"], by["int8 IK-NN (12)"]
+    f12, r12, i12 = by["IK-NN (12)"], by["IK-NN (12) + refinement + fallback"], by["int8 IK-NN (12)"]
     targets = {
         "iknn12_success_ge_87": f12["success_rate"] >= 87.0,
         "iknn12_mean_dp_le_3.5mm": f12["mean_dp_mm"] <= 3.5,
-        "refined_success_ge_99": r12["success_rate"] >= 99.0,
+        "refined_success_ge_99.5": r12["success_rate"] >= 99.5,
         "refined_single_lt_1ms": r12["single"]["median_ms"] < 1.0,
         "refined_batched_ge_50k_qps": r12["batched_queries_per_s"] >= 50_000,
         "int8_within_1pt": abs(i12["success_rate"] - f12["success_rate"]) <= 1.0,
@@ -139,6 +160,7 @@ def run(size: MasrIKBenchSize, card12: Path = CARD_12, card11: Path | None = CAR
     return {
         "benchmark": "masr-ik (Table I, section V-B)",
         "size": asdict(size), "seed": seed, "robot": arm.name, "e_p_m": E_P, "e_phi_deg": float(np.degrees(E_PHI)),
+        "d_margin_m": arm.d_margin,
         "nr_trials": n_nr, "rows": rows, "targets": targets,
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
     }

@@ -31,7 +31,7 @@ from numba import njit, prange
 
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.masr import ANGLE_TOL, MasrArm
-from armbridge.robots.masr_kernels import action_cost, ma_pose, wrap
+from armbridge.robots.masr_kernels import action_cost, ma_pose, margin_range, span_score, wrap
 from armbridge.geometry import wrap_angle
 
 E_P = 0.008  # m, eq. (9) bound of section V-A
@@ -70,17 +70,26 @@ def pose_errors(arm: MasrArm, x_goal: np.ndarray, q: np.ndarray) -> tuple[np.nda
 
 
 def evaluate(arm: MasrArm, x_goal: np.ndarray, q0: np.ndarray, q: np.ndarray,
-             e_p: float = E_P, e_phi: float = E_PHI) -> dict[str, float]:
-    """Table I metrics: mean dp (mm), mean dphi (deg), success rate (%) within (e_p, e_phi)
-    (eq. 9), mean action time c(q0 -> q) eq. (8) (s), and mean eq. (12) (s^2)."""
+             e_p: float = E_P, e_phi: float = E_PHI, margin: Any = None) -> dict[str, float]:
+    """Table I metrics: mean dp (mm), mean dphi (deg) at d, success rate (%), mean action
+    time c(q0 -> q) eq. (8) (s), and mean eq. (12) (s^2).
+
+    Success is the goal check (MasrArm.reaches): d at least `margin` (default
+    arm.d_margin) from every joint r_2..r_n and the pose within (e_p, e_phi)
+    (eq. 9) for every d' within the margin; margin = 0 is the paper's eq. (9)
+    at d alone. "holds_margin" is the share (%) of answers clear of the joints.
+    """
     dp, dphi = pose_errors(arm, x_goal, q)
-    ok = (dp <= e_p) & (dphi <= e_phi)
+    m = arm.d_margin if margin is None else float(margin)
+    ok = arm.reaches(q, x_goal, e_p, e_phi, m)
     return {
         "trials": int(dp.size),
         "mean_dp_mm": float(dp.mean() * 1e3),
         "median_dp_mm": float(np.median(dp) * 1e3),
         "mean_dphi_deg": float(np.degrees(dphi).mean()),
         "success_rate": float(ok.mean() * 100),
+        "margin_mm": m * 1e3,
+        "holds_margin": float(arm.holds_margin(q[..., -1], m).mean() * 100),
         "mean_action_time_s": float(arm.action_cost(q0, q).mean()),
         "mean_reg_action_s2": float(arm.reg_action(q0, q).mean()),
     }
@@ -89,7 +98,7 @@ def evaluate(arm: MasrArm, x_goal: np.ndarray, q0: np.ndarray, q: np.ndarray,
 # ------------------------------------------------------------------- refinement
 
 CONVERGED = 0.01  # score at which DLS stops early: 0.08 mm and 0.04 deg for e_p = 8 mm, e_phi = 4 deg
-SNAP_MARGIN = 0.5  # a sparser answer must stay within this share of the goal tolerance
+SNAP_MARGIN = 0.9  # a sparser answer's span score (goal check over the joint margin) stays within this
 _SNAP_ROUNDS = 2
 _SNAP_ITERS = 3
 
@@ -120,33 +129,34 @@ def _solve_damped(J, lam2, e0, e1, e2):
 
 
 @njit(cache=True)
-def _dls(xg, q0, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, out):
+def _dls(xg, q0, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, out):
     """DLS on the MA's link: theta_k for k <= link (not frozen) and d within that link.
 
-    Each step solves the 3-row damped system on the error in goal-tolerance
-    units, then clips to the limits; d stays on its link (a joint crossing
-    would make phi jump). The best iterate goes into out; returns its score.
+    d stays in the link's margin_range: at least dm from the joints at its ends
+    (a joint crossing would make phi jump, and a real MA only knows d to dm).
+    Each step solves the 3-row damped system on the error at d in
+    goal-tolerance units, then clips to the limits; iterates are ranked by
+    span_score (the goal check over [d - dm, d + dm]), and the best goes into
+    out; returns its score. Stops early once the error at d is CONVERGED.
     """
     n = lengths.size
     jp = np.empty((n + 1, 2))
     J = np.zeros((3, n + 1))
     q = q0.copy()
     link = ma_pose(q, lengths, rj, total, jp)[3]
-    d_lo = rj[link]
-    d_hi = rj[link] + lengths[link]
-    if link < n - 1:
-        d_hi -= 1e-12  # stay below the next joint
+    d_lo, d_hi = margin_range(link, lengths, rj, total, dm)
+    q[n] = min(max(q[n], d_lo), d_hi)
     best = np.inf
     for it in range(iters + 1):
         px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
         ex = (xg[0] - px) / e_p
         ey = (xg[1] - py) / e_p
         ea = wrap(xg[2] - phi) / e_phi
-        score = max(math.hypot(ex, ey), abs(ea))
+        score = span_score(xg, px, py, phi, q[n], total, dm, e_p, e_phi)
         if score < best:
             best = score
             out[:] = q
-        if it == iters or best <= CONVERGED:
+        if it == iters or max(math.hypot(ex, ey), abs(ea)) <= CONVERGED:
             break
         for k in range(n):
             on = k <= link and not frozen[k]
@@ -166,8 +176,8 @@ def _dls(xg, q0, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, ou
 
 
 @njit(cache=True)
-def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                iters, lam, neighbours, margin, out):
+def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
+                iters, lam, neighbours, snap, out):
     n = lengths.size
     jp = np.empty((n + 1, 2))
     q = q_in.copy()
@@ -175,10 +185,10 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
         q[k] = min(max(q[k], -theta_b[k]), theta_b[k])
     q[n] = min(max(q[n], 0.0), total)
     frozen = np.zeros(n, np.bool_)
-    s = _dls(xg, q, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, out)
+    s = _dls(xg, q, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, out)
     cand = np.empty(n + 1)
     if neighbours and iters > 0:
-        # the NN often ends at a link's end when the answer is just past it
+        # the NN often ends at a link's end when the answer is just past it (or within dm of it)
         for side in (1, -1):
             if s <= 1.0:
                 break
@@ -188,8 +198,9 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
             if not far or k < 0 or k >= n:
                 continue
             alt = out.copy()
-            alt[n] = rj[k] if side == 1 else rj[k] + lengths[k] - 1e-12
-            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, iters, lam, cand)
+            lo, hi = margin_range(k, lengths, rj, total, dm)
+            alt[n] = lo if side == 1 else hi
+            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, cand)
             if cs < s:
                 out[:] = cand
                 s = cs
@@ -198,11 +209,11 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
     link = ma_pose(out, lengths, rj, total, jp)[3]
     for k in range(link + 1, n):
         out[k] = qc[k]  # they do not move the MA: same pose, less action time
-    if margin <= 0.0 or iters == 0:
+    if snap <= 0.0 or iters == 0:
         return
     # Sparsify: every joint left where it is saves its turn and maybe MA travel.
     # Greedily turn joints back to q_c, smallest turn first, while the others
-    # can make up within margin of the goal tolerance and c(a) drops.
+    # can make up (span score within snap) and c(a) drops.
     cost = action_cost(qc, out, rj, inv_ms, inv_js)
     for k in range(n):
         frozen[k] = abs(out[k] - qc[k]) <= ANGLE_TOL
@@ -214,9 +225,10 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
             alt = out.copy()
             alt[i] = qc[i]
             frozen[i] = True
-            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, min(iters, _SNAP_ITERS), lam, cand)
+            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, min(iters, _SNAP_ITERS), lam,
+                      cand)
             cc = action_cost(qc, cand, rj, inv_ms, inv_js)
-            if cs <= margin and cc < cost:
+            if cs <= snap and cc < cost:
                 out[:] = cand
                 cost = cc
                 changed = True
@@ -227,22 +239,22 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
 
 
 @njit(cache=True)
-def _refine_serial(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                   iters, lam, neighbours, margin):
+def _refine_serial(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
+                   iters, lam, neighbours, snap):
     out = np.empty_like(Q)
     for b in range(Q.shape[0]):
-        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                    iters, lam, neighbours, margin, out[b])
+        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
+                    iters, lam, neighbours, snap, out[b])
     return out
 
 
 @njit(cache=True, parallel=True)
-def _refine_parallel(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                     iters, lam, neighbours, margin):
+def _refine_parallel(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
+                     iters, lam, neighbours, snap):
     out = np.empty_like(Q)
     for b in prange(Q.shape[0]):
-        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                    iters, lam, neighbours, margin, out[b])
+        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
+                    iters, lam, neighbours, snap, out[b])
     return out
 
 
@@ -254,37 +266,98 @@ PARALLEL_FROM = 256
 
 def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0.05,
            e_p: float = E_P, e_phi: float = E_PHI, q_c: Any = None, neighbours: bool = True,
-           snap_margin: float = SNAP_MARGIN) -> np.ndarray:
+           snap_margin: float = SNAP_MARGIN, margin: Any = None) -> np.ndarray:
     """A few damped least-squares steps on theta_1..theta_{j_d} and d (within link j_d).
 
-    x_goal (..., 3), q (..., n+1) -> refined q (..., n+1), within C_f; per query
-    the best iterate (score max(dp/e_p, dphi/e_phi)) is kept, so the DLS never
-    returns a worse pose than q. With `neighbours`, a query still off the goal
-    is tried again with the MA moved across the nearer joint onto the adjacent
-    link. With q_c given, the joints past the MA's link go back to their q_c
-    values (they do not move the MA; as the paper's GoalFix, section IV-B),
-    then, if snap_margin > 0, joints are turned back to q_c one at a time while
-    the rest can still reach the goal within snap_margin of the tolerance and
-    c(a) (eq. 8) drops: on a MASR every joint not turned saves its rotation and
+    x_goal (..., 3), q (..., n+1) -> refined q (..., n+1), within C_f and
+    holding the joint margin (margin, default arm.d_margin: d at least that far
+    from every joint r_2..r_n; the start's d is first moved into its link's
+    margin_range). Per query the best iterate by the span score (max(dp/e_p,
+    dphi/e_phi) over every d' within the margin, MasrArm.span_pose_errors) is
+    kept, so the DLS never returns a worse answer than q with its d so
+    moved. With `neighbours`, a query still off the goal is tried again with
+    the MA moved across the nearer joint onto the adjacent link. With q_c
+    given, the joints past the MA's link go back to their q_c values (they do
+    not move the MA; as the paper's GoalFix, section IV-B), then, if
+    snap_margin > 0, joints are turned back to q_c one at a time while the
+    rest still reach the goal with a span score within snap_margin and c(a)
+    (eq. 8) drops: on a MASR every joint not turned saves its rotation and
     often the MA's drive to it. Runs in numba, in parallel over large batches.
     """
     x_goal = np.asarray(x_goal, dtype=float)
     q = np.asarray(q, dtype=float)
     shape = q.shape
     n = arm.n
+    dm = arm.d_margin if margin is None else float(margin)
     X = np.ascontiguousarray(np.broadcast_to(x_goal, (*shape[:-1], 3)).reshape(-1, 3))
     Q = np.ascontiguousarray(q.reshape(-1, n + 1))
     has_qc = q_c is not None
     QC = np.ascontiguousarray(np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)) if has_qc else Q
     kernel = _refine_parallel if Q.shape[0] >= PARALLEL_FROM else _refine_serial
     out = kernel(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
-                        np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
-                        float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
-                        float(e_phi), int(iters), float(damping), bool(neighbours), float(snap_margin))
+                 np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
+                 float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
+                 float(e_phi), dm, int(iters), float(damping), bool(neighbours), float(snap_margin))
     return out.reshape(shape)
 
 
 _refine = refine  # solve() has a parameter called refine
+
+#: Fallback (MasrIK.solve): random starts per link in its second round; DLS steps per start.
+FALLBACK_STARTS = 5
+FALLBACK_ITERS = 30
+
+
+def span_scores(arm: MasrArm, x_goal: Any, q: Any, e_p: float = E_P, e_phi: float = E_PHI) -> np.ndarray:
+    """max(dp / e_p, |dphi| / e_phi) over every d' within arm.d_margin of d; inf where q is within the
+    margin of a joint. <= 1 is the goal check (MasrArm.reaches)."""
+    dp, dphi = arm.span_pose_errors(q, x_goal)
+    return np.where(arm.holds_margin(np.asarray(q)[..., -1]), np.maximum(dp / e_p, dphi / e_phi), np.inf)
+
+
+def fallback(arm: MasrArm, x_goal: np.ndarray, q_nn: np.ndarray, q_c: np.ndarray, snap_margin: float,
+             starts: int = FALLBACK_STARTS, iters: int = FALLBACK_ITERS, seed: int = 0) -> np.ndarray:
+    """Multi-start refinement for queries the network and its refinement miss: (B, 3), (B, n+1) x2 -> (B, n+1).
+
+    Two rounds, each refining every start (`iters` DLS steps, distal joints
+    held, sparsify within snap_margin): first, per link k, the network's
+    angles with d at the low end, middle and high end of k's margin_range
+    (mostly a goal the margin pushes onto the next link); then, for the
+    queries still missed, `starts` random angle sets per link with d uniform
+    in its range. The answer is the cheapest (eq. 8) that passes the goal
+    check, else the least span score. Deterministic (seed).
+    """
+    rng = np.random.default_rng(seed)
+    n, B = arm.n, x_goal.shape[0]
+    tb = arm.theta_b
+    ranges = [tuple(float(v) for v in arm.margin_range(k)) for k in range(n)]
+    best = q_nn.copy()
+    key = np.full(B, np.inf)
+    todo = np.arange(B)
+    for round_ in range(2):
+        S: list[np.ndarray] = []
+        for lo, hi in ranges:
+            if round_ == 0:
+                for d in (lo, 0.5 * (lo + hi), hi):
+                    s = q_nn[todo].copy()
+                    s[:, n] = d
+                    S.append(s[:, None])
+            else:
+                S.append(np.concatenate([rng.uniform(-tb, tb, (todo.size, starts, n)),
+                                         rng.uniform(lo, hi, (todo.size, starts, 1))], axis=2))
+        st = np.concatenate(S, axis=1)
+        qc = np.broadcast_to(q_c[todo][:, None], st.shape)
+        q = refine(arm, x_goal[todo][:, None], st, iters=iters, q_c=qc, snap_margin=snap_margin)
+        score = span_scores(arm, x_goal[todo][:, None], q)
+        k = np.where(score <= 1.0, arm.action_cost(qc, q), 1e9 + score)
+        i = np.argmin(k, axis=1)
+        better = k[np.arange(todo.size), i] < key[todo]
+        best[todo[better]] = q[np.arange(todo.size), i][better]
+        key[todo[better]] = k[np.arange(todo.size), i][better]
+        todo = todo[key[todo] >= 1e9]
+        if todo.size == 0:
+            break
+    return best
 
 
 # ------------------------------------------------------------------- the solver
@@ -298,6 +371,9 @@ class MasrIK:
     card: dict[str, Any]
     onnx_path: Path
     _session: Any = None
+    #: queries solve() handed to the fallback, and how many of them it then solved
+    fallbacks: int = 0
+    fallbacks_solved: int = 0
 
     @classmethod
     def load(cls, card_path: str | Path, int8: bool = False, verify: bool = True) -> "MasrIK":
@@ -345,19 +421,30 @@ class MasrIK:
         return out.reshape(*batch, n + 1)
 
     def solve(self, x_goal: Any, q_c: Any, refine: bool = False, iters: int = 8,
-              hold_distal: bool = False, sparsify: bool = True) -> np.ndarray:
+              hold_distal: bool = False, sparsify: bool = True, use_fallback: bool = True) -> np.ndarray:
         """A configuration reaching x_goal from q_c with little action time; (..., n+1).
 
-        refine=False: the network alone. refine=True: then `iters` DLS steps,
-        the joints past the MA's link back to q_c and, with `sparsify`, joints
-        turned back to q_c where the others make up (see `refine`).
-        hold_distal=True (no DLS): only the exact step: same pose, never more
-        action time.
+        Every answer holds the joint margin (arm.d_margin): the network's d is
+        moved onto its link's margin_range. refine=False: the network alone.
+        refine=True: then `iters` DLS steps, the joints past the MA's link back
+        to q_c and, with `sparsify`, joints turned back to q_c where the others
+        make up (see `refine`); with `use_fallback`, queries that still miss the
+        goal check go to `fallback` (multi-start refinement; counted in
+        self.fallbacks). hold_distal=True (no DLS): only the exact step: same
+        pose, never more action time.
         """
         q = self.predict(x_goal, q_c)
-        if refine or hold_distal:
-            x = np.broadcast_to(np.asarray(x_goal, float), (*q.shape[:-1], 3))
-            q = _refine(self.arm, x, q, iters=iters if refine else 0,
-                        q_c=np.broadcast_to(np.asarray(q_c, float), q.shape),
-                        snap_margin=SNAP_MARGIN if sparsify else 0.0)
-        return q
+        x = np.broadcast_to(np.asarray(x_goal, float), (*q.shape[:-1], 3))
+        if not (refine or hold_distal):
+            return _refine(self.arm, x, q, iters=0)
+        qc = np.broadcast_to(np.asarray(q_c, float), q.shape)
+        snap = SNAP_MARGIN if sparsify else 0.0
+        out = _refine(self.arm, x, q, iters=iters if refine else 0, q_c=qc, snap_margin=snap)
+        if refine and use_fallback:
+            miss = span_scores(self.arm, x, out) > 1.0
+            if miss.any():
+                fix = fallback(self.arm, x[miss], q[miss], qc[miss], snap)
+                out[miss] = fix
+                self.fallbacks += int(miss.sum())
+                self.fallbacks_solved += int((span_scores(self.arm, x[miss], fix) <= 1.0).sum())
+        return out

@@ -6,9 +6,14 @@ MASR plus a prismatic joint along link k for the MA (d_link in [0, l_k]), so
 the MA stands on link k. A converged answer becomes a full configuration
 q = (theta_1..theta_k, theta_c,k+1..theta_c,n, r_k + d_link): the joints past
 the MA keep their current values (they do not move the MA). Out of the
-answers that reach the goal within (e_p, e_phi), the one with the least
-eq. (12) regulariser (the paper's "minimum MA action time (12)") is returned;
-if none does, the one with the least pose error.
+answers that pass the goal check, the one with the least eq. (12)
+regulariser (the paper's "minimum MA action time (12)") is returned; if none
+does, the one with the least pose error.
+
+The joint margin (MasrArm.d_margin), as for the IK-NN, for a fair comparison:
+the prismatic joint of sub-arm k ranges over link k's margin_range (d_link
+at least d_margin from the joints at the link's ends), and the goal check is
+MasrArm.reaches: within (e_p, e_phi) for every d within the margin.
 
 Solver: roboticstoolbox-python's `ETS.ik_NR` (the paper's [23], Haviland &
 Corke; C implementation, planar mask (x, y, rz), joint limits on), one search
@@ -77,13 +82,20 @@ class MasrNR:
         ets: Any = ET.Rz(qlim=[-tb[0], tb[0]])
         for j in range(1, k):
             ets = ets * ET.tx(float(ls[j - 1])) * ET.Rz(qlim=[-tb[j], tb[j]])
-        return ets * ET.tx(qlim=[0.0, float(ls[k - 1])])
+        lo, hi = self._link_range(k)
+        return ets * ET.tx(qlim=[lo, hi])
+
+    def _link_range(self, k: int) -> tuple[float, float]:
+        """d_link range of sub-arm k (1-based): link k's margin_range, measured from joint k."""
+        lo, hi = (float(v) for v in self.arm.margin_range(k - 1))
+        r = float(self.arm.r[k - 1])
+        return lo - r, hi - r
 
     def _starts(self, k: int, count: int) -> np.ndarray:
         """count random sub-arm starts (theta_1..theta_k, d_link)."""
         tb = self.arm.theta_b[:k]
         th = self._rng.uniform(-tb, tb, (count, k))
-        d = self._rng.uniform(0.0, self.arm.link_lengths[k - 1], (count, 1))
+        d = self._rng.uniform(*self._link_range(k), (count, 1))
         return np.concatenate([th, d], axis=1)
 
     def _candidates_rtb(self, x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:
@@ -115,8 +127,8 @@ class MasrNR:
         n = self.arm.n
         q = np.array(q_c, dtype=float)
         q[:k] = sub[:k]
-        hi = self.arm.link_lengths[k - 1] * (1 - 1e-9) if k < n else self.arm.link_lengths[k - 1]
-        q[n] = self.arm.r[k - 1] + float(np.clip(sub[k], 0.0, hi))
+        lo, hi = self._link_range(k)
+        q[n] = self.arm.r[k - 1] + float(np.clip(sub[k], lo, hi))
         return q
 
     def solve_one(self, x_goal: Any, q_c: Any) -> np.ndarray:
@@ -127,7 +139,7 @@ class MasrNR:
             # nothing converged: the best of a few plain starts, so the answer is still a configuration
             cands = self._candidates_own(x_goal, q_c)
         dp, dphi = pose_errors(self.arm, x_goal, cands)
-        ok = (dp <= self.e_p) & (dphi <= self.e_phi)
+        ok = self.arm.reaches(cands, x_goal, self.e_p, self.e_phi)
         if ok.any():
             cost = np.where(ok, self.arm.reg_action(q_c, cands), np.inf)
             return cands[int(np.argmin(cost))]

@@ -7,6 +7,13 @@ starts from q_c and takes damped steps that are short in time units (angles
 divided by theta-dot, d by d-dot), so it tends to stay near q_c, but it does
 not minimise eq. (12).
 
+The answer holds the joint margin (MasrArm.d_margin) and is scored by the
+goal check over it: after the free DLS below (d may cross joints), the
+refinement of armbridge.ik.masr_ik (`refine`: DLS on the MA's link with d
+kept in its margin_range, a retry on the neighbouring link) finishes from its
+best iterate. That second DLS is the IK-NN's, reused; this one differs in
+what it is for (it roams over links from any start, time-scaled steps).
+
 Variables: theta_1..theta_n and d. With the MA on link j (0-based, as
 MasrArm.locate), dp/dtheta_k = perp(p - P_k) and dphi/dtheta_k = 1 for k <= j,
 0 beyond; dp/dd = the link's direction, dphi/dd = 0. The pose error is
@@ -20,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 from numba import njit
 
+from armbridge.ik.masr_ik import refine, span_scores
 from armbridge.robots.masr import MasrArm
 from armbridge.robots.masr_kernels import ma_pose, wrap
 
@@ -85,12 +93,17 @@ def _arrays(arm: MasrArm):
             float(arm.joint_speed), float(arm.ma_speed))
 
 
+#: DLS steps of the finishing masr_ik.refine (on the MA's link, holding the margin)
+FINISH_ITERS = 8
+
+
 def solve(arm: MasrArm, x_goal: Any, q0: Any, *, e_p: float = 0.008, e_phi: float = math.radians(4.0),
           iters: int = 40, damping: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Batched DLS IK: x_goal (..., 3), q0 (..., n+1) -> (q (..., n+1), scaled error (...)).
+    """Batched DLS IK: x_goal (..., 3), q0 (..., n+1) -> (q (..., n+1), span score (...)).
 
-    The scaled error is sqrt((dp/e_p)^2 + (dphi/e_phi)^2) of the best iterate,
-    so error <= 1 is inside eq. (9)'s region.
+    q holds the joint margin; the score is max(dp/e_p, dphi/e_phi) over every
+    d within the margin (masr_ik.span_scores), so score <= 1 is the goal check
+    (MasrArm.reaches).
     """
     x_goal = np.asarray(x_goal, float)
     q0 = arm._q(q0, "q0")
@@ -98,20 +111,22 @@ def solve(arm: MasrArm, x_goal: Any, q0: Any, *, e_p: float = 0.008, e_phi: floa
     X = np.ascontiguousarray(np.broadcast_to(x_goal, (*shape, 3)).reshape(-1, 3))
     Q0 = np.ascontiguousarray(np.broadcast_to(q0, (*shape, arm.n + 1)).reshape(-1, arm.n + 1))
     lengths, rj, tb, total, js, ms = _arrays(arm)
-    q, err = dls_batch(X, Q0, lengths, rj, tb, total, js, ms, float(e_p), float(e_phi), int(iters), float(damping))
-    return q.reshape(*shape, arm.n + 1), err.reshape(shape)
+    q, _ = dls_batch(X, Q0, lengths, rj, tb, total, js, ms, float(e_p), float(e_phi), int(iters), float(damping))
+    q = refine(arm, X, q, iters=FINISH_ITERS, e_p=e_p, e_phi=e_phi)
+    return q.reshape(*shape, arm.n + 1), span_scores(arm, X, q, e_p, e_phi).reshape(shape)
 
 
 def goal_ik(arm: MasrArm, *, e_p: float = 0.008, e_phi: float = math.radians(4.0), iters: int = 30,
             damping: float = 0.5) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """A goal_ik(x_goal (3,), q_c (n+1,)) -> q for the planner, from q_c by DLS."""
+    """A goal_ik(x_goal (3,), q_c (n+1,)) -> q for the planner, from q_c by DLS (holding the joint margin)."""
     lengths, rj, tb, total, js, ms = _arrays(arm)
     e_p, e_phi, iters, damping = float(e_p), float(e_phi), int(iters), float(damping)
 
     def ik(x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:
         out = np.empty(arm.n + 1)
-        dls_solve(np.ascontiguousarray(x_goal, float), np.ascontiguousarray(q_c, float), lengths, rj, tb, total,
-                  js, ms, e_p, e_phi, iters, damping, out)
-        return out
+        x = np.ascontiguousarray(x_goal, float)
+        dls_solve(x, np.ascontiguousarray(q_c, float), lengths, rj, tb, total, js, ms, e_p, e_phi, iters,
+                  damping, out)
+        return refine(arm, x, out, iters=FINISH_ITERS, e_p=e_p, e_phi=e_phi)
 
     return ik

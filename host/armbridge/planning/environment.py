@@ -85,9 +85,9 @@ class Environment:
                 np.abs(wrap_angle(x[..., 2] - self.goal_pose[2])))
 
     def in_goal(self, q: Any) -> np.ndarray:
-        """eq. (9): the MA pose of q within e_p and e_phi of the goal pose."""
-        dp, dphi = self.pose_errors(q)
-        return (dp <= self.e_p) & (dphi <= self.e_phi)
+        """The goal check (MasrArm.reaches): d at least the arm's d_margin from every joint and the MA
+        pose within e_p and e_phi of the goal pose (eq. 9) for every d within that margin."""
+        return self.arm.reaches(q, self.goal_pose, self.e_p, self.e_phi)
 
     def to_dict(self) -> dict[str, Any]:
         robot: Any = self.arm.name if is_registered(self.arm) else self.arm.to_dict()
@@ -188,8 +188,9 @@ def find_goal_configs(arm: MasrArm, goal_pose: np.ndarray, checker: CollisionChe
                       extra_starts: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Multi-start DLS IK for the goal pose.
 
-    Returns (in_goal configurations (m, n+1), which of them are collision-free
-    (m,), best dp (m), best dphi (rad)) over all starts.
+    Returns (configurations passing the goal check (m, n+1): MasrArm.reaches,
+    the joint margin held; which of them are collision-free (m,); best dp (m),
+    best dphi (rad) at d) over all starts.
     """
     rng = np.random.default_rng(seed)
     tb = arm.theta_b
@@ -200,7 +201,7 @@ def find_goal_configs(arm: MasrArm, goal_pose: np.ndarray, checker: CollisionChe
     x = arm.fk(q)
     dp = np.linalg.norm(x[:, :2] - goal_pose[:2], axis=-1)
     dphi = np.abs(wrap_angle(x[:, 2] - goal_pose[2]))
-    ok = (dp <= e_p) & (dphi <= e_phi) & arm.within_limits(q)
+    ok = arm.reaches(q, goal_pose, e_p, e_phi) & arm.within_limits(q)
     best = int(np.argmin(dp / e_p + dphi / e_phi))
     good = q[ok]
     return good, checker.free(good) if good.size else np.zeros(0, bool), float(dp[best]), float(dphi[best])
@@ -268,12 +269,16 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         why = _describe_q(arm, goal_q)
         if why:
             raise ctx.err(f"goal.q is infeasible: {why}")
-        env_tmp = Environment(name, arm, obstacles, start, pose, None, e_p, e_phi)
-        dp_q, dphi_q = (float(v) for v in env_tmp.pose_errors(goal_q))
+        clear = float(arm.joint_clearance(goal_q[-1]))
+        if not arm.holds_margin(goal_q[-1]):
+            raise ctx.err(f"goal.q puts the MA {_fmt(clear * 1e3)} mm from a joint, inside the robot's "
+                          f"d_margin = {_fmt(arm.d_margin * 1e3)} mm (its localisation bound)")
+        dp_q, dphi_q = (float(v) for v in arm.span_pose_errors(goal_q, pose))
         if not (dp_q <= e_p and dphi_q <= e_phi):
             raise ctx.err(f"goal.q puts the MA {_fmt(dp_q * 1e3)} mm and {_fmt(math.degrees(dphi_q))} deg "
                           f"from the goal pose, outside e_p = {_fmt(e_p * 1e3)} mm, "
-                          f"e_phi = {_fmt(math.degrees(e_phi))} deg (eq. 9)")
+                          f"e_phi = {_fmt(math.degrees(e_phi))} deg (eq. 9, for every d within "
+                          f"d_margin = {_fmt(arm.d_margin * 1e3)} mm)")
         hit = checker.first_hit(goal_q)
         if hit is not None:
             raise ctx.err(f"goal.q is in collision: link {hit[1] + 1} touches obstacles[{hit[0]}]")
@@ -283,7 +288,8 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
             raise ctx.err(
                 f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is out of reach: no configuration "
                 f"within the joint limits puts the MA within e_p = {_fmt(e_p * 1e3)} mm and "
-                f"e_phi = {_fmt(math.degrees(e_phi))} deg of it (closest found: {_fmt(dp * 1e3)} mm, "
+                f"e_phi = {_fmt(math.degrees(e_phi))} deg of it with d at least d_margin = "
+                f"{_fmt(arm.d_margin * 1e3)} mm from every joint (closest found: {_fmt(dp * 1e3)} mm, "
                 f"{_fmt(math.degrees(dphi))} deg)")
         if not np.any(free):
             raise ctx.err(f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is blocked: every "

@@ -14,7 +14,10 @@ durations (move |d_to - d_from| / d-dot, rotate |theta_to - theta_from| /
 theta-dot); the durations of an action sum to its cost c(a), eq. (8), and all
 of them to tau, eq. (7). The environment is embedded, so a reader can check
 the path against the obstacles again (load_masr_plan does, along the motion
-convention).
+convention). The last waypoint must be executable by a real MA: its d at
+least the robot's d_margin (the MA's localisation bound) from every joint,
+and, with a goal, the goal check (eq. 9) must hold for every d within that
+margin (MasrArm.span_pose_errors: exact by checking the interval's ends).
 """
 from __future__ import annotations
 
@@ -28,7 +31,6 @@ from typing import Any, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.geometry import wrap_angle
 from armbridge.jsonfile import read_json
 from armbridge.planning.environment import Environment, environment_from_dict
 from armbridge.robots.catalog import get_masr, is_registered
@@ -226,17 +228,21 @@ def plan_from_document(doc: Any, source: Any = None) -> MasrPlan:
         problem = env.checker().path_problem(q)
         if problem:
             raise err(f"path collides: {problem}")
+    d_end = float(q[-1, n])
+    if not arm.holds_margin(d_end):
+        raise err(f"the last waypoint puts the MA at d = {d_end:.6f} m, {float(arm.joint_clearance(d_end)) * 1e3:.3f} mm "
+                  f"from a joint, inside the robot's d_margin = {arm.d_margin * 1e3:g} mm (the MA's localisation "
+                  f"bound): a real MA cannot stop there reliably")
     if "goal" in doc:
         g = doc["goal"]
         if not isinstance(g, dict) or set(g) != {"pose", "e_p", "e_phi"}:
             raise err("goal must be an object with exactly pose, e_p, e_phi")
         pose = np.asarray(g["pose"], float)
-        x = arm.fk(q[-1])
-        dp = float(np.hypot(*(x[:2] - pose[:2])))
-        dphi = abs(float(wrap_angle(x[2] - pose[2])))
+        dp, dphi = (float(v) for v in arm.span_pose_errors(q[-1], pose))
         if dp > g["e_p"] + 1e-12 or dphi > g["e_phi"] + 1e-12:
-            raise err(f"the last waypoint puts the MA {dp * 1e3:.2f} mm and {math.degrees(dphi):.2f} deg from the "
-                      f"goal, outside e_p = {g['e_p'] * 1e3:g} mm, e_phi = {math.degrees(g['e_phi']):g} deg (eq. 9)")
+            raise err(f"the last waypoint puts the MA up to {dp * 1e3:.2f} mm and {math.degrees(dphi):.2f} deg from "
+                      f"the goal for d within d_margin = {arm.d_margin * 1e3:g} mm of its d, outside "
+                      f"e_p = {g['e_p'] * 1e3:g} mm, e_phi = {math.degrees(g['e_phi']):g} deg (eq. 9)")
     prov = doc.get("provenance", {})
     if not isinstance(prov, dict):
         raise err("provenance must be an object")

@@ -28,8 +28,10 @@ Everything else is shared and follows Algorithms 1-2:
   subtree so every tau stays the cost of its path from the root, eq. (7).
 * OnGoal: link i is a rectangle of width e_p along the link (the goal point
   within e_p / 2 of the link's centre line, its projection on the link) and,
-  for eq. (9), the link's heading within e_phi of phi_goal.
-* GoalFix: the MA moves to the goal's projection on that link; joints beyond
+  for eq. (9), the link's heading within e_phi of phi_goal; and the goal
+  check holds over the joint margin (MasrArm.d_margin) at GoalFix's d.
+* GoalFix: the MA moves to the goal's projection on that link, moved to at
+  least d_margin from the link's joints (the MA's localisation bound); joints beyond
   the MA (r_j > d) keep their parent's angles. The fixed edge is checked
   again; if it collides, only d is fixed; if that collides too, the node is
   an ordinary node. Fixed nodes join G.
@@ -51,7 +53,7 @@ from numba import njit
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.collision import config_hit, edge_hit, rotation_order
 from armbridge.robots.masr import POS_TOL
-from armbridge.robots.masr_kernels import action_cost, wrap
+from armbridge.robots.masr_kernels import action_cost, margin_range, wrap
 
 GoalIK = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -138,10 +140,16 @@ def _nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, delta, mode, out):
 
 
 @njit(cache=True)
-def _on_goal(q, lengths, rj, goal, half_w, e_phi, cand_d, cand_link):
-    """OnGoal: links whose rectangle holds the goal point and whose heading is within e_phi.
+def _on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link):
+    """OnGoal: links whose rectangle holds the goal point and whose heading is within e_phi, and
+    where the goal check holds over the joint margin.
 
-    Writes the MA position d of the goal's projection for each such link into
+    For each such link, GoalFix's MA position is the goal's projection moved
+    into the link's margin_range (at least dm from the joints at its ends,
+    masr_kernels.margin_range); the link counts only if the goal is within
+    e_p of the MA for every d within dm of it: on one link the heading is
+    constant and the point moves linearly, so the two ends of [d - dm, d + dm]
+    (clipped to the arm) decide, exactly. Writes each such d and link into
     cand_d / cand_link; returns how many.
     """
     n = lengths.size
@@ -159,11 +167,18 @@ def _on_goal(q, lengths, rj, goal, half_w, e_phi, cand_d, cand_link):
             t = gx * c + gy * s
             perp = abs(gx * s - gy * c)
             if t >= 0.0 and t <= lengths[i] and perp <= half_w:
-                if i < n - 1 and t > lengths[i] - 1e-7:
-                    t = lengths[i] - 1e-7  # stay on link i, not on joint i+1
-                cand_d[m] = rj[i] + t
-                cand_link[m] = i
-                m += 1
+                lo, hi = margin_range(i, lengths, rj, total, dm)
+                if i < n - 1:
+                    hi = min(hi, rj[i] + lengths[i] - 1e-7)  # stay on link i, not on joint i+1
+                d = min(max(rj[i] + t, lo), hi)
+                ok = True
+                for end in (max(d - dm, 0.0), min(d + dm, total)):
+                    if math.hypot(rj[i] + t - end, perp) > e_p:
+                        ok = False
+                if ok:
+                    cand_d[m] = d
+                    cand_link[m] = i
+                    m += 1
         x += lengths[i] * c
         y += lengths[i] * s
     return m
@@ -208,7 +223,7 @@ def _shift_subtree(tau, first_child, next_sib, u, delta, stack):
 def _extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
             q_new, i_near, n_near,
             lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, sweep_res,
-            inv_ms, inv_js, goal, half_w, e_phi):
+            inv_ms, inv_js, goal, half_w, e_p, e_phi, dm):
     """Alg. 1 lines 11-19 for one candidate q_new from v_nearest = i_near.
 
     counts = [tree size, |G|, collision checks]. Returns 0 (edge not free,
@@ -275,7 +290,7 @@ def _extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, s
     # OnGoal / GoalFix
     cand_d = np.empty(n)
     cand_link = np.empty(n, dtype=np.int64)
-    m = _on_goal(q_new, lengths, rj, goal, half_w, e_phi, cand_d, cand_link)
+    m = _on_goal(q_new, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link)
     if m > 0:
         fixes = np.empty((2 * m, n + 1))
         fcost = np.empty(2 * m)
@@ -469,7 +484,8 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
     inv_ms, inv_js = 1.0 / arm.ma_speed, 1.0 / arm.joint_speed
     goal = np.ascontiguousarray(env.goal_pose, dtype=float)
     half_w = 0.5 * (env.e_p if goal_rect_width is None else float(goal_rect_width))
-    e_phi = float(env.e_phi)
+    e_p, e_phi = float(env.e_p), float(env.e_phi)
+    dm = float(arm.d_margin)
 
     global _WARM
     if not _WARM:  # load the numba kernels (compiled or cached) outside the timed loop, once per process
@@ -526,7 +542,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
             q_new[n] = min(max(q_ik[n], 0.0), total)
         status = _extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
                          q_new, i_near, int(n_near), lengths, rj, reach, theta_b, total, verts, starts, bbox,
-                         r2, sres, inv_ms, inv_js, goal, half_w, e_phi)
+                         r2, sres, inv_ms, inv_js, goal, half_w, e_p, e_phi, dm)
         if status > 0 and counts[1] > 0:
             # a new goal node, or a rewire that lowered some goal node's tau
             g = _best_goal(tau, goal_list, int(counts[1]))
@@ -550,7 +566,8 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
         tree_size=int(counts[0]), goal_nodes=int(counts[1]), ik_calls=ik_calls,
         collision_checks=int(counts[2]), seed=seed,
         settings={"p_c": p_c, "goal_bias": goal_bias, "n_near": int(n_near), "step_s": step, "steer": steer,
-                  "sweep_res_m": sres, "margin_m": chk.margin, "goal_rect_width_m": 2 * half_w},
+                  "sweep_res_m": sres, "margin_m": chk.margin, "goal_rect_width_m": 2 * half_w,
+                  "d_margin_m": dm},
     )
 
 

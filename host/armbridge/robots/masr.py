@@ -41,14 +41,19 @@ from armbridge.robots.base import readonly
 from armbridge.robots.planar import description_fields
 
 _ARRAY_FIELDS = ("link_lengths", "theta_b")
-_SCALAR_FIELDS = ("ma_speed", "joint_speed", "link_width")
-_FIELDS = ("name", *_ARRAY_FIELDS, *_SCALAR_FIELDS)
+_SCALAR_FIELDS = ("ma_speed", "joint_speed", "link_width", "d_margin")
+_OPTIONAL = ("d_margin",)  # older descriptions (model cards, plans) lack it: the default applies
+_FIELDS = ("name", *_ARRAY_FIELDS, *(f for f in _SCALAR_FIELDS if f not in _OPTIONAL))
 
 #: A joint "needs actuation" in an action when |delta theta_j| > ANGLE_TOL (rad).
 ANGLE_TOL = 1e-9
 #: A joint within POS_TOL (m) of the MA counts as under the MA (no travel to it);
 #: d within POS_TOL outside [0, l] is clamped onto the arm by locate/fk.
 POS_TOL = 1e-9
+#: Default d_margin (m): the MA firmware's localisation bound (docs/masr.md, "Joint margin").
+D_MARGIN = 0.005
+#: Rounding slack (m) of the margin test: r_j + d_margin is not exactly d_margin from r_j in floats.
+MARGIN_TOL = 1e-12
 
 MoveStep = tuple[str, float, float]  # ("move", d_from, d_to)
 RotateStep = tuple[str, int, float, float]  # ("rotate", joint (1-based), theta_from, theta_to)
@@ -64,6 +69,10 @@ class MasrArm:
     ma_speed: MA speed along the arm in m/s (d-dot). joint_speed: joint rate
     in rad/s while the MA turns it (theta-dot). link_width: link width w in m,
     used to inflate obstacles by 0.5 w (paper Fig. 3a); 0 means a line arm.
+    d_margin: the least distance in m between a goal's MA position and any
+    joint the MA would cross (r_2..r_n): the MA firmware's localisation bound
+    (docs/masr.md, "Joint margin"). IK answers and planner goals hold it, and
+    their goal check holds for every d within it (`span_pose_errors`).
     """
 
     kind: ClassVar[str] = "masr"
@@ -73,6 +82,7 @@ class MasrArm:
     ma_speed: float
     joint_speed: float
     link_width: float
+    d_margin: float = D_MARGIN
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -99,6 +109,12 @@ class MasrArm:
                 raise ArmbridgeError(f"{where}: {f} must be > 0 {unit}, got {scalars[f]}")
         if scalars["link_width"] < 0:
             raise ArmbridgeError(f"{where}: link_width must be >= 0 m, got {scalars['link_width']}")
+        half = 0.5 * float(lengths.min())
+        if not 0.0 <= scalars["d_margin"] < half:
+            raise ArmbridgeError(
+                f"{where}: d_margin must be in [0, {half:g}) m (under half the shortest link, so every link "
+                f"keeps MA positions clear of its joints), got {scalars['d_margin']}"
+            )
         for f, a in arrays.items():
             a.setflags(write=False)  # frozen means the arrays too
             object.__setattr__(self, f, a)
@@ -253,6 +269,68 @@ class MasrArm:
         d = q[..., -1]
         return joints_ok & (d >= 0.0) & (d <= self.total_length)
 
+    # ------------------------------------------------------------ joint margin
+    def joint_clearance(self, d: Any) -> np.ndarray:
+        """Distance (m) from d to the nearest joint the MA crosses (r_2..r_n); inf for one link.
+
+        The base (d = 0) and the tip (d = l) are the arm's ends, not boundaries
+        between links: the heading does not jump there.
+        """
+        d = np.asarray(d, dtype=float)
+        inner = self.r[1:]
+        if inner.size == 0:
+            return np.full(d.shape, np.inf)
+        return np.min(np.abs(d[..., None] - inner), axis=-1)
+
+    def holds_margin(self, d: Any, margin: Any = None) -> np.ndarray:
+        """True where d is at least margin (default d_margin) from every joint r_2..r_n (to MARGIN_TOL)."""
+        m = self.d_margin if margin is None else float(margin)
+        return self.joint_clearance(d) >= m - MARGIN_TOL
+
+    def margin_range(self, link: Any, margin: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the MA positions on `link` (0-based) that hold the margin.
+
+        lo = r_link + m except on the first link (0), hi = r_link + l_link - m
+        except on the last (l): the ends of the arm are not joints the MA crosses.
+        Both move POS_TOL further in, so that [d - m, d + m] stays on the link
+        in floating point too (a joint itself counts as on the next link, locate).
+        """
+        m = self.d_margin if margin is None else float(margin)
+        k = np.asarray(link)
+        lo = np.where(k > 0, self.r[k] + m + POS_TOL, 0.0)
+        hi = np.where(k < self.n - 1, self.r[k] + self.link_lengths[k] - m - POS_TOL, self.total_length)
+        return lo, hi
+
+    def span_pose_errors(self, q: Any, x_goal: Any, margin: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """(dp, |dphi|) of the goal check over every d' in [d - m, d + m] (clipped to [0, l]): the worst dp, and dphi.
+
+        The MA at d' on the link of d has the link's heading (constant along
+        the link) and a point that moves linearly with d' (eq. 3-4); |p(d') -
+        x_goal| is convex in d', so its maximum over the interval is at one of
+        the two ends, and checking the ends is exact. This holds only while
+        the interval stays on that link, i.e. where holds_margin(d, m): a
+        goal check is holds_margin and these errors within (e_p, e_phi).
+        m = 0 gives fk's errors at d.
+        """
+        q = self._q(q)
+        m = self.d_margin if margin is None else float(margin)
+        x_goal = np.asarray(x_goal, dtype=float)
+        p, phi = self._ma(q)
+        u = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+        d = np.clip(q[..., -1], 0.0, self.total_length)
+        dp = np.zeros(d.shape)
+        for t in (-m, m):
+            shift = np.clip(d + t, 0.0, self.total_length) - d
+            dp = np.maximum(dp, np.linalg.norm(p + shift[..., None] * u - x_goal[..., :2], axis=-1))
+        return dp, np.abs(wrap_angle(phi - x_goal[..., 2]))
+
+    def reaches(self, q: Any, x_goal: Any, e_p: float, e_phi: float, margin: Any = None) -> np.ndarray:
+        """The goal check: q holds the margin and the MA is within (e_p, e_phi) of x_goal (eq. 9)
+        for every d' within the margin of d (span_pose_errors)."""
+        q = self._q(q)
+        dp, dphi = self.span_pose_errors(q, x_goal, margin)
+        return self.holds_margin(q[..., -1], margin) & (dp <= e_p) & (dphi <= e_phi)
+
     # -------------------------------------------------------- motion convention
     def actuated(self, q_c: Any, q_d: Any) -> np.ndarray:
         """(..., n) bool: the joints an action q_c -> q_d must turn, |delta theta_j| > ANGLE_TOL."""
@@ -390,8 +468,9 @@ class MasrArm:
 
     @classmethod
     def from_dict(cls, d: Any) -> MasrArm:
-        """Build from a JSON description with exactly the keys of to_dict() (SI units, rad)."""
-        return cls(**description_fields(d, _FIELDS, "MASR description"))
+        """Build from a JSON description with exactly the keys of to_dict() (SI units, rad);
+        d_margin may be absent (D_MARGIN then)."""
+        return cls(**description_fields(d, _FIELDS, "MASR description", optional=_OPTIONAL))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, MasrArm) and self.to_dict() == other.to_dict()

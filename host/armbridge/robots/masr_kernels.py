@@ -76,3 +76,30 @@ def action_cost(qc, qd, rj, inv_ms, inv_js):
     else:
         travel = (hi - dc) + (hi - lo) + abs(df - lo)
     return travel * inv_ms + turn * inv_js
+
+
+@njit(cache=True)
+def margin_range(link, lengths, rj, total, margin):
+    """MasrArm.margin_range for one link: (lo, hi) of the d on it at least margin (+ POS_TOL) from r_2..r_n."""
+    n = lengths.size
+    lo = rj[link] + margin + POS_TOL if link > 0 else 0.0
+    hi = rj[link] + lengths[link] - margin - POS_TOL if link < n - 1 else total
+    return lo, hi
+
+
+@njit(cache=True)
+def span_score(xg, px, py, phi, d, total, margin, e_p, e_phi):
+    """max(dp / e_p, |dphi| / e_phi) over d' in [d - margin, d + margin] clipped to [0, total].
+
+    MasrArm.span_pose_errors in tolerance units: the heading is constant on a
+    link and the point moves linearly, so the two ends are the worst case
+    (exact while d holds the margin, which margin_range keeps). <= 1 is the goal check.
+    """
+    c = math.cos(phi)
+    s = math.sin(phi)
+    worst = abs(wrap(xg[2] - phi)) / e_phi
+    for t in (max(d - margin, 0.0) - d, min(d + margin, total) - d):
+        e = math.hypot(xg[0] - px - t * c, xg[1] - py - t * s) / e_p
+        if e > worst:
+            worst = e
+    return worst
