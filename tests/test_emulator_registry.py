@@ -32,7 +32,7 @@ def test_every_registered_board_boots_and_says_who_it_is(name):
     emu = EmulatedBoard(name, speed=0)
     boot = Lockstep(emu).wait("BOOT", max_s=1.0)
     assert boot[2][0] == spec.identity
-    assert emu.n == len(emu.cfg.LIMITS_MRAD) and emu.interpreter == spec.interpreters[0]
+    assert emu.n == emu.cfg.N_JOINTS and emu.interpreter == spec.interpreters[0]
     assert emu.tick_us == spec.tick_us and emu.uart.baud == spec.baud and emu.persist.size == spec.persist_bytes
 
 
