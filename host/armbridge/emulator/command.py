@@ -63,7 +63,8 @@ def emulate_cmd(
     """Put an emulated board on a pseudo-terminal and print its path; Ctrl-C stops it."""
     spec = rig_spec(board_spec(device), servos)
     if interpreter is not None and interpreter not in spec.interpreters:
-        raise ArmbridgeError(f"--interpreter {interpreter!r}: the {device} firmware on the {spec.rig} rig runs under "
+        on = f" on the {spec.rig} rig" if spec.rigs else ""
+        raise ArmbridgeError(f"--interpreter {interpreter!r}: the {device} firmware{on} runs under "
                              f"{', '.join(spec.interpreters)}")
     if not speed >= 0:
         raise ArmbridgeError(f"--speed {speed} must be >= 0 (0 = as fast as it goes)")
@@ -106,7 +107,8 @@ def emulate_cmd(
     if emu.link_note:
         _say(f"note: {emu.link_note}")
     if not quiet:
-        _say(f"speed {speed:g}, seed {seed}, rig {spec.rig}, firmware under {emu.interpreter}, "
+        rig = f"rig {spec.rig}, " if spec.rigs else ""
+        _say(f"speed {speed:g}, seed {seed}, {rig}firmware under {emu.interpreter}, "
              f"faults: {faults.describe()}; "
              "Ctrl-C stops")
         for text in held or []:

@@ -106,7 +106,8 @@ def parse_emu_url(url: str) -> tuple[str | BoardSpec, dict[str, Any]]:
             raise ArmbridgeError(f"bad port {url!r}: unknown parameter {key!r}; known: {', '.join(PARAMETERS)}")
         try:
             if key == "interpreter" and value not in spec.interpreters:
-                raise ArmbridgeError(f"{value!r} cannot run the {device} firmware on the {spec.rig} rig; "
+                on = f" on the {spec.rig} rig" if spec.rigs else ""
+                raise ArmbridgeError(f"{value!r} cannot run the {device} firmware{on}; "
                                      f"interpreters: {', '.join(spec.interpreters)}")
             if key == "servos":
                 continue
