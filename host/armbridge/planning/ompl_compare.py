@@ -17,8 +17,9 @@ Set-up (PyPI `ompl` 2.x, nanobind bindings; optional extra `armbridge[ompl]`):
   motionCost = MasrArm.action_cost, declared non-symmetric), so OMPL's RRT*
   minimises tau, eq. (7); `objective="length"` uses OMPL's default path
   length (Euclidean in C-space) instead;
-* goal: eq. (9) as a GoalSampleableRegion (distance = max(dp / e_p,
-  dphi / e_phi), threshold 1), which samples goal configurations found by
+* goal: the goal check as a GoalSampleableRegion (distance = max(dp / e_p,
+  dphi / e_phi) over every d within the joint margin, inf within it of a
+  joint: MasrArm.reaches, as our planners; threshold 1), which samples goal configurations found by
   numeric IK (collision-free), so OMPL's goal bias (0.1, as the baseline)
   works; OMPL's own k-nearest RRT* rewiring (k from its rewire factor) and
   range (0.2 of the space's extent) are left at their defaults.
@@ -66,7 +67,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     from ompl import util as ou  # type: ignore[import-untyped]
 
     from armbridge.planning.collision import config_hit, edge_hit, feasible
-    from armbridge.robots.masr_kernels import action_cost, ma_pose
+    from armbridge.robots.masr_kernels import action_cost, ma_pose, span_score
     from armbridge.planning.environment import find_goal_configs
 
     if objective not in ("eq8", "length"):
@@ -137,7 +138,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     if samples.shape[0] == 0:
         raise ArmbridgeError(f"{env.name}: no collision-free goal configuration for OMPL's goal sampling")
     rng = np.random.default_rng(seed)
-    gx, gy, gphi = (float(v) for v in env.goal_pose)
+    goal = np.ascontiguousarray(env.goal_pose, dtype=float)
 
     class PoseGoal(ob.GoalSampleableRegion):
         def __init__(self, si_: Any) -> None:
@@ -145,10 +146,13 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
             self.setThreshold(1.0)
 
         def distanceGoal(self, s: Any) -> float:  # noqa: N802
-            x, y, phi = ma_pose(to_np(s), chk.lengths, rj, K[4], pts)[:3]
-            dp = math.hypot(x - gx, y - gy)
-            dphi = abs((phi - gphi + math.pi) % (2 * math.pi) - math.pi)
-            return max(dp / env.e_p, dphi / env.e_phi)
+            """The goal check in tolerance units: the span score over the joint margin (<= 1: in the goal)."""
+            q = to_np(s)
+            if not env.arm.holds_margin(q[n]):
+                return math.inf
+            x, y, phi = ma_pose(q, chk.lengths, rj, K[4], pts)[:3]
+            return float(span_score(goal, x, y, phi, min(max(q[n], 0.0), K[4]), K[4], env.arm.d_margin,
+                                    env.e_p, env.e_phi))
 
         def sampleGoal(self, s: Any) -> None:  # noqa: N802
             q = samples[rng.integers(samples.shape[0])]
