@@ -1,10 +1,13 @@
 """Every MicroPython firmware file compiles with mpy-cross for the ESP32
-(xtensawin), and firmware/common + firmware/esp32 type-check with mypy against
-the ESP32 stubs in typings/ (config: firmware/mypy.ini).
+(xtensawin), and each board (firmware/esp32, firmware/masr_ma) type-checks with
+firmware/common under mypy against the ESP32 stubs in typings/ (config:
+firmware/mypy.ini; one board at a time, its folder on MYPYPATH: each board
+has its own flat `config` module).
 
 Missing mpy-cross or stubs -> skip with the reason, unless ARMBRIDGE_REQUIRE_HIL=1.
 """
 
+import os
 import pathlib
 import subprocess
 import sys
@@ -14,7 +17,7 @@ from require import missing
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 FIRMWARE_DIRS = ("firmware/common", "firmware/esp32", "firmware/masr_ma")
-TYPED_DIRS = ("firmware/common", "firmware/esp32")
+BOARD_DIRS = ("firmware/esp32", "firmware/masr_ma")
 
 
 def _firmware_files() -> list:
@@ -39,7 +42,11 @@ def test_firmware_files_exist():
                  "firmware/common/link.py", "firmware/common/session.py",
                  "firmware/common/pid.py", "firmware/common/traj.py",
                  "firmware/esp32/config.py", "firmware/esp32/arm.py",
-                 "firmware/esp32/hal_esp32.py", "firmware/esp32/main.py"):
+                 "firmware/esp32/hal_esp32.py", "firmware/esp32/main.py",
+                 "firmware/common/esp32_base.py",
+                 "firmware/masr_ma/config.py", "firmware/masr_ma/ma.py", "firmware/masr_ma/ma_act.py",
+                 "firmware/masr_ma/loc.py", "firmware/masr_ma/drive.py", "firmware/masr_ma/hal_ma.py",
+                 "firmware/masr_ma/main.py"):
         assert want in names
 
 
@@ -54,7 +61,8 @@ def test_compiles_with_mpy_cross(path, tmp_path):
     assert data[:1] == b"M" and len(data) > 16
 
 
-def test_mypy_against_esp32_stubs():
+@pytest.mark.parametrize("board", BOARD_DIRS)
+def test_mypy_against_esp32_stubs(board):
     typings = ROOT / "typings"
     if not (typings / "machine.pyi").exists() or not (typings / "stdlib").is_dir():
         missing("ESP32 stubs missing in typings/ (run `make setup`)")
@@ -62,7 +70,15 @@ def test_mypy_against_esp32_stubs():
         import mypy  # noqa: F401
     except ImportError:
         missing("mypy is not installed")
+    env = dict(os.environ, MYPYPATH=board)
+    cache = ".mypy_cache/" + board.replace("/", "_")
+    files = sorted((ROOT / board).glob("*.py"))
+    assert files, "no firmware files in " + board
     proc = subprocess.run(
-        [sys.executable, "-m", "mypy", "--config-file", "firmware/mypy.ini", *TYPED_DIRS],
-        cwd=ROOT, capture_output=True, text=True, timeout=240)
+        [sys.executable, "-m", "mypy", "--config-file", "firmware/mypy.ini", "--cache-dir", cache,
+         "firmware/common", board],
+        cwd=ROOT, capture_output=True, text=True, timeout=240, env=env)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    # every file of the board was checked (a folder mypy skipped would pass silently)
+    assert "in %d source files" % (len(files) + len(list((ROOT / "firmware/common").glob("*.py")))) \
+        in proc.stdout, proc.stdout

@@ -15,75 +15,34 @@ them again, the pen where it was last put (up, before any write_pen).
 The positional rig (SERVOS = "pca9685") is hal_pca9685.Pca9685Hal.
 """
 
-import time
-
 import machine
+from esp32_base import Esp32Base
 
 
-class Esp32Base:
-    """Clock, feedback pots, UART, RTC memory and files of the ESP32 (both rigs)."""
+class ArmBase(Esp32Base):
+    """The arm's part of both rigs: the feedback pots, on top of the common
+    ESP32 base (firmware/common/esp32_base.py: clock, UART, RTC memory, files)."""
 
     def __init__(self, cfg) -> None:
-        self.cfg = cfg
         self._adcs = [machine.ADC(machine.Pin(p), atten=machine.ADC.ATTN_11DB)
                       for p in cfg.ADC_PINS]
-        self._uart = machine.UART(cfg.UART_ID, baudrate=cfg.UART_BAUD, tx=cfg.UART_TX,
-                                  rx=cfg.UART_RX, rxbuf=cfg.UART_RXBUF, timeout=0)
-        self._rtc = machine.RTC()
+        Esp32Base.__init__(self, cfg)
 
-    # ------------------------------------------------------------ time
-    # (no annotations: the stubs type ticks as _TicksMs/_TicksUs, the HAL as int)
-    def ticks_ms(self):
-        return time.ticks_ms()
-
-    def ticks_us(self):
-        return time.ticks_us()
-
-    def ticks_diff(self, a, b):
-        return time.ticks_diff(a, b)
-
-    # ------------------------------------------------------------ joints
     def read_positions(self, out: list) -> None:
         c = self.cfg
         for j in range(len(self._adcs)):
             volts = (self._adcs[j].read_uv() - c.ADC_CENTER_UV[j]) / 1000000.0
             out[j] = c.ADC_RAD_AT_CENTER[j] + c.ADC_RAD_PER_V[j] * volts
 
-    # ------------------------------------------------------------ link
-    def uart_read(self):
-        n = self._uart.any()
-        if n:
-            return self._uart.read(n)
-        return None
 
-    def uart_write(self, data: bytes) -> None:
-        self._uart.write(data)
-
-    # ------------------------------------------------------------ persistence
-    def load_persist(self) -> bytes:
-        return self._rtc.memory()
-
-    def save_persist(self, data: bytes) -> None:
-        self._rtc.memory(data)
-
-    # ------------------------------------------------------------ files
-    def read_file(self, name: str):
-        """A file of the board's filesystem (the IK weights), or None if missing."""
-        try:
-            with open(name, "rb") as f:
-                return f.read()
-        except OSError:
-            return None
-
-
-class Esp32Hal(Esp32Base):
+class Esp32Hal(ArmBase):
     """The effort rig: continuous servos on PWM pins (see the module docstring)."""
 
     def __init__(self, cfg) -> None:
         neutral_ns = cfg.PULSE_NEUTRAL_US * 1000
         self._pwms = [machine.PWM(machine.Pin(p), freq=cfg.PWM_FREQ_HZ, duty_ns=neutral_ns)
                       for p in cfg.PWM_PINS]
-        Esp32Base.__init__(self, cfg)
+        ArmBase.__init__(self, cfg)
         pin = getattr(cfg, "PEN_PIN", None)
         self.has_pen = pin is not None
         self._pen = None

@@ -8,22 +8,22 @@ at SERVO_FREQ_HZ, joint j on channel SERVO_CHANNELS[j], calibrated by
 SERVO_CAL[j] (servos.py; CAL changes it in RAM), the pen-lift servo on
 PEN_CHANNEL (None: none). outputs_off() puts every channel full off: the
 servos go limp. The clock, the feedback pots (read_positions: ADC pins, as on
-the effort rig), the UART, RTC memory and files are hal_esp32.Esp32Base's.
+the effort rig), the UART, RTC memory and files are hal_esp32.ArmBase's (common/esp32_base.py).
 """
 
 import time
 
 import machine
-from hal_esp32 import Esp32Base
+from hal_esp32 import ArmBase
 from pca9685 import Pca9685
 from servos import ServoBank
 
 
-class Pca9685Hal(Esp32Base):
+class Pca9685Hal(ArmBase):
     POSITIONAL = True
 
     def __init__(self, cfg) -> None:
-        Esp32Base.__init__(self, cfg)
+        ArmBase.__init__(self, cfg)
         i2c = machine.I2C(cfg.I2C_ID, scl=machine.Pin(cfg.I2C_SCL), sda=machine.Pin(cfg.I2C_SDA),
                           freq=cfg.I2C_FREQ)
         self.pca = Pca9685(i2c, cfg.PCA9685_ADDR, cfg.SERVO_FREQ_HZ, sleep_us=time.sleep_us)

@@ -1,7 +1,10 @@
 """CPython only: puts the firmware modules on sys.path, as the emulator does.
 (The MicroPython runner in tests/mpy sets its own path and never imports this.)
 
-The firmware uses flat module names (proto, session, pid, traj, arm, config).
+The firmware uses flat module names (proto, session, pid, traj, arm, config;
+the MASR actuator's ma, ma_act, loc, drive). firmware/masr_ma comes after
+firmware/esp32 on the path, so the flat name `config` is the arm's: the MA
+tests load masr_ma's config under another name (fwma.load_config).
 Once collection has imported the test modules (which keep their own
 references), those names and paths are taken out of sys.modules / sys.path
 again, so they do not leak into other tests in the same session (the emulator
@@ -11,8 +14,9 @@ import pathlib
 import sys
 
 _ROOT = pathlib.Path(__file__).resolve().parents[2]
-_PATHS = [str(_ROOT / sub) for sub in ("firmware/esp32", "firmware/common", "tests/firmware")]
-_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil", "ik3r", "mlp")
+_PATHS = [str(_ROOT / sub) for sub in ("firmware/masr_ma", "firmware/esp32", "firmware/common", "tests/firmware")]
+_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil", "ik3r", "mlp",
+         "ma", "ma_act", "loc", "drive", "fwma")
 
 for _p in _PATHS:
     if _p not in sys.path:

@@ -6,8 +6,12 @@
 //
 // The repo layout is mirrored in the interpreter's filesystem under /repo
 // (firmware/common/*.py, the generated protocol table protodef.py among them,
-// firmware/esp32/{config,arm,ik3r,mlp}.py, tests/firmware/*.py, tests/vectors/lines.json), so the tests find the vectors relative to their
-// own files, as under CPython. `@micropython.native` / `@micropython.viper`
+// firmware/esp32/{config,arm,ik3r,mlp}.py, firmware/masr_ma/*.py but its
+// machine-bound hal_ma.py and main.py, tests/firmware/*.py,
+// tests/vectors/lines.json), so the tests find the vectors (and the MA tests
+// masr_ma's config.py) relative to their own files, as under CPython.
+// firmware/masr_ma is last on the path: the flat name `config` is the arm's,
+// as in tests/firmware/conftest.py. `@micropython.native` / `@micropython.viper`
 // decorators are commented out (this port has no native emitter).
 // Prints one line per test, `PASS module::name` or `FAIL module::name: error`
 // (a traceback follows, indented), then `SUMMARY passed=N failed=M`.
@@ -46,6 +50,11 @@ async function main() {
     process.exit(2);
   }
   copyRepo(FS, "firmware/esp32", (n) => ["config.py", "arm.py", "ik3r.py", "mlp.py"].includes(n));
+  const ma = copyRepo(FS, "firmware/masr_ma", (n) => !["hal_ma.py", "main.py"].includes(n));
+  if (!ma.includes("ma.py") || !ma.includes("config.py")) {
+    console.error("firmware/masr_ma/ma.py or config.py missing");
+    process.exit(2);
+  }
   const tests = copyRepo(FS, "tests/firmware", (n) => n !== "conftest.py");
   mkdirs(FS, "/repo/tests/vectors");
   FS.writeFile("/repo/tests/vectors/lines.json",
@@ -57,6 +66,7 @@ import sys, gc
 sys.path.insert(0, "/repo/firmware/common")
 sys.path.insert(0, "/repo/firmware/esp32")
 sys.path.insert(0, "/repo/tests/firmware")
+sys.path.append("/repo/firmware/masr_ma")
 
 def _trace(e):
     try:

@@ -1,0 +1,234 @@
+"""The MA's actions, one control period at a time: functions of the Board
+(ma.py) `b`, kept apart so that each file stays small. The semantics are in
+ma.py's docstring; the phases of an action `b.act = [id, verb, args, phase,
+t0_ms, aux]`:
+
+  MV    go                       ramp to d, done when settled on it
+  ROT   go -> stop -> turn
+        go: ramp toward w + e + 3 mm past r_j, braking so as to reach the near
+        edge of joint j's hall window (w + e + 1 mm short of r_j) at
+        LOCO_CREEP_MM_S and creeping on from there (loc.py's MISSED check fires
+        before the end; getting there without an edge is MISSED too); the hall
+        edge of magnet j -> stop: hold where the MA is until it has settled ->
+        turn: the angle loop on the gear encoder.
+        A ROT on the magnet it stands on (sensor high, re-zeroed there) turns at once.
+  GRIP  wait                     servo commanded at begin, done after GRIP_MS
+  HOME  go -> push               go (d known): ramp to 0 arriving at creep;
+        push: toward the base at creep (HOME_MM_S when d is unknown), effort
+        at most HOME_EFFORT, until the wheel stops on magnet 1.
+"""
+
+import link as L
+
+MV = "MV"
+ROT = "ROT"
+GRIP = "GRIP"
+HOME = "HOME"
+
+
+def begin(b) -> None:
+    wid, verb, args = b.queue.pop(0)
+    now = b.hal.ticks_ms()
+    act = [wid, verb, args, "go", now, 0]
+    b.act = act
+    b._fe = 0
+    b._settle = 0
+    b.link.event("START", [wid])
+    if verb == GRIP:
+        b.hal.grip(args[0] == 1)
+        act[3] = "wait"
+        return
+    if verb == ROT:
+        j = args[0]
+        if b.loc.known and b.loc.mag == j and b._level == 1:
+            _engage(b, act)
+            return
+        act[5] = 1 if b.loc.r[j - 1] > b.loc.d() else -1
+    if verb == HOME and not b.loc.known:
+        act[3] = "push"
+        act[5] = b._c
+    b.rot.release()
+    if b.loco.ramp.v == 0.0:
+        b.loco.reset(b.loc.d())
+
+
+def advance(b) -> None:
+    act = b.act
+    verb = act[1]
+    phase = act[3]
+    c = b.cfg
+    dt = b.dt
+    if verb == GRIP:
+        if b.hal.ticks_diff(b.hal.ticks_ms(), act[4]) >= c.GRIP_MS:
+            _finish(b)
+        return
+    if b.held:
+        if phase == "turn":
+            b.rot.ramp.brake(dt, c.ROT_ACCEL_MRAD_S2)
+            b.rot.effort(dt, b.theta[act[2][0] - 1])
+        else:
+            b.loco.ramp.brake(dt, c.LOCO_ACCEL_MM_S2)
+            b.loco.effort(dt, b.loc.d(), b.speed, b.hard[b.n - 1][2],
+                          c.HOME_EFFORT if phase == "push" else 1.0)
+        return
+    if verb == MV:
+        _mv(b, act)
+    elif verb == ROT:
+        _rot(b, act)
+    else:
+        _home(b, act)
+
+
+def _mv(b, act) -> None:
+    c = b.cfg
+    target = act[2][0]
+    ramp = b.loco.ramp
+    vmax = b.lim[b.n - 1][2]
+    there = ramp.step(b.dt, target, vmax, c.LOCO_ACCEL_MM_S2)
+    if there and not act[5]:
+        act[5] = 1
+        b.loco.pid.integ = 0.0      # landed: what the ramp wound up must not push it on
+    d = b.loc.d()
+    b.loco.effort(b.dt, d, b.speed, vmax)
+    if _settled(b, there and abs(target - d) <= c.STOP_TOL_MM and abs(b.speed) <= c.SETTLE_MM_S):
+        b.loco.off()
+        _finish(b)
+
+
+def _rot(b, act) -> None:
+    c = b.cfg
+    j = act[2][0]
+    phase = act[3]
+    loc = b.loc
+    ramp = b.loco.ramp
+    if phase == "go" and b._mag_now == j:
+        act[3] = phase = "stop"
+        ramp.reset(loc.d())
+    if phase == "turn":
+        target = act[2][1]
+        th = b.theta[j - 1]
+        there = b.rot.ramp.step(b.dt, target, b.lim[j - 1][2], c.ROT_ACCEL_MRAD_S2)
+        b.rot.effort(b.dt, th)
+        b.loco.u = 0.0
+        if _settled(b, there and abs(target - th) <= c.ROT_TOL_MRAD and not b._turned):
+            b.rot.off()
+            _finish(b)
+        return
+    d = loc.d()
+    rj = loc.r[j - 1]
+    side = act[5]
+    margin = loc.w + loc.err()
+    vmax = b.lim[b.n - 1][2]
+    if phase == "go":
+        if ramp.step(b.dt, rj + side * (margin + 3.0), vmax, c.LOCO_ACCEL_MM_S2,
+                     c.LOCO_CREEP_MM_S, 2.0 * margin + 4.0):
+            b.link.fault([b.n, j], "MAGNET:MISSED")     # past the window, no edge
+            return
+    b.loco.effort(b.dt, d, b.speed, vmax)
+    if phase == "stop" and _settled(b, abs(b.speed) <= c.SETTLE_MM_S):
+        b.loco.off()
+        _engage(b, act)
+
+
+def _settled(b, ok: bool) -> bool:
+    """ok this period and for the SETTLE_MS before it."""
+    if not ok:
+        b._settle = 0
+        return False
+    b._settle += b.period_ms
+    if b._settle < b.cfg.SETTLE_MS:
+        return False
+    b._settle = 0
+    return True
+
+
+def _engage(b, act) -> None:
+    j = act[2][0]
+    act[3] = "turn"
+    b.loco.off()
+    b.rot.engage(j, b.theta[j - 1], b._g)
+    b._still_rot = 0
+
+
+def _home(b, act) -> None:
+    c = b.cfg
+    loc = b.loc
+    ramp = b.loco.ramp
+    vmax = b.hard[b.n - 1][2]
+    if act[3] == "go":
+        if ramp.step(b.dt, 0.0, vmax, c.LOCO_ACCEL_MM_S2, c.LOCO_CREEP_MM_S):
+            act[3] = "push"
+            act[5] = b._c
+        b.loco.effort(b.dt, loc.d(), b.speed, vmax)
+        return
+    v = c.LOCO_CREEP_MM_S if loc.known else c.HOME_MM_S
+    ramp.step(b.dt, ramp.x - 1000.0, v, c.LOCO_ACCEL_MM_S2)
+    b.loco.effort(b.dt, loc.d(), b.speed, vmax, c.HOME_EFFORT)
+    if b._still >= c.HOME_STOP_MS and b._level == 1:
+        loc.home(b._c)
+        b.unhomed = False
+        b.loco.reset(0.0)
+        _finish(b)
+        return
+    if abs(b._c - act[5]) * loc.q > loc.length + 50.0:
+        b.link.fault([b.n, 1], "MAGNET:MISSED")          # drove past the arm: no base stop
+
+
+def _finish(b) -> None:
+    wid = b.act[0]
+    b.act = None
+    b._fe = 0
+    b.link.completed(wid)
+
+
+def driving(b) -> bool:
+    """An action drives the MA (its d reference moves)."""
+    a = b.act
+    return a is not None and a[1] != GRIP and a[3] != "turn"
+
+
+def turning(b) -> bool:
+    a = b.act
+    return a is not None and a[3] == "turn"
+
+
+def check(b) -> bool:
+    """Stall and following-error checks after the outputs -> False on a FAULT."""
+    c = b.cfg
+    p = b.period_ms
+    n = b.n
+    if abs(b.loco.u) >= c.STALL_U and not b._moved:
+        b._still += p
+    else:
+        b._still = 0
+    homing = b.act is not None and b.act[3] == "push"
+    if b._still >= c.STALL_MS and not (homing and b._level == 1):
+        b.link.fault([n, int(round(b.loco.u * 1000.0))], "STALL:LOCO")
+        return False
+    j = b.rot.j
+    if j and abs(b.rot.u) >= c.STALL_U and not b._turned:
+        b._still_rot += p
+    else:
+        b._still_rot = 0
+    if b._still_rot >= c.STALL_MS:
+        b.link.fault([j, int(round(b.rot.u * 1000.0))], "STALL:%d" % j)
+        return False
+    err = 0.0
+    limit = 1.0
+    k = 0
+    if turning(b):
+        k = j
+        err = b.rot.ramp.x - b.theta[j - 1]
+        limit = c.FOLLOW_ERR_MRAD
+    elif driving(b) and not homing:
+        k = n
+        err = b.loco.ramp.x - b.loc.d()
+        limit = c.FOLLOW_ERR_MM
+    if k and abs(err) > limit:
+        b._fe += p
+        if b._fe >= c.FOLLOW_ERR_MS:
+            b.link.fault([k, int(err)], "FOLLOW:%d" % k)
+            return False
+    else:
+        b._fe = 0
+    return b.link.state != L.FAULT
