@@ -137,6 +137,7 @@ def test_url_parameters():
     ("emu:masr_ma?slip=2:0:0.5", "DURATION > 0 s"),
     ("emu:masr_ma?missed=x", "parameter missed: missed 'x': expected a JOINT number"),
     ("emu:masr_ma?missed=0", "joints are numbered from 1"),
+    ("emu:masr_ma?interpreter=micropython", "'micropython' cannot run the masr_ma firmware; interpreters: cpython"),
 ])
 def test_bad_url_parameters_are_one_clear_error(url, words):
     with pytest.raises(ArmbridgeError) as e:
@@ -168,3 +169,125 @@ def test_cli_bad_fault_is_one_clear_line():
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and "--slip-burst '1:2': expected START:DURATION:FRACTION" in err[0], out.stderr
     assert "emulator on" not in out.stdout
+
+
+# ---------------------------------------------------------------- the MA's own firmware (firmware/masr_ma)
+
+class Ma:
+    """The MA's firmware on the emulator with a lockstep host: HELLO, then actions."""
+
+    def __init__(self, seed=1, **kw) -> None:
+        self.emu = EmulatedBoard("masr_ma", speed=0, seed=seed, **kw)
+        self.h = Lockstep(self.emu)
+        self.h.wait("BOOT")
+        assert self.h.hello(1)[1] == "OK"
+        c = self.emu.cfg
+        # loc.py's bound: hall window + one count + slip over the longest link; MV stops within STOP_TOL_MM
+        self.loc_mm = c.HALL_WINDOW_MM + c.WHEEL_MM_PER_COUNT + c.SLIP_MAX * max(c.LINK_LENGTHS_MM)
+        self.mv_mm = self.loc_mm + c.STOP_TOL_MM
+
+    def act(self, *args, max_s=20.0):
+        """One action -> (the OK/ER reply, the EV DONE or FAULT that ends it, or None after an ER)."""
+        reply = self.h.request(*args)
+        if reply[1] != "OK":
+            return reply, None
+        wid = str(args[1])
+        ev = self.h.wait("EV", lambda a: a[1] == "FAULT" or (a[1] == "DONE" and a[2] == wid), max_s=max_s)
+        return reply, ev
+
+    def done(self, *args, max_s=20.0):
+        reply, ev = self.act(*args, max_s=max_s)
+        assert reply[1] == "OK" and ev is not None and ev[2][1] == "DONE", (reply, ev, self.stat())
+        return ev
+
+    def stat(self):
+        return self.h.request("STAT")[2]
+
+    @property
+    def q(self):
+        return self.emu.positions()
+
+    def track_error_mm(self) -> float:
+        """Largest |true d - the board's d| over its telemetry (mm)."""
+        return max(abs(true[-1] - est[-1]) for _, true, est in self.emu.hal.track) * 1000.0
+
+
+def test_mv_and_rot_reach_their_targets():
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)                                     # power on: unhomed until a HOME
+    ma.done("MV", 2, 450)
+    assert abs(ma.q[5] * 1000 - 450) <= ma.mv_mm
+    ma.done("ROT", 3, 3, 300)                              # drives back onto joint 3, turns it
+    back = ma.emu.cfg.BACKLASH_MRAD + ma.emu.cfg.ROT_TOL_MRAD
+    assert abs(ma.q[2] * 1000 - 300) <= back
+    assert abs(ma.q[5] * 1000 - 400) <= ma.emu.cfg.HALL_WINDOW_MM + ma.loc_mm
+    ma.done("ROT", 4, 5, -200)                             # over joint 4 to joint 5
+    assert abs(ma.q[4] * 1000 + 200) <= back and abs(ma.q[2] * 1000 - 300) <= back   # the worm held joint 3
+    ma.done("MV", 5, 120)
+    assert abs(ma.q[5] * 1000 - 120) <= ma.mv_mm
+    assert [ma.q[k] for k in (0, 1, 3)] == [0.0, 0.0, 0.0]
+    assert [j for _, j, _, _ in ma.emu.hal.hall_log] == [2, 3, 3, 4, 5, 4, 3, 2]
+    assert ma.track_error_mm() <= ma.loc_mm + 0.5          # telemetry rounds d to 1 mm
+    assert ma.emu.hal.faults_applied == [] and ma.stat()[2] == "IDLE"
+
+
+def test_a_missed_magnet_faults_and_stops_the_ma():
+    ma = Ma(faults=Faults(missed=(3,)))
+    ma.done("HOME", 1)
+    _, ev = ma.act("MV", 2, 500)
+    assert ev[2][1] == "FAULT" and ma.stat()[6] == "MAGNET:MISSED"
+    assert ma.emu.hal.outputs_off_at and not ma.emu.hal.outputs_enabled
+    ma.emu.run_for(0.5)
+    d = ma.q[5] * 1000
+    assert 400 < d < 400 + 2 * ma.loc_mm + 5                # stopped just past the silent magnet
+    assert ma.h.request("MV", 3, 100)[2][2] == "LATCHED"
+
+
+def test_a_small_slip_burst_stays_within_the_bound():
+    ma = Ma(faults=Faults(slip=((1.0, 0.3, 0.02),)))       # 2 % for 0.3 s: 0.6 mm
+    ma.done("HOME", 1)
+    ma.done("MV", 2, 350)
+    assert abs(ma.q[5] * 1000 - 350) <= ma.mv_mm and ma.track_error_mm() <= ma.loc_mm + 0.5
+    assert [k for _, k, _ in ma.emu.hal.faults_applied] == ["slip", "slip"]
+
+
+def test_a_large_slip_burst_faults_before_the_ma_is_wrong_for_long():
+    ma = Ma(faults=Faults(slip=((0.8, 0.5, 0.3),)))        # 30 % for 0.5 s: about 15 mm short
+    ma.done("HOME", 1)
+    _, ev = ma.act("MV", 2, 350)
+    assert ev[2][1] == "FAULT" and ma.stat()[6].startswith("MAGNET:")
+    assert int(ev[2][0]) / 1000 < 3.0                      # at magnet 2, not at the end of the move
+    assert ma.q[5] * 1000 < 230
+
+
+def test_a_stalled_joint_motor_faults():
+    ma = Ma(faults=Faults(stall=((3, 0.0),)))
+    ma.done("HOME", 1)
+    _, ev = ma.act("ROT", 2, 3, 300)
+    assert ev[2][1] == "FAULT" and ma.stat()[6] == "STALL:3"
+    assert ma.q[2] == 0.0 and not ma.emu.hal.outputs_enabled
+
+
+def test_a_stalled_wheel_faults():
+    ma = Ma(faults=Faults(stall=((6, 0.5),)))
+    ma.done("HOME", 1)
+    _, ev = ma.act("MV", 2, 300)
+    assert ev[2][1] == "FAULT" and ma.stat()[6] == "STALL:LOCO"
+
+
+def test_a_reset_mid_move_leaves_unhomed_and_home_recovers():
+    ma = Ma()
+    ma.done("HOME", 1)
+    assert ma.h.request("MV", 2, 600)[1] == "OK"
+    ma.h.wait("T", lambda a: ma.q[5] > 0.25)               # the host's PINGs feed the watchdog meanwhile
+    ma.emu.reset()
+    assert ma.emu.run_until(lambda: len(ma.emu.boots) == 2, 1.0)
+    assert ma.h.hello(1)[1] == "OK"
+    er = ma.h.request("MV", 3, 100)
+    assert er[1] == "ER" and er[2][1:3] == ["14", "UNHOMED"]
+    er = ma.h.request("ROT", 4, 2, 100)
+    assert er[1] == "ER" and er[2][2] == "UNHOMED"
+    ma.done("HOME", 5, max_s=30.0)
+    assert ma.q[5] * 1000 <= 1.0
+    ma.done("MV", 6, 250)
+    assert abs(ma.q[5] * 1000 - 250) <= ma.mv_mm
