@@ -1,0 +1,41 @@
+/* The small HAL between the portable board code (codec, session, link, traj,
+ * controller, Modbus hook) and the chip. hal_avr.cpp implements it over the Arduino
+ * core on the Mega; tests/native/fake_hal.h implements it for the native tests and
+ * the fuzzer. No Arduino header here, so everything above it compiles with g++.
+ */
+#ifndef PUMP_HAL_H
+#define PUMP_HAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+class Hal {
+public:
+    /* ---- time */
+    virtual uint32_t ms() = 0;                 /* millis(): wraps at 2^32 */
+    virtual uint32_t us() = 0;                 /* micros(): wraps at 2^32 */
+    /* ---- link UART */
+    virtual int uart_read() = 0;               /* next received byte, -1 when none */
+    virtual void uart_write(const uint8_t *data, size_t n) = 0;  /* queues; waits if full */
+    virtual size_t tx_room() = 0;              /* bytes the transmit queue takes without waiting */
+    /* The receive path's e-stop: the byte 0x98 switches the motors off where it is
+     * received (the RX interrupt on the Mega), before the main loop sees it. While
+     * this is set write_duty() writes zero. The link clears it once it has latched
+     * ESTOP. In Modbus mode the byte is data: set_estop_byte(false). */
+    virtual bool estop_seen() = 0;
+    virtual void clear_estop() = 0;
+    /* An e-stop byte arrived while the receive ring was full (so the link never
+     * reads it): returns that once and forgets it. The link latches ESTOP then. */
+    virtual bool estop_dropped() = 0;
+    virtual void set_estop_byte(bool on) = 0;
+    /* ---- motors, sensors */
+    virtual void outputs_off() = 0;            /* every EN at 0, IN1/IN2 low */
+    virtual void write_duty(uint8_t k, int16_t duty) = 0;  /* per-mille, + inflates */
+    virtual uint16_t read_adc(uint8_t k) = 0;  /* bend sensor k, 0..1023 */
+    virtual uint8_t endstops() = 0;            /* bit 2k: k retracted, 2k+1: k extended; 1 = at it */
+    /* ---- EEPROM (write-behind on the Mega: a byte takes 3.4 ms to program) */
+    virtual void ee_read(uint16_t addr, void *dst, size_t n) = 0;
+    virtual void ee_write(uint16_t addr, const void *src, size_t n) = 0;
+};
+
+#endif

@@ -1,0 +1,186 @@
+/* The Mega 2560 HAL (hal_avr.h). The only file of the board with Arduino headers,
+ * with main_avr.cpp. */
+#include "hal_avr.h"
+
+#include <Arduino.h>
+#include <avr/eeprom.h>
+#include <avr/interrupt.h>
+#include <util/atomic.h>
+
+#include "config.h"
+#include "protodef.h"
+
+static const uint8_t kEn[N_JOINTS] = PIN_EN;
+static const uint8_t kIn1[N_JOINTS] = PIN_IN1;
+static const uint8_t kIn2[N_JOINTS] = PIN_IN2;
+static const uint8_t kBend[N_JOINTS] = PIN_BEND;
+static const uint8_t kStopRet[N_JOINTS] = PIN_STOP_RET;
+static const uint8_t kStopExt[N_JOINTS] = PIN_STOP_EXT;
+
+static volatile uint8_t rx_buf[RX_RING];
+static volatile uint8_t rx_head, rx_tail;   /* head: ISR writes; tail: loop reads */
+static volatile uint8_t tx_buf[TX_RING];
+static volatile uint16_t tx_head, tx_tail;
+static volatile uint8_t estop_flag;         /* motors blocked: an e-stop byte came */
+static volatile uint8_t estop_lost;         /* ... and the ring had no room for it */
+static volatile uint8_t estop_on = 1;       /* 0 in Modbus mode: 0x98 is data */
+
+static uint8_t ee_shadow[EE_SIZE];
+static uint8_t ee_dirty[(EE_SIZE + 7) / 8];
+
+/* Every EN low (PWM disconnected) and every IN low: the L298 outputs float, the
+ * motors stop. Called from the receive interrupt, so the callers outside it block
+ * interrupts around their own pin writes (analogWrite's read-modify-write of TCCRnA
+ * is not atomic). */
+static void motors_off() {
+    for (uint8_t k = 0; k < N_JOINTS; k++) {
+        digitalWrite(kEn[k], LOW);          /* also turns the pin's PWM off */
+        digitalWrite(kIn1[k], LOW);
+        digitalWrite(kIn2[k], LOW);
+    }
+}
+
+ISR(USART0_RX_vect) {
+    uint8_t status = UCSR0A;
+    uint8_t b = UDR0;
+    (void)status;
+    if (b == AB_ESTOP_BYTE && estop_on) {   /* the receive path's e-stop: at once */
+        motors_off();
+        estop_flag = 1;
+    }
+    uint8_t next = (uint8_t)((rx_head + 1) % RX_RING);
+    if (next == rx_tail) {                  /* ring full: the byte is lost */
+        if (b == AB_ESTOP_BYTE && estop_on) estop_lost = 1;
+        return;
+    }
+    rx_buf[rx_head] = b;
+    rx_head = next;
+}
+
+ISR(USART0_UDRE_vect) {
+    if (tx_head == tx_tail) {
+        UCSR0B &= (uint8_t)~_BV(UDRIE0);
+        return;
+    }
+    UDR0 = tx_buf[tx_tail];
+    tx_tail = (uint16_t)((tx_tail + 1) % TX_RING);
+}
+
+void AvrHal::begin() {
+    for (uint8_t k = 0; k < N_JOINTS; k++) {
+        pinMode(kEn[k], OUTPUT);
+        pinMode(kIn1[k], OUTPUT);
+        pinMode(kIn2[k], OUTPUT);
+        pinMode(kStopRet[k], INPUT_PULLUP);
+        pinMode(kStopExt[k], INPUT_PULLUP);
+    }
+    motors_off();
+    eeprom_read_block(ee_shadow, (const void *)0, EE_SIZE);
+    /* 115200 baud, 8N1, double speed (as the core: UBRR 16, 2.1 % fast) */
+    UCSR0A = _BV(U2X0);
+    uint16_t ubrr = (uint16_t)((F_CPU / 8 / UART_BAUD) - 1);
+    UBRR0H = (uint8_t)(ubrr >> 8);
+    UBRR0L = (uint8_t)ubrr;
+    UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);
+    UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
+}
+
+void AvrHal::service() {
+    if (EECR & _BV(EEPE)) return;           /* the last byte is still being programmed */
+    for (uint16_t i = 0; i < EE_SIZE; i++) {
+        if (ee_dirty[i >> 3] & (1u << (i & 7))) {
+            ee_dirty[i >> 3] &= (uint8_t)~(1u << (i & 7));
+            if (eeprom_read_byte((const uint8_t *)i) != ee_shadow[i])
+                eeprom_write_byte((uint8_t *)i, ee_shadow[i]);   /* starts it; does not wait */
+            return;
+        }
+    }
+}
+
+uint32_t AvrHal::ms() { return millis(); }
+uint32_t AvrHal::us() { return micros(); }
+
+int AvrHal::uart_read() {
+    if (rx_head == rx_tail) return -1;
+    uint8_t b = rx_buf[rx_tail];
+    rx_tail = (uint8_t)((rx_tail + 1) % RX_RING);
+    return b;
+}
+
+size_t AvrHal::tx_room() {
+    uint16_t used;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { used = (uint16_t)((tx_head + TX_RING - tx_tail) % TX_RING); }
+    return (size_t)(TX_RING - 1 - used);
+}
+
+void AvrHal::uart_write(const uint8_t *data, size_t n) {
+    for (size_t i = 0; i < n; i++) {
+        uint16_t next = (uint16_t)((tx_head + 1) % TX_RING);
+        while (next == tx_tail) {           /* full: the UDRE interrupt drains it */
+        }
+        tx_buf[tx_head] = data[i];
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            tx_head = next;
+            UCSR0B |= _BV(UDRIE0);
+        }
+    }
+}
+
+bool AvrHal::estop_seen() { return estop_flag != 0; }
+void AvrHal::clear_estop() { estop_flag = 0; }
+
+bool AvrHal::estop_dropped() {
+    if (!estop_lost) return false;
+    estop_lost = 0;
+    return true;
+}
+
+void AvrHal::set_estop_byte(bool on) { estop_on = on ? 1 : 0; }
+
+void AvrHal::outputs_off() {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { motors_off(); }
+}
+
+void AvrHal::write_duty(uint8_t k, int16_t duty) {
+    if (duty > 1000) duty = 1000;
+    if (duty < -1000) duty = -1000;
+    uint8_t pwm = (uint8_t)((uint32_t)(duty < 0 ? -duty : duty) * 255u / 1000u);
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        if (estop_flag || pwm == 0) {
+            digitalWrite(kEn[k], LOW);
+            digitalWrite(kIn1[k], LOW);
+            digitalWrite(kIn2[k], LOW);
+        } else {
+            digitalWrite(kIn1[k], duty > 0 ? HIGH : LOW);
+            digitalWrite(kIn2[k], duty > 0 ? LOW : HIGH);
+            analogWrite(kEn[k], pwm);
+        }
+    }
+}
+
+uint16_t AvrHal::read_adc(uint8_t k) { return (uint16_t)analogRead(kBend[k]); }
+
+uint8_t AvrHal::endstops() {
+    uint8_t bits = 0;
+    for (uint8_t k = 0; k < N_JOINTS; k++) {
+        if (digitalRead(kStopRet[k]) == LOW) bits |= (uint8_t)(1u << (2 * k));
+        if (digitalRead(kStopExt[k]) == LOW) bits |= (uint8_t)(2u << (2 * k));
+    }
+    return bits;
+}
+
+void AvrHal::ee_read(uint16_t addr, void *dst, size_t n) {
+    uint8_t *d = (uint8_t *)dst;
+    for (size_t i = 0; i < n; i++) d[i] = addr + i < EE_SIZE ? ee_shadow[addr + i] : 0xFF;
+}
+
+void AvrHal::ee_write(uint16_t addr, const void *src, size_t n) {
+    const uint8_t *s = (const uint8_t *)src;
+    for (size_t i = 0; i < n && addr + i < EE_SIZE; i++) {
+        uint16_t a = (uint16_t)(addr + i);
+        if (ee_shadow[a] != s[i]) {
+            ee_shadow[a] = s[i];
+            ee_dirty[a >> 3] |= (uint8_t)(1u << (a & 7));
+        }
+    }
+}

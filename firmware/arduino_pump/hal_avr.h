@@ -1,0 +1,36 @@
+/* The HAL over the Arduino core on the Mega 2560 (hal.h): USART0 with its own
+ * receive and transmit interrupts (the e-stop byte is acted on in the receive
+ * interrupt itself), the L298 pins, the bend-sensor ADC channels, the end-stop
+ * inputs, and the EEPROM behind a RAM shadow written one byte per main-loop pass
+ * (programming a byte takes 3.4 ms; a blocking write would stall the receive path).
+ */
+#ifndef PUMP_HAL_AVR_H
+#define PUMP_HAL_AVR_H
+
+#include "hal.h"
+
+#define RX_RING 64           /* as the core's: drained every pass of the main loop */
+#define TX_RING 512          /* a telemetry line and the replies around it */
+
+class AvrHal : public Hal {
+public:
+    void begin();
+    void service();          /* once per main-loop pass: one EEPROM byte if due */
+    uint32_t ms();
+    uint32_t us();
+    int uart_read();
+    void uart_write(const uint8_t *data, size_t n);
+    size_t tx_room();
+    bool estop_seen();
+    void clear_estop();
+    bool estop_dropped();
+    void set_estop_byte(bool on);
+    void outputs_off();
+    void write_duty(uint8_t k, int16_t duty);
+    uint16_t read_adc(uint8_t k);
+    uint8_t endstops();
+    void ee_read(uint16_t addr, void *dst, size_t n);
+    void ee_write(uint16_t addr, const void *src, size_t n);
+};
+
+#endif

@@ -1,0 +1,279 @@
+/* The syringe-pump board (pump.h). */
+#include "pump.h"
+
+#include <string.h>
+
+PumpBoard *g_pump = 0;
+
+static int32_t round_mrad(float x) { return (int32_t)(x < 0 ? x - 0.5f : x + 0.5f); }
+
+static void detail_joint(AbError *err, uint8_t j) {
+    err->detail[0] = (char)('0' + j);
+    err->detail[1] = 0;
+}
+
+/* ------------------------------------------------------------------ settings (EEPROM)
+ * tag 'S', version 1, Modbus address (0: line protocol), pad; the bend calibration
+ * of each joint (adc_a, a, adc_b, b); CRC-32 of the bytes before it. */
+struct SettingsRec {
+    uint8_t tag, ver, modbus, pad;
+    BendCal cal[N_JOINTS];
+    uint32_t crc;
+};
+
+void PumpBoard::load_settings() {
+    static const int32_t defaults[N_JOINTS][4] = BEND_DEFAULT;
+    SettingsRec r;
+    hal_->ee_read(EE_SETTINGS, &r, sizeof r);
+    bool ok = r.tag == 'S' && r.ver == 1 && ab_crc32((const uint8_t *)&r, sizeof r - 4, 0) == r.crc;
+    for (uint8_t j = 0; ok && j < N_JOINTS; j++)
+        ok = r.cal[j].adc_a < r.cal[j].adc_b && r.cal[j].adc_b <= 1023 && r.cal[j].a != r.cal[j].b;
+    if (ok && r.modbus > 247) ok = false;
+    if (ok) {
+        memcpy(cal, r.cal, sizeof cal);
+        modbus_addr = r.modbus;
+        return;
+    }
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        cal[j].adc_a = (uint16_t)defaults[j][0];
+        cal[j].a = defaults[j][1];
+        cal[j].adc_b = (uint16_t)defaults[j][2];
+        cal[j].b = defaults[j][3];
+    }
+    modbus_addr = 0;
+}
+
+void PumpBoard::save_settings() {
+    SettingsRec r;
+    memset(&r, 0, sizeof r);
+    r.tag = 'S';
+    r.ver = 1;
+    r.modbus = modbus_addr;
+    memcpy(r.cal, cal, sizeof cal);
+    r.crc = ab_crc32((const uint8_t *)&r, sizeof r - 4, 0);
+    hal_->ee_write(EE_SETTINGS, &r, sizeof r);
+}
+
+/* ------------------------------------------------------------------ boot */
+
+void PumpBoard::begin(Hal *hal) {
+    static const int32_t lmin[N_JOINTS] = LIM_MIN_MRAD, lmax[N_JOINTS] = LIM_MAX_MRAD;
+    static const int32_t vmax[N_JOINTS] = VMAX_MRAD_S;
+    hal_ = hal;
+    g_pump = this;
+    on_done = 0;
+    traj.init(vmax);
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        hard[j][0] = lim[j][0] = lmin[j];
+        hard[j][1] = lim[j][1] = lmax[j];
+        hard[j][2] = lim[j][2] = vmax[j];
+        traj.set_range(j, lmin[j], lmax[j], vmax[j]);
+        gain[j].kp = KP_DEFAULT;
+        gain[j].dband = DBAND_DEFAULT_MRAD;
+        ki[j] = kd[j] = 0;
+        u[j] = 0;
+        syr_[j] = 0;
+        fe_ms_[j] = 0;
+    }
+    blocked_ = 0;
+    stops = 0;
+    load_settings();
+    link.begin(hal, this, modbus_addr);   /* last: it calls hold_here() and sends BOOT */
+}
+
+/* ------------------------------------------------------------------ BoardIf */
+
+void PumpBoard::halt() {
+    traj.flush();
+    traj.hold = false;
+    for (uint8_t j = 0; j < N_JOINTS; j++) u[j] = 0;
+}
+
+void PumpBoard::hold_here() {
+    halt();
+    read_sensors();
+    float f[N_JOINTS];
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        f[j] = (float)q[j];
+        fe_ms_[j] = 0;
+    }
+    traj.set_point(f);
+}
+
+void PumpBoard::limits(uint8_t j, int32_t *m) {
+    for (uint8_t i = 0; i < 3; i++) m[i] = lim[j - 1][i];
+}
+
+bool PumpBoard::motion_verb(int verb) { return verb == AB_VERB_W; }
+
+int PumpBoard::queue(uint16_t id, uint16_t dur, const int32_t *t, AbError *err) {
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        if (t[j] < lim[j][0] || t[j] > lim[j][1]) {
+            detail_joint(err, (uint8_t)(j + 1));
+            return AB_ERR_RANGE;
+        }
+    }
+    if (!traj.push(id, dur, t)) return AB_ERR_FULL;
+    link.queued = id;
+    return 0;
+}
+
+int PumpBoard::setlim(uint8_t j, int32_t lo, int32_t hi, int32_t vmax) {
+    const int32_t *h = hard[j - 1];
+    if (lo > hi || lo < h[0] || hi > h[1] || vmax < 1 || vmax > h[2] || traj.excludes((uint8_t)(j - 1), lo, hi))
+        return AB_ERR_RANGE;
+    lim[j - 1][0] = lo;
+    lim[j - 1][1] = hi;
+    lim[j - 1][2] = vmax;
+    traj.set_range((uint8_t)(j - 1), lo, hi, vmax);
+    return 0;
+}
+
+int PumpBoard::set_bend(uint8_t j, const BendCal &c) {
+    if (c.adc_a >= c.adc_b || c.adc_b > 1023 || c.a == c.b) return AB_ERR_RANGE;
+    cal[j - 1] = c;
+    save_settings();
+    return 0;
+}
+
+int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
+    (void)out;
+    uint8_t j = (uint8_t)v[0];
+    switch (verb) {
+        case AB_VERB_W:
+            return queue((uint16_t)v[0], (uint16_t)v[1], v + 2, err);
+        case AB_VERB_GAIN:
+            gain[j - 1].kp = v[1];
+            ki[j - 1] = v[2];
+            kd[j - 1] = v[3];
+            return 0;
+        case AB_VERB_SETLIM:
+            if (setlim(j, v[1], v[2], v[3])) {
+                detail_joint(err, j);
+                return AB_ERR_RANGE;
+            }
+            return 0;
+        case AB_VERB_DBAND:
+            gain[j - 1].dband = v[1];
+            return 0;
+        case AB_VERB_BEND: {
+            BendCal c;
+            c.adc_a = (uint16_t)v[1];
+            c.a = v[2];
+            c.adc_b = (uint16_t)v[3];
+            c.b = v[4];
+            if (set_bend(j, c)) {
+                detail_joint(err, j);
+                return AB_ERR_RANGE;
+            }
+            return 0;
+        }
+        case AB_VERB_MODBUS:
+            modbus_addr = (uint8_t)v[0];
+            save_settings();
+            link.switch_to_modbus(modbus_addr);
+            return 0;
+        default:
+            return AB_ERR_VERB;
+    }
+}
+
+void PumpBoard::telemetry(LineWriter *w) {
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(q[j]);
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(round_mrad(traj.sp[j]));
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(u[j]);
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(syringe_permille(j));
+    w->num(stops);
+}
+
+/* ------------------------------------------------------------------ control */
+
+void PumpBoard::read_sensors() {
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        const BendCal &c = cal[j];
+        int32_t adc = hal_->read_adc(j);
+        float x = (float)c.a + (float)(adc - c.adc_a) * (float)(c.b - c.a) / (float)(c.adc_b - c.adc_a);
+        q[j] = round_mrad(x);
+    }
+    stops = hal_->endstops();
+}
+
+void PumpBoard::control(uint8_t mode) {
+    /* the travel estimate integrates the duty of the period that just ended */
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        syr_[j] += (int32_t)u[j] * PERIOD_MS * 1000L / SYRINGE_STROKE_MS;   /* full = 1e6 */
+        if (syr_[j] < 0) syr_[j] = 0;
+        if (syr_[j] > 1000000L) syr_[j] = 1000000L;
+    }
+    read_sensors();
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        if (stops & (1u << (2 * j))) syr_[j] = 0;
+        if (stops & (2u << (2 * j))) syr_[j] = 1000000L;
+    }
+    if (mode != CTL_DRIVE) {
+        for (uint8_t j = 0; j < N_JOINTS; j++) u[j] = 0;
+        blocked_ = 0;
+        if (mode == CTL_ZERO)
+            for (uint8_t j = 0; j < N_JOINTS; j++) hal_->write_duty(j, 0);
+        return;
+    }
+    advance();
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        int16_t d = p_control(gain[j], round_mrad(traj.sp[j]) - q[j]);
+        bool at_ext = (stops >> (2 * j + 1)) & 1, at_ret = (stops >> (2 * j)) & 1;
+        uint8_t bit = (uint8_t)(1u << j);
+        if ((d > 0 && at_ext) || (d < 0 && at_ret)) {   /* an end stop stops that pump */
+            d = 0;
+            if (!(blocked_ & bit)) {
+                blocked_ |= bit;
+                link.event("ENDSTOP", 1, j + 1);
+            }
+        } else if (d != 0) {
+            blocked_ &= (uint8_t)~bit;
+        }
+        u[j] = d;
+        hal_->write_duty(j, d);
+    }
+    check_following();
+}
+
+/* One tick of the trajectory. Its events are coalesced, as the arm's, so that short
+ * waypoints cannot flood the return lane: one DONE for the last waypoint completed
+ * in the tick, START only for a waypoint that starts from rest. */
+void PumpBoard::advance() {
+    TrajEvent ev[TRAJ_MAX_EVENTS];
+    uint8_t n = traj.step(PERIOD_MS, ev);
+    int32_t last_done = -1;
+    for (uint8_t i = 0; i < n; i++) {
+        switch (ev[i].kind) {
+            case TE_DONE:
+                last_done = ev[i].a;
+                if (on_done) on_done(ev[i].a);
+                break;
+            case TE_START:
+                if (last_done < 0) link.event("START", 1, ev[i].a);
+                break;
+            case TE_SLOW: link.event("SLOW", 2, ev[i].a, ev[i].b); break;
+            case TE_LIMIT: link.event("LIMIT", 1, ev[i].a); break;
+            default: break;
+        }
+    }
+    if (last_done >= 0) link.completed(last_done);
+}
+
+void PumpBoard::check_following() {
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        int32_t err = round_mrad(traj.sp[j]) - q[j];
+        if (err > FOLLOW_ERR_MRAD || err < -FOLLOW_ERR_MRAD) {
+            fe_ms_[j] = (uint16_t)(fe_ms_[j] + PERIOD_MS);
+            if (fe_ms_[j] >= FOLLOW_ERR_MS) {
+                char why[LINK_REASON_MAX] = "FOLLOW:0";
+                why[7] = (char)('1' + j);
+                link.fault(j + 1, err, why);
+                return;
+            }
+        } else {
+            fe_ms_[j] = 0;
+        }
+    }
+}

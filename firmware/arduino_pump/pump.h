@@ -1,0 +1,83 @@
+/* The syringe-pump board (the soft arm of the WJRRT paper, section V-B/C): its verbs
+ * (W, GAIN, SETLIM, DBAND, BEND, MODBUS), its control period (bend sensors ->
+ * angles, the trajectory, one proportional controller per joint, end stops, the
+ * syringe travel estimate, the following-error check) and its telemetry columns.
+ * The protocol is link.cpp's; the chip is behind hal.h. Portable: the native tests
+ * and the fuzzer run it over a fake HAL.
+ *
+ * Telemetry after `ms state done free`: q1..q3 (mrad), set points (mrad), duties
+ * (per-mille, + inflates), syringe positions (per-mille of travel), end-stop bits
+ * (bit 2k: pump k retracted, 2k+1: extended).
+ */
+#ifndef PUMP_PUMP_H
+#define PUMP_PUMP_H
+
+#include <stdint.h>
+
+#include "config.h"
+#include "control.h"
+#include "hal.h"
+#include "link.h"
+#include "traj.h"
+
+struct BendCal {
+    uint16_t adc_a;
+    int32_t a;
+    uint16_t adc_b;
+    int32_t b;
+};
+
+class PumpBoard : public BoardIf {
+public:
+    void begin(Hal *hal);
+    void poll() { link.poll(); }
+
+    /* ---- BoardIf */
+    uint8_t n_joints() { return N_JOINTS; }
+    uint8_t qsize() { return QSIZE; }
+    uint8_t free_slots() { return traj.free(); }
+    bool busy() { return traj.busy(); }
+    void halt();
+    void hold_here();
+    void set_hold(bool on) { traj.hold = on; }
+    void control(uint8_t mode);
+    void limits(uint8_t j, int32_t *m);
+    int command(int verb, const int32_t *v, Payload *out, AbError *err);
+    bool motion_verb(int verb);
+    void telemetry(LineWriter *w);
+
+    /* ---- shared with the Modbus accessors (pump_modbus.cpp) */
+    int queue(uint16_t id, uint16_t dur, const int32_t *q, AbError *err);
+    int setlim(uint8_t j, int32_t lo, int32_t hi, int32_t vmax);
+    int set_bend(uint8_t j, const BendCal &c);
+    void save_settings();
+    int32_t syringe_permille(uint8_t j) const { return syr_[j] / 1000; }
+
+    Link link;
+    Traj traj;
+    PGain gain[N_JOINTS];
+    int32_t ki[N_JOINTS], kd[N_JOINTS];   /* accepted by GAIN and read back; not used */
+    int32_t hard[N_JOINTS][3];            /* min max vmax: the firmware's own */
+    int32_t lim[N_JOINTS][3];             /* now in force (SETLIM narrows) */
+    BendCal cal[N_JOINTS];
+    int32_t q[N_JOINTS];                  /* measured angles, mrad */
+    int16_t u[N_JOINTS];                  /* duties, per-mille */
+    uint8_t stops;                        /* end-stop bits */
+    uint8_t modbus_addr;                  /* 0: line protocol */
+    /* Test hook: called with every completed waypoint (events coalesce them). */
+    void (*on_done)(int32_t id);
+
+private:
+    void read_sensors();
+    void advance();
+    void check_following();
+    void load_settings();
+    Hal *hal_;
+    int32_t syr_[N_JOINTS];               /* syringe estimate, 1/1000 per-mille */
+    uint8_t blocked_;                     /* bit k: pump k held at an end stop */
+    uint16_t fe_ms_[N_JOINTS];
+};
+
+extern PumpBoard *g_pump;                 /* the board the Modbus accessors serve */
+
+#endif
