@@ -87,6 +87,9 @@ class Board:
         self._turned = False
         self._level = 0                  # hall level this period
         self._mag_now = 0                # magnet re-zeroed at this period, 0: none
+        # Trace hook on_done(id, args), called with every completed action and the
+        # arguments it was queued with (as arm.py's on_done): the emulator's log.
+        self.on_done = None
         self.verbs = {"MV": self._cmd_mv, "ROT": self._cmd_rot, "GRIP": self._cmd_grip,
                       "HOME": self._cmd_home, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim}
         self.motion_verbs = [MV, ROT, GRIP, HOME]

@@ -176,8 +176,11 @@ def _home(b, act) -> None:
 
 def _finish(b) -> None:
     wid = b.act[0]
+    args = b.act[2]
     b.act = None
     b._fe = 0
+    if b.on_done is not None:   # the emulator's log of executed actions, with their arguments
+        b.on_done(wid, list(args))
     b.link.completed(wid)
 
 

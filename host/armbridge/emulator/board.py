@@ -21,7 +21,10 @@ Clock modes (`speed`):
         `step(n)` advances n control periods (10 ms each), `run_for(s)`,
         `run_until(pred)`, with `inject(bytes)` / `read_output()` standing for
         the host. With `start()`, a thread runs it as fast as it can, 10 ms an
-        iteration, on a pty.
+        iteration, on a pty; a host in this process that `couple()`s to it
+        (`emu:` ports do) holds it within HOST_LEAD_S of sim time of its own
+        last read, so a host busy elsewhere (or starved of the CPU) never
+        finds the board's watchdog fired for want of its keep-alive.
 
 Resets (`reset()`, `Faults.reset_at`, `schedule_reset(t)`) throw away the board
 and its firmware state, keep the persisted memory and the plant, switch the
@@ -67,6 +70,7 @@ class EmulatedBoard:
     """
 
     MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
+    HOST_LEAD_S = 0.05      # lockstep with a coupled host: sim time runs at most this far past its last read
 
     def __init__(
         self,
@@ -139,6 +143,8 @@ class EmulatedBoard:
         self._closed = False
         self._pace: tuple[float, int, float] | None = None  # (wall0, sim0 us, sim us per wall s)
         self._host_us = 0.0  # latest host_time(), us: it never runs backwards
+        self._coupled = False  # a host in this process reads the pty (lockstep waits for it)
+        self._host_read_us = 0  # sim time of the coupled host's latest read
 
         self.board: Any = None
         self._boot()
@@ -423,9 +429,24 @@ class EmulatedBoard:
             if self.crash is None:
                 self.crash = traceback.format_exc()
 
+    def couple(self) -> None:
+        """A host in this process reads this board's pty (`emu:` ports): in lockstep the
+        thread then never runs more than HOST_LEAD_S of sim time past the host's latest
+        read (`host_reading`), so sim time waits for a host that is busy or starved."""
+        self._host_read_us = self.clock.us
+        self._coupled = True
+
+    def host_reading(self) -> None:
+        """The coupled host is about to read (transport.Port.read calls this)."""
+        self._host_read_us = self.clock.us
+
     def _run_lockstep(self) -> None:
         per = self.period_ms * 1000
+        lead = int(self.HOST_LEAD_S * 1e6)
         while not self._stop.is_set():
+            if self._coupled and self.clock.us - self._host_read_us >= lead:
+                time.sleep(0.0002)  # the host has not read for HOST_LEAD_S of sim time: wait for it
+                continue
             with self._lock:
                 self._advance_to(self.clock.us + per)
             time.sleep(0)  # let other threads run

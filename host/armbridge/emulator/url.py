@@ -138,6 +138,7 @@ def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
     try:
         emu.start()
         ser = serial.Serial(emu.port, baudrate=baud, timeout=timeout)
+        emu.couple()
     except ArmbridgeError as exc:  # no pty, or its link is owned by a live emulator: the port is busy
         emu.stop()
         raise PortError(f"cannot open port {url!r}: {exc}") from None

@@ -41,33 +41,37 @@ def run_cmd(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     cartesian: bool = typer.Option(False, "--cartesian", help=CARTESIAN_HELP),
     pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help=PEN_HELP),
+    home: bool = typer.Option(False, "--home", help="MASR plans: HOME first (the mobile actuator drives to the base "
+                                                    "and zeroes d; a board just powered on does not know where it is)."),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
-    run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
+    run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, home=home)
 
 
-def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto") -> None:
+def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
+                home=False) -> None:
     """What `armbridge run` does with its options (also `armbridge draw --port`)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
     console = Console(stderr=json_out == "-")
     try:
         with stop_on_signals():
-            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian, pen=pen)
+            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian, pen=pen,
+                           home=home)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto") -> None:
+                   pen="auto", home=False) -> None:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
     and the exit code (1: the run failed, 128 + n: stopped by signal n)."""
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
-                           cartesian=cartesian, pen=pen)
+                           cartesian=cartesian, pen=pen, home=home)
     except RunFailed as exc:
         failed, summary = exc, exc.summary
     with holding():

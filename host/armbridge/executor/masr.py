@@ -40,11 +40,23 @@ def load_any_plan(path: str | Path):
     return load_plan(path)
 
 
-def masr_commands(mp) -> tuple[Plan, list[tuple[str, list[int]]]]:
-    """(the Plan of the configuration after each step, the board commands) of a MasrPlan."""
+def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[int]]]]:
+    """(the Plan of the configuration after each step, the board commands) of a MasrPlan.
+
+    home: a `HOME` first (the MA drives to the base and zeroes d): what a board that does
+    not know where it is (UNHOMED, after a power on) needs before any MV or ROT. The plan's
+    steps are absolute (MV to d, ROT to an angle), so they run the same from the base."""
     arm = mp.arm
     q = np.array(mp.q[0], dtype=float)
-    configs, durations, commands = [], [], []
+    configs: list[np.ndarray] = []
+    durations: list[float] = []
+    commands: list[tuple[str, list[int]]] = []
+    if home:
+        commands.append(("HOME", []))
+        travel = float(q[-1])
+        q[-1] = 0.0
+        configs.append(q.copy())
+        durations.append(max(1.0, 1.5 * travel / arm.ma_speed))  # the board's own homing speed and ramps
     for step in mp.steps():
         if step["op"] == "move":
             q[-1] = step["d_to"]

@@ -57,6 +57,7 @@ def run_plan(
     timeout: float | None = None,
     cartesian: bool = False,
     pen: str = "auto",
+    home: bool = False,
 ) -> Summary:
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
 
@@ -68,6 +69,8 @@ def run_plan(
     on the first waypoint naming the missing capability). `pen` (plans with pen
     flags): "auto" uses the board's pen-lift servo when it has one (PEN lines),
     "on" requires one, "off" never sends PEN (pen-up moves are only marked).
+    `home` (MASR plans): a HOME action first, for a board that does not know where
+    its MA is (UNHOMED after a power on).
 
     Outcomes: a Summary (completed, or `stopped_by_user` after SIGINT/SIGTERM/
     SIGHUP: e-stop sent, `stopped_by` names the signal); `RunFailed` carrying
@@ -86,7 +89,9 @@ def run_plan(
         if cartesian:
             raise ArmbridgeError("--cartesian is for the drawing arm; a MASR plan's actions are MV and ROT")
         masr = plan
-        plan, commands = masr_commands(masr)
+        plan, commands = masr_commands(masr, home=home)
+    elif home:
+        raise ArmbridgeError("--home is for MASR plans (it drives the mobile actuator to the base first)")
     plan = validate(plan)
     if not isinstance(rate_hz, int) or not RATE_MIN <= rate_hz <= RATE_MAX:
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
@@ -180,8 +185,11 @@ def run_plan(
                     if masr is not None:
                         from armbridge.executor.masr import masr_report
 
-                        summary.masr = masr_report(masr, samples[-1][2] if samples else None,
-                                                   summary.measured_duration_s)
+                        executed = summary.measured_duration_s
+                        if home:  # the plan's own time starts when HOME is DONE
+                            d = c.done_times
+                            executed = d[plan.k - 1] - d[0] if 0 in d and plan.k - 1 in d else float("nan")
+                        summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)

@@ -50,6 +50,17 @@ def apply_latch_policy(client: BoardClient, latched: str) -> str:
     return state
 
 
+def _client_class(port: str):
+    """BoardClient for the line protocol; ModbusClient (docs/modbus.md) for a modbus: port."""
+    from armbridge.link.transport import port_scheme
+
+    if port_scheme(port.strip()) == "modbus":
+        from armbridge.executor.modbus_client import ModbusClient
+
+        return ModbusClient
+    return BoardClient
+
+
 @contextmanager
 def open_session(port: str, robot, *, latched: str = "refuse", rate_hz: int | None = None,
                  session: int | None = None, on_telemetry=None, on_event=None, on_error=None,
@@ -65,8 +76,8 @@ def open_session(port: str, robot, *, latched: str = "refuse", rate_hz: int | No
 
     link = open_port(port)
     try:
-        client = BoardClient(link, robot, session, on_telemetry=on_telemetry, on_event=on_event,
-                             on_error=on_error, connect_timeout=connect_timeout)
+        client = _client_class(port)(link, robot, session, on_telemetry=on_telemetry, on_event=on_event,
+                                         on_error=on_error, connect_timeout=connect_timeout)
         client.connect()
         apply_latch_policy(client, latched)
         if rate_hz is not None:

@@ -52,6 +52,7 @@ PORT_KINDS = "a serial device (/dev/ttyUSB0), a pyserial URL (socket://, rfc2217
 # other ArmbridgeError it raises says the url is wrong (bad input: exit 2).
 SCHEMES: dict[str, str] = {
     "emu": "armbridge.emulator.url:open_emu_port",
+    "modbus": "armbridge.link.modbus:open_modbus_port",
 }
 
 
@@ -90,6 +91,8 @@ class Port:
 
     def read(self, n: int = 1) -> bytes:
         """Up to n bytes; waits at most `timeout` seconds for them."""
+        if self.emulator is not None:
+            self.emulator.host_reading()  # a lockstep emulator waits for its host (EmulatedBoard.couple)
         try:
             return self._ser.read(n)
         except (serial.SerialException, OSError) as exc:
