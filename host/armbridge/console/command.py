@@ -12,6 +12,10 @@ where it is: a console is never a second host of a run, and the port lock
 keeps it off a port a run holds); `--session N` rejoins session N instead (a
 resync: the board keeps its queue and done/queued).
 
+Over a `modbus:` port (the pump board in Modbus RTU, docs/modbus.md) the same
+verbs run on registers (executor/modbus_client.py): info and state by reads,
+clear through the command register, rate sets how often the host polls.
+
 Exit codes as `armbridge run` (docs/formats.md §7): 0 done, 1 the board or the
 link failed (no answer, refused, busy or lost port), 2 bad input or usage,
 128 + the signal when stopped by one, except that `monitor` ends with 0 on
@@ -42,7 +46,8 @@ board_app = typer.Typer(
     no_args_is_help=True,
 )
 
-PORT_HELP = "Serial device, pyserial URL (socket://, rfc2217://, loop://) or emu:DEVICE (env ARMBRIDGE_PORT)."
+PORT_HELP = ("Serial device, pyserial URL (socket://, rfc2217://, loop://), emu:DEVICE, or modbus:PORT?addr=N "
+             "(Modbus RTU, docs/modbus.md) (env ARMBRIDGE_PORT).")
 SESSION_HELP = "Rejoin session N (the board keeps its queue) instead of opening a new one."
 
 

@@ -128,7 +128,9 @@ class ModbusClient:
             if state in LATCHED_STATES:
                 self.fault_reason = self._reason(r[13]) if state == "FAULT" else None
             if self.state is not None:
-                self._event(t, ms, state, (self._reason(r[13]) or "",) if state in LATCHED_STATES else ())
+                kind = self._state_event(self.state, state)
+                if kind is not None:
+                    self._event(t, ms, kind, (self._reason(r[13]) or "",) if kind in LATCHED_STATES else ())
         self.state = state
         if done is not None and done != self.done_id:
             if self._stream is not None:
@@ -141,6 +143,15 @@ class ModbusClient:
         if self.on_telemetry is not None:
             self.on_telemetry(t, msg)
         return msg
+
+    @staticmethod
+    def _state_event(old: str, new: str) -> str | None:
+        """The line protocol's event for a state change seen by polling (EVENTS names)."""
+        if new in LATCHED_STATES or new == "HOLD":
+            return new
+        if old in LATCHED_STATES:
+            return "CLEAR"
+        return "RESUME" if old == "HOLD" else None
 
     def _reason(self, code: int) -> str | None:
         text = latch_text(code)
@@ -346,9 +357,9 @@ class ModbusClient:
                     break
         else:
             raise ArmbridgeError(f"the board did not answer the window write of waypoint {i}; {stream.progress()}")
-        if i == 0:
-            stream.mark_start(wid, self.board_time)
         stream.next_wp += 1
+        if i == 0:  # the board time of the poll just before: a lower bound
+            stream.mark_start(wid, self.board_time)
         self.stats.waypoints_sent += 1
         self.stats.waypoints_acked += 1
         self.free -= 1
