@@ -47,11 +47,14 @@ class MicroPythonFirmware:
 @dataclass(frozen=True)
 class ElfFirmware:
     """C firmware: `folder` under the firmware root holds the Makefile that
-    builds `elf` (relative to the folder); simavr runs the image."""
+    builds `elf` (relative to the folder); simavr runs the image. `config` is
+    the header whose `#define`s are the board's constants for the emulator
+    (simavr_runner.read_config_h: N_JOINTS, PERIOD_MS, the limits, the pins)."""
 
     folder: str
     elf: str
     interpreters: tuple[str, ...] = ("simavr",)
+    config: str = "config.h"
 
 
 class Plant(Protocol):
@@ -115,6 +118,16 @@ def _ma_hal(*args: Any, **kw: Any) -> Any:
     return MaSimHal(*args, **kw)
 
 
+def _pump_plant(cfg, params, q0, seed: int) -> Any:
+    from armbridge.emulator.pump_hal import pump_plant
+    return pump_plant(cfg, params, q0, seed)
+
+
+def _pump_hal(*args: Any, **kw: Any) -> Any:
+    from armbridge.emulator.pump_hal import PumpSimHal
+    return PumpSimHal(*args, **kw)
+
+
 ESP32_RIGS: dict[str, Rig] = {
     "effort": Rig("continuous servos driven by effort, potentiometer feedback (hal_esp32.Esp32Hal)",
                   servo_plant, SimHal, ("cpython", "micropython")),
@@ -175,6 +188,17 @@ BOARDS: dict[str, BoardSpec] = {
             firmware=MicroPythonFirmware(dirs=("masr_ma", "common"), board_module="ma", interpreters=("cpython",)),
             plant=_ma_plant,
             hal=_ma_hal,
+        ),
+        # The real .elf in simavr (simavr_runner.py) against the pneumatic plant
+        # (pump_plant.py); the pins, limits and period are config.h's.
+        BoardSpec(
+            name="arduino_pump",
+            description="soft arm's syringe-pump board, Arduino Mega 2560, C++ in simavr",
+            identity="arduino_pump",
+            firmware=ElfFirmware(folder="arduino_pump", elf="build/arduino_pump.elf"),
+            plant=_pump_plant,
+            hal=_pump_hal,
+            persist_bytes=4096,   # the ATmega2560's EEPROM
         ),
     )
 }

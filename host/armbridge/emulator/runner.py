@@ -3,10 +3,11 @@
 The emulator (`board.EmulatedBoard`) owns sim time, the paced UART and its
 faults, the plant, resets, the pty and the threads. A runner only turns a HAL
 into a running board, so one machinery serves MicroPython under CPython, the
-same firmware under the real MicroPython interpreter, and (to come) a C image
-under simavr. The firmware's config (its constants: N_JOINTS, LIMITS_MRAD,
-PERIOD_MS, ...) is read once by `firmware_config` (it is plain data, so CPython
-reads it for every runner) and handed to the plant factory and to every boot.
+same firmware under the real MicroPython interpreter, and a C image (an AVR
+.elf) under simavr (`simavr_runner.SimavrRunner`). The firmware's config (its
+constants: N_JOINTS, LIMITS_MRAD, PERIOD_MS, ...) is read once by
+`firmware_config` (it is plain data, so CPython reads it for every runner; a C
+firmware's are the #defines of its config header) and handed to the plant factory and to every boot.
 A runner is any object with:
 
     runner.boot(hal, cfg) -> board
@@ -40,7 +41,7 @@ import types
 from pathlib import Path
 from typing import Any, Protocol
 
-from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware
+from armbridge.emulator.registry import BoardSpec, ElfFirmware, MicroPythonFirmware
 from armbridge.errors import ArmbridgeError
 
 
@@ -126,8 +127,12 @@ class CPythonRunner:
 # ---------------------------------------------------------------- choosing one
 
 def firmware_config(spec: BoardSpec, root: Path) -> Any:
-    """The board's config module, read under CPython (it is data)."""
+    """The board's config module, read under CPython (it is data); for a C firmware
+    the `#define`s of its config header (simavr_runner.read_config_h)."""
     fw = spec.firmware
+    if isinstance(fw, ElfFirmware):
+        from armbridge.emulator.simavr_runner import read_config_h
+        return read_config_h(root / fw.folder / fw.config)
     if not isinstance(fw, MicroPythonFirmware):
         raise ArmbridgeError(f"the {spec.name} board's config cannot be read yet (no {fw.interpreters[0]} runner)")
     return load_firmware([root / d for d in fw.dirs], (fw.config_module,))[fw.config_module]
@@ -140,6 +145,9 @@ def make_runner(spec: BoardSpec, interpreter: str | None, root: Path) -> Firmwar
         raise ArmbridgeError(f"interpreter {choice!r} cannot run the {spec.name} firmware; "
                              f"it runs under: {', '.join(spec.interpreters)}")
     fw = spec.firmware
+    if isinstance(fw, ElfFirmware) and choice == "simavr":
+        from armbridge.emulator.simavr_runner import SimavrRunner, firmware_elf
+        return SimavrRunner(firmware_elf(root / fw.folder, fw.elf))
     if not isinstance(fw, MicroPythonFirmware):
         raise ArmbridgeError(f"the {spec.name} board needs the {choice} runner, which armbridge does not have yet")
     dirs = [root / d for d in fw.dirs]

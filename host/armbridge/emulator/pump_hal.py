@@ -1,0 +1,193 @@
+"""The syringe-pump board's pins in the emulator: the chip's side of `PumpPlant`.
+
+The firmware runs in simavr (simavr_runner.py); this HAL is what its pins
+touch. Clock, UART lanes and persisted memory are SimHal's (it subclasses
+it; the persisted memory holds the chip's EEPROM, copied whenever the
+firmware changes it). The pins come from the firmware's config.h (the cfg:
+PIN_EN, PIN_IN1, PIN_IN2, PIN_BEND, PIN_STOP_RET, PIN_STOP_EXT):
+
+    outputs  motor k's L298: EN (PWM duty from OCRnx/COMnx1), IN1/IN2 levels.
+             IN1 high, IN2 low: + (the syringe pushes, the joint inflates);
+             IN1 low, IN2 high: -; equal: the motor stops. Signed duty in [-1, 1].
+    inputs   bend sensor k on ADC channel PIN_BEND[k] (mV from the plant);
+             end stops on PIN_STOP_RET[k] / PIN_STOP_EXT[k] (LOW at the stop).
+
+Records for the tests (besides SimHal's outputs_off_at, outputs_on_at,
+estop_byte_at): `duty_log` ((t, duties) at every change of the motor pins),
+`telemetry` ((t, every T column as int)), `track` ((t, true angles, the T
+line's angles) in rad), `adc_starts` ((t, channel) of every ADC conversion
+the firmware starts: the control loop's sampling instants).
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, Callable, cast
+
+import numpy as np
+
+from armbridge.emulator.pump_plant import PumpParams, PumpPlant
+from armbridge.emulator.simavr import mega2560 as mega
+from armbridge.emulator.simhal import ESTOP_BYTE, SimHal
+from armbridge.errors import ArmbridgeError
+
+EEPROM_BYTES = 4096      # the ATmega2560's EEPROM
+
+
+def pump_plant(cfg: Any, params: PumpParams | None, q0: Any, seed: int) -> PumpPlant:
+    """The plant of docs/emulator.md for the firmware's config: each joint's range is its
+    upper limit (LIMITS_MRAD), the sensors are calibrated as BEND_DEFAULT, and a full
+    stroke at full duty takes SYRINGE_STROKE_MS (the firmware's travel estimate)."""
+    rng = np.asarray([hi for _lo, hi in cfg.LIMITS_MRAD], dtype=float) / 1000.0
+    p = params or PumpParams()
+    stroke = getattr(cfg, "SYRINGE_STROKE_MS", None)
+    if params is None and stroke:
+        p = PumpParams(v_motor=p.travel_mm / (float(stroke) / 1000.0))
+    if q0 is not None:
+        raise ArmbridgeError("the syringe-pump plant starts deflated (straight joints); it takes no q0")
+    plant = PumpPlant(rng, cfg.BEND_DEFAULT, p, seed=seed)
+    plant.cfg = cfg     # the HAL's pins (the HAL factory is not handed the config)
+    return plant
+
+
+class PumpSimHal(SimHal):
+    """The pump board's pins over a PumpPlant; see the module docstring."""
+
+    has_pen = False
+
+    def __init__(self, clock, plant: PumpPlant, uart, persist=None, *,
+                 on_line: Callable[[float, bytes], None] | None = None, **kw: Any) -> None:
+        kw.pop("files", None)   # the chip has no filesystem
+        super().__init__(clock, cast(Any, plant), uart, persist, on_line=self._watch_line, **kw)
+        self.pump = plant
+        self._forward = on_line
+        self._cfg = getattr(plant, "cfg", None)
+        max_log = int(kw.get("max_log", 200_000))
+        self.duty_log: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
+        self.telemetry: deque[tuple[float, tuple[int, ...]]] = deque(maxlen=max_log)
+        self.track: deque[tuple[float, tuple[float, ...], tuple[float, ...]]] = deque(maxlen=max_log)
+        self.adc_starts: deque[tuple[float, int]] = deque(maxlen=max_log)
+        self._pins: tuple | None = None
+        self._duties = (0.0,) * plant.n
+        self._adsc = 0
+
+    # the firmware's pins (config.h) -----------------------------------------
+    def _pinmap(self) -> tuple:
+        if self._pins is None:
+            cfg = self._cfg
+            if cfg is None:
+                raise ArmbridgeError("the pump HAL needs the firmware's config (its pins)")
+            n = self.pump.n
+            try:
+                en = [mega.pin(p) for p in cfg.PIN_EN[:n]]
+                in1 = [mega.pin(p) for p in cfg.PIN_IN1[:n]]
+                in2 = [mega.pin(p) for p in cfg.PIN_IN2[:n]]
+                ret = [mega.pin(p) for p in cfg.PIN_STOP_RET[:n]]
+                ext = [mega.pin(p) for p in cfg.PIN_STOP_EXT[:n]]
+                adc = [int(c) for c in cfg.PIN_BEND[:n]]
+            except (AttributeError, ValueError) as exc:
+                raise ArmbridgeError(f"the pump firmware's pins in config.h: {exc}") from None
+            for p in en:
+                if p.timer is None:
+                    raise ArmbridgeError(f"EN pin {p.number} has no timer PWM on the Mega")
+            watch = sorted({a for p in (*en, *in1, *in2) for a in p.watch()} | {mega.ADCSRA, mega.ADMUX})
+            self._pins = (en, in1, in2, ret, ext, adc, watch)
+        return self._pins
+
+    def elf_watch(self) -> list[int]:
+        return list(self._pinmap()[6])
+
+    def elf_inputs(self) -> tuple[dict[int, int], dict[str, int]]:
+        """Sensors as they are now (the plant is not advanced: the slice runs on them)."""
+        _en, _i1, _i2, ret, ext, adc, _w = self._pinmap()
+        mv = self.pump.sensor_mv()
+        at_ret, at_ext = self.pump.end_stops()
+        pins: dict[str, int] = {}
+        for k in range(self.pump.n):
+            pins[ret[k].name] = 0 if at_ret[k] else 1
+            pins[ext[k].name] = 0 if at_ext[k] else 1
+        return {adc[k]: int(round(float(mv[k]))) for k in range(self.pump.n)}, pins
+
+    def elf_outputs(self, t: float, regs: dict[int, int]) -> None:
+        """A change of the watched registers at sim time t: new duties from then on."""
+        en, in1, in2, _r, _e, _a, _w = self._pinmap()
+        adsc = (regs[mega.ADCSRA] >> 6) & 1
+        if adsc and not self._adsc:
+            self.adc_starts.append((t, regs[mega.ADMUX] & 0x1F))
+        self._adsc = adsc
+        duties = []
+        for k in range(self.pump.n):
+            d = en[k].duty(regs)
+            a, b = in1[k].level(regs), in2[k].level(regs)
+            duties.append(d if a and not b else -d if b and not a else 0.0)
+        u = tuple(duties)
+        if u == self._duties:
+            return
+        self.pump.advance_to(max(t, self.pump.t))
+        self.pump.drive(u)
+        self._duties = u
+        self.duty_log.append((t, u))
+        on = any(u)
+        if on and not self.outputs_enabled:
+            self.outputs_on_at.append(t)
+        elif not on and self.outputs_enabled:
+            self.outputs_off_at.append(t)
+        self.outputs_enabled = on
+
+    @property
+    def duties(self) -> tuple[float, ...]:
+        return self._duties
+
+    def outputs_off(self) -> None:
+        """The chip in reset: its pins float, the L298 stops the motors."""
+        self._sync()
+        self.pump.off()
+        if self.outputs_enabled:
+            self.outputs_off_at.append(self.clock.t)
+            self.duty_log.append((self.clock.t, (0.0,) * self.pump.n))
+        self._duties = (0.0,) * self.pump.n
+        self.outputs_enabled = False
+
+    # UART with the bytes' own times -------------------------------------------
+    def uart_read_timed(self, until: float) -> list[tuple[float, int]]:
+        """Bytes the rx lane delivers by sim time `until` (s), with their times."""
+        timed = self.uart.rx.pop_timed(until + 1e-9)
+        for t, b in timed:
+            if b == ESTOP_BYTE:
+                self.estop_byte_at.append(t)
+        return timed
+
+    def uart_write_at(self, t: float, data: bytes) -> None:
+        self.uart.firmware_write(bytes(data), t)
+        for b in data:
+            if b == 0x0A:
+                if self.on_line is not None:
+                    self.on_line(t, bytes(self._line))
+                self._line.clear()
+            elif len(self._line) < 512:
+                self._line.append(b)
+
+    def uart_read(self) -> bytes | None:
+        raise ArmbridgeError("the pump board's UART is the chip's: simavr_runner feeds it (uart_read_timed)")
+
+    # records -------------------------------------------------------------------
+    def _watch_line(self, t: float, line: bytes) -> None:
+        parts = line.split(b"*", 1)[0].split()
+        n = self.pump.n
+        if len(parts) > 5 + n and parts[1] == b"T":
+            try:
+                cols = tuple(int(x) for x in parts[2:3] + parts[6:])
+            except ValueError:
+                cols = ()
+            if cols:
+                self.telemetry.append((t, cols))
+                est = tuple(float(x) / 1000.0 for x in cols[1:1 + n])
+                self.track.append((t, tuple(float(x) for x in self.pump.q), est))
+        if self._forward is not None:
+            self._forward(t, line)
+
+    # the arm's HAL calls: not on this board ------------------------------------
+    def read_positions(self, out) -> None:
+        raise ArmbridgeError("the pump board has no read_positions: its bend sensors are ADC pins")
+
+    def write_outputs(self, efforts) -> None:
+        raise ArmbridgeError("the pump board has no write_outputs: its motors are the chip's pins")

@@ -1,0 +1,2 @@
+"""The simavr harness (harness.c, built on first use by simavr_runner.harness_binary)
+and the ATmega2560's pin and ELF data (mega2560)."""

@@ -1,0 +1,567 @@
+/*
+ * armbridge simavr harness: one AVR .elf, driven in lockstep by a parent
+ * process over stdin/stdout (host/armbridge/emulator/simavr_runner.py).
+ *
+ * The parent owns time: every RUN request says "run until this cycle, feeding
+ * these UART0 bytes at their cycles, with these ADC inputs and pin levels",
+ * and the answer says what the chip did meanwhile: the UART0 bytes it sent
+ * (with the cycle of each UDR0 write), every change of the watched data
+ * bytes (timer/port registers: the parent decodes PWM duty from OCRnx and
+ * COMnx1, as simavr's mega2560 model fires no PWM IRQs for phase-correct
+ * PWM), the entries/durations of probed code addresses, the lowest stack
+ * pointer and whether the EEPROM changed. Nothing here runs on its own.
+ *
+ * Usage: harness [-m MCU] [-f HZ] [-e EEPROM_FILE] FIRMWARE.elf
+ *
+ * Protocol: text lines, one request, one answer, numbers in decimal, bytes in
+ * hex; an empty list is "-". First the harness says
+ *     READY <mcu> <hz> <ramend> <e2end> <cycle>
+ * then answers:
+ *     WATCH a1 a2 ...        data-space addresses to watch (<= 64)      -> OK <n>
+ *     PROBE p1 p2 ...        flash byte addresses to time (<= 16)       -> OK <n>
+ *     RUN <until> <uart> <adc> <pins>
+ *         uart  c:hh,c:hh,...  a byte for UART0 at cycle c (given in order)
+ *         adc   ch:mv,...      ADC channel ch at mv millivolts (held)
+ *         pins  Pb:l,...       pin b of port P (A..L) driven at level l (held)
+ *       -> DONE <cycle> <state> <tx> <watch> <probes> <minsp> <ee> <lost>
+ *         tx     c:hh,...      UART0 output bytes, cycle of the UDR0 write
+ *         watch  c:v.v.v;...   after a change: the cycle and every watched byte
+ *                              (the first record of a slice is its start state)
+ *         probes i:c:d,...     probe i entered at cycle c, returned d cycles later
+ *         minsp  lowest SP seen in the slice
+ *         ee     1 when the EEPROM changed in the slice (then written to the file)
+ *         lost   UART0 input bytes the full receive FIFO refused in the slice
+ *         state  simavr's cpu state: 2 running, 3 sleeping, 7 done, 8 crashed
+ *     RESET                  the chip's reset pin: RAM and I/O cleared, the
+ *                            EEPROM and the flash kept                  -> OK <cycle>
+ *     EEPROM                 -> OK <hex of the whole EEPROM>
+ *     QUIT                   writes the EEPROM file and exits           -> OK
+ *
+ * What the harness fixes in simavr 1.6 (docs/emulator.md, toolchain notes):
+ * vcc/avcc/aref 5000 mV; external interrupts not strictly level triggered
+ * (a LOW level would poll every cycle); no UART poll-sleep and no usleep when
+ * the CPU sleeps (the parent paces); no UART stdio echo (simavr's own prints
+ * go to stderr: fd 1 is redirected there, the protocol keeps a private copy);
+ * UART byte time from the real frame (start + data + parity if enabled +
+ * stop bits: simavr counts a parity bit always, which made 115200 baud
+ * 8N1 a byte per 93.5 us instead of 85 us).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_core.h"
+#include "sim_irq.h"
+#include "sim_io.h"
+#include "sim_regbit.h"
+#include "sim_cycle_timers.h"
+#include "avr_uart.h"
+#include "avr_adc.h"
+#include "avr_ioport.h"
+#include "avr_extint.h"
+#include "avr_eeprom.h"
+
+DEFINE_FIFO(uint16_t, uart_fifo);   /* the accessors of simavr's UART input FIFO */
+
+#define MAX_WATCH 64
+#define MAX_PROBE 16
+#define MAX_FEED 4096
+#define PROBE_DEPTH 4
+#define N_PORTS 12          /* A..L */
+
+static avr_t *avr;
+static FILE *proto;         /* the protocol's stdout */
+static const char *ee_file;
+static uint8_t *ee_mem;
+static uint32_t ee_size;
+static uint8_t *ee_shadow;
+static avr_uart_t *uart0;
+
+static uint16_t watch_addr[MAX_WATCH];
+static uint8_t watch_val[MAX_WATCH];
+static int n_watch;
+
+static uint32_t probe_pc[MAX_PROBE];
+static int n_probe;
+static struct { avr_cycle_count_t at; uint16_t sp; } probe_stack[MAX_PROBE][PROBE_DEPTH];
+static int probe_depth[MAX_PROBE];
+
+static int adc_mv[16];
+static int adc_set[16];
+static uint8_t pin_mask[N_PORTS], pin_value[N_PORTS];   /* pins the parent drives */
+
+/* output of one slice, grown as needed */
+static char *out;
+static size_t out_len, out_cap;
+static char *tx_buf, *watch_buf, *probe_buf;
+static size_t tx_len, tx_cap, watch_len, watch_cap, probe_len, probe_cap;
+static unsigned long lost;
+
+static void die(const char *msg)
+{
+	fprintf(stderr, "harness: %s\n", msg);
+	exit(2);
+}
+
+static void append(char **buf, size_t *len, size_t *cap, const char *fmt, ...)
+	__attribute__((format(printf, 4, 5)));
+
+#include <stdarg.h>
+static void append(char **buf, size_t *len, size_t *cap, const char *fmt, ...)
+{
+	for (;;) {
+		va_list ap;
+		va_start(ap, fmt);
+		size_t room = *cap - *len;
+		int n = vsnprintf(*buf ? *buf + *len : NULL, *buf ? room : 0, fmt, ap);
+		va_end(ap);
+		if (n < 0)
+			die("format error");
+		if (*buf && (size_t)n < room) {
+			*len += (size_t)n;
+			return;
+		}
+		size_t want = *cap ? *cap * 2 : 4096;
+		while (want < *len + (size_t)n + 1)
+			want *= 2;
+		*buf = realloc(*buf, want);
+		if (!*buf)
+			die("out of memory");
+		*cap = want;
+	}
+}
+
+/* ------------------------------------------------------------- the chip */
+
+static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
+{
+	(void)a; (void)how_long;    /* the parent paces simulated time */
+}
+
+static avr_cycle_count_t wake(avr_t *a, avr_cycle_count_t when, void *param)
+{
+	(void)a; (void)when; (void)param;
+	return 0;                   /* only bounds a sleep: feed/until times are exact */
+}
+
+static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq; (void)param;
+	append(&tx_buf, &tx_len, &tx_cap, "%s%llu:%02x", tx_len ? "," : "",
+	       (unsigned long long)avr->cycle, value & 0xff);
+}
+
+static void uart_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq; (void)value; (void)param;
+}
+
+static uint16_t sp_now(void)
+{
+	return (uint16_t)(avr->data[R_SPL] | (avr->data[R_SPH] << 8));
+}
+
+/* simavr counts a parity bit in every frame; the real frame has one only
+ * when UPM0n is set. */
+static void fix_uart_timing(void)
+{
+	avr_uart_t *p = uart0;
+	if (!p || !p->ubrrl.reg)
+		return;
+	uint32_t ubrr = avr_regbit_get(avr, p->ubrrl) | ((uint32_t)avr_regbit_get(avr, p->ubrrh) << 8);
+	static const int databits[] = { 5, 6, 7, 8, 8, 8, 8, 9 };
+	int db = databits[avr_regbit_get(avr, p->ucsz) | (avr_regbit_get(avr, p->ucsz2) << 2)];
+	int sb = 1 + avr_regbit_get(avr, p->usbs);
+	int parity = (p->r_ucsrc && (avr->data[p->r_ucsrc] & 0x30)) ? 1 : 0;
+	avr_cycle_count_t bit = (ubrr + 1) * 8 * (avr_regbit_get(avr, p->u2x) ? 1 : 2);
+	avr_cycle_count_t want = bit * (avr_cycle_count_t)(1 + db + parity + sb);
+	if (p->cycles_per_byte != want)
+		p->cycles_per_byte = want;
+}
+
+static void raise_pins(int force)
+{
+	for (int i = 0; i < N_PORTS; i++) {
+		if (!pin_mask[i])
+			continue;
+		char name = (char)('A' + i);
+		avr_ioport_external_t ext = { .name = name, .mask = pin_mask[i], .value = pin_value[i] };
+		if (avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(name), &ext) < 0)
+			continue;   /* no such port on this chip (checked when the pin was set) */
+		for (int b = 0; b < 8; b++) {
+			if (!(pin_mask[i] & (1 << b)))
+				continue;
+			avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(name), b);
+			int level = (pin_value[i] >> b) & 1;
+			if (force)  /* the IRQ keeps its last value across a reset (filtered) */
+				avr_raise_irq(irq, !level);
+			avr_raise_irq(irq, level);
+		}
+	}
+}
+
+static void raise_adc(int ch, int force)
+{
+	avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + ch);
+	if (!irq)
+		return;
+	if (force)
+		avr_raise_irq(irq, (uint32_t)adc_mv[ch] + 1);
+	avr_raise_irq(irq, (uint32_t)adc_mv[ch]);
+}
+
+/* after avr_init and after every reset */
+static void setup_chip(void)
+{
+	avr->vcc = avr->avcc = avr->aref = 5000;
+	avr->sleep = no_sleep;
+	for (int i = 0; i < 8; i++)
+		avr_extint_set_strict_lvl_trig(avr, (uint8_t)i, 0);
+	for (char u = '0'; u <= '3'; u++) {
+		uint32_t flags = 0;
+		if (avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS(u), &flags) == 0) {
+			flags &= ~(uint32_t)(AVR_UART_FLAG_POLL_SLEEP | AVR_UART_FLAG_STDIO);
+			avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(u), &flags);
+		}
+	}
+	raise_pins(1);
+	for (int ch = 0; ch < 16; ch++)
+		if (adc_set[ch])
+			raise_adc(ch, 1);
+	for (int i = 0; i < n_probe; i++)
+		probe_depth[i] = 0;
+}
+
+static avr_uart_t *find_uart0(void)
+{
+	for (avr_io_t *io = avr->io_port; io; io = io->next)
+		if (io->kind && !strcmp(io->kind, "uart") && ((avr_uart_t *)io)->name == '0')
+			return (avr_uart_t *)io;
+	return NULL;
+}
+
+static void ee_save(void)
+{
+	if (!ee_file || !ee_mem)
+		return;
+	char tmp[4096];
+	snprintf(tmp, sizeof tmp, "%s.tmp", ee_file);
+	FILE *f = fopen(tmp, "wb");
+	if (!f || fwrite(ee_mem, 1, ee_size, f) != ee_size || fclose(f) != 0) {
+		fprintf(stderr, "harness: cannot write %s: %s\n", tmp, strerror(errno));
+		return;
+	}
+	if (rename(tmp, ee_file) != 0)
+		fprintf(stderr, "harness: cannot rename %s: %s\n", tmp, strerror(errno));
+}
+
+static int ee_changed(void)
+{
+	if (!ee_mem || !memcmp(ee_mem, ee_shadow, ee_size))
+		return 0;
+	memcpy(ee_shadow, ee_mem, ee_size);
+	ee_save();
+	return 1;
+}
+
+static void ee_open(void)
+{
+	avr_eeprom_desc_t d = { .ee = NULL, .offset = 0, .size = 0 };
+	if (avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d) != 0 && !d.ee)
+		return;
+	ee_mem = d.ee;
+	ee_size = avr->e2end + 1;
+	ee_shadow = malloc(ee_size);
+	if (!ee_mem || !ee_shadow)
+		return;
+	if (ee_file) {
+		FILE *f = fopen(ee_file, "rb");
+		if (f) {
+			size_t n = fread(ee_mem, 1, ee_size, f);
+			fclose(f);
+			if (n != ee_size)
+				fprintf(stderr, "harness: %s holds %zu bytes, the EEPROM %u: the rest erased\n",
+				        ee_file, n, ee_size);
+			if (n < ee_size)
+				memset(ee_mem + n, 0xff, ee_size - n);
+		}
+	}
+	memcpy(ee_shadow, ee_mem, ee_size);
+}
+
+/* ------------------------------------------------------------- sampling */
+
+static void record_watch(void)
+{
+	append(&watch_buf, &watch_len, &watch_cap, "%s%llu:", watch_len ? ";" : "",
+	       (unsigned long long)avr->cycle);
+	for (int i = 0; i < n_watch; i++)
+		append(&watch_buf, &watch_len, &watch_cap, i ? ".%x" : "%x", watch_val[i]);
+}
+
+static inline void sample(uint16_t *minsp)
+{
+	uint16_t sp = sp_now();
+	if (sp < *minsp)
+		*minsp = sp;
+	int changed = 0;
+	for (int i = 0; i < n_watch; i++) {
+		uint8_t v = avr->data[watch_addr[i]];
+		if (v != watch_val[i]) {
+			watch_val[i] = v;
+			changed = 1;
+		}
+	}
+	if (changed)
+		record_watch();
+	for (int i = 0; i < n_probe; i++) {
+		int d = probe_depth[i];
+		if (d && sp > probe_stack[i][d - 1].sp) {     /* returned */
+			d = --probe_depth[i];
+			append(&probe_buf, &probe_len, &probe_cap, "%s%d:%llu:%llu", probe_len ? "," : "", i,
+			       (unsigned long long)probe_stack[i][d].at,
+			       (unsigned long long)(avr->cycle - probe_stack[i][d].at));
+		}
+		if (avr->pc == probe_pc[i] && probe_depth[i] < PROBE_DEPTH) {
+			probe_stack[i][probe_depth[i]].at = avr->cycle;
+			probe_stack[i][probe_depth[i]].sp = sp;
+			probe_depth[i]++;
+		}
+	}
+}
+
+/* ------------------------------------------------------------- requests */
+
+static struct { avr_cycle_count_t at; uint8_t b; } feed[MAX_FEED];
+static int n_feed;
+static int wake_until, wake_feed;
+
+static int parse_run(char *args, avr_cycle_count_t *until)
+{
+	char *save = NULL;
+	char *tok = strtok_r(args, " \n", &save);
+	if (!tok)
+		return -1;
+	*until = strtoull(tok, NULL, 10);
+	char *uart = strtok_r(NULL, " \n", &save);
+	char *adc = strtok_r(NULL, " \n", &save);
+	char *pins = strtok_r(NULL, " \n", &save);
+	if (!uart || !adc || !pins)
+		return -1;
+	n_feed = 0;
+	if (strcmp(uart, "-")) {
+		for (char *s = uart; s && *s;) {
+			char *end;
+			unsigned long long at = strtoull(s, &end, 10);
+			if (*end != ':' || n_feed >= MAX_FEED)
+				return -1;
+			feed[n_feed].at = at;
+			feed[n_feed].b = (uint8_t)strtoul(end + 1, &end, 16);
+			n_feed++;
+			s = *end == ',' ? end + 1 : NULL;
+		}
+	}
+	if (strcmp(adc, "-")) {
+		for (char *s = adc; s && *s;) {
+			char *end;
+			long ch = strtol(s, &end, 10);
+			if (*end != ':' || ch < 0 || ch > 15)
+				return -1;
+			long mv = strtol(end + 1, &end, 10);
+			if (!adc_set[ch] || adc_mv[ch] != mv) {
+				adc_mv[ch] = (int)mv;
+				adc_set[ch] = 1;
+				raise_adc((int)ch, 0);
+			}
+			s = *end == ',' ? end + 1 : NULL;
+		}
+	}
+	if (strcmp(pins, "-")) {
+		for (char *s = pins; s && *s;) {
+			int port = s[0] - 'A';
+			char *end;
+			long bit = strtol(s + 1, &end, 10);
+			if (port < 0 || port >= N_PORTS || bit < 0 || bit > 7 || *end != ':')
+				return -1;
+			long level = strtol(end + 1, &end, 10);
+			pin_mask[port] |= (uint8_t)(1 << bit);
+			if (level)
+				pin_value[port] |= (uint8_t)(1 << bit);
+			else
+				pin_value[port] &= (uint8_t)~(1 << bit);
+			s = *end == ',' ? end + 1 : NULL;
+		}
+	}
+	raise_pins(0);
+	return 0;
+}
+
+static void do_run(char *args)
+{
+	avr_cycle_count_t until;
+	if (parse_run(args, &until) < 0) {
+		fprintf(proto, "ERR bad RUN request\n");
+		return;
+	}
+	tx_len = watch_len = probe_len = 0;
+	lost = 0;
+	uint16_t minsp = sp_now();
+	fix_uart_timing();
+	record_watch();   /* the state the slice starts from */
+	avr_irq_t *in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+	if (until > avr->cycle)
+		avr_cycle_timer_register(avr, until - avr->cycle, wake, &wake_until);
+	int fi = 0;
+	int state = avr->state;
+	while (avr->cycle < until && state != cpu_Done && state != cpu_Crashed) {
+		while (fi < n_feed && feed[fi].at <= avr->cycle) {
+			fix_uart_timing();
+			if (uart0 && uart_fifo_isfull(&uart0->input))
+				lost++;
+			avr_raise_irq(in, feed[fi].b);
+			fi++;
+			if (fi < n_feed && feed[fi].at > avr->cycle)
+				avr_cycle_timer_register(avr, feed[fi].at - avr->cycle, wake, &wake_feed);
+		}
+		if (fi == 0 && n_feed && feed[0].at > avr->cycle)
+			avr_cycle_timer_register(avr, feed[0].at - avr->cycle, wake, &wake_feed);
+		state = avr_run(avr);
+		sample(&minsp);
+	}
+	for (; fi < n_feed; fi++)   /* a chip that stopped still "receives" them */
+		avr_raise_irq(in, feed[fi].b);
+	int ee = ee_changed();
+	out_len = 0;
+	append(&out, &out_len, &out_cap, "DONE %llu %d %s %s %s %u %d %lu\n",
+	       (unsigned long long)avr->cycle, state,
+	       tx_len ? tx_buf : "-", watch_len ? watch_buf : "-", probe_len ? probe_buf : "-",
+	       minsp, ee, lost);
+	fwrite(out, 1, out_len, proto);
+}
+
+static void do_list(char *args, int probe)
+{
+	int n = 0;
+	char *save = NULL;
+	for (char *tok = strtok_r(args, " \n", &save); tok; tok = strtok_r(NULL, " \n", &save)) {
+		unsigned long v = strtoul(tok, NULL, 0);
+		if (probe) {
+			if (n >= MAX_PROBE) { fprintf(proto, "ERR at most %d probes\n", MAX_PROBE); return; }
+			probe_pc[n] = (uint32_t)v;
+			probe_depth[n] = 0;
+		} else {
+			if (n >= MAX_WATCH || v > avr->ramend) {
+				fprintf(proto, "ERR watch address %lu: at most %d, below %u\n", v, MAX_WATCH, avr->ramend);
+				return;
+			}
+			watch_addr[n] = (uint16_t)v;
+			watch_val[n] = avr->data[v];
+		}
+		n++;
+	}
+	if (probe)
+		n_probe = n;
+	else
+		n_watch = n;
+	fprintf(proto, "OK %d\n", n);
+}
+
+int main(int argc, char **argv)
+{
+	const char *mcu = NULL;
+	unsigned long hz = 0;
+	int opt;
+	while ((opt = getopt(argc, argv, "m:f:e:")) != -1) {
+		switch (opt) {
+		case 'm': mcu = optarg; break;
+		case 'f': hz = strtoul(optarg, NULL, 10); break;
+		case 'e': ee_file = optarg; break;
+		default:
+			fprintf(stderr, "usage: %s [-m MCU] [-f HZ] [-e EEPROM_FILE] FIRMWARE.elf\n", argv[0]);
+			return 2;
+		}
+	}
+	if (optind != argc - 1) {
+		fprintf(stderr, "usage: %s [-m MCU] [-f HZ] [-e EEPROM_FILE] FIRMWARE.elf\n", argv[0]);
+		return 2;
+	}
+	/* the protocol keeps the real stdout; simavr's printf chatter goes to stderr */
+	int fd = dup(1);
+	if (fd < 0 || dup2(2, 1) < 0)
+		die("cannot set up stdout");
+	proto = fdopen(fd, "w");
+	if (!proto)
+		die("cannot open the protocol stream");
+	setvbuf(stdout, NULL, _IONBF, 0);
+
+	elf_firmware_t f;
+	memset(&f, 0, sizeof f);
+	if (elf_read_firmware(argv[optind], &f) != 0) {
+		fprintf(stderr, "harness: cannot read %s\n", argv[optind]);
+		return 1;
+	}
+	if (mcu)
+		snprintf(f.mmcu, sizeof f.mmcu, "%s", mcu);
+	if (!f.mmcu[0])
+		snprintf(f.mmcu, sizeof f.mmcu, "atmega2560");
+	if (hz)
+		f.frequency = (uint32_t)hz;
+	if (!f.frequency)
+		f.frequency = 16000000;
+	avr = avr_make_mcu_by_name(f.mmcu);
+	if (!avr) {
+		fprintf(stderr, "harness: unknown MCU %s\n", f.mmcu);
+		return 1;
+	}
+	avr_init(avr);
+	avr_load_firmware(avr, &f);
+	avr->frequency = f.frequency;
+	uart0 = find_uart0();
+	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out, NULL);
+	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff, NULL);
+	ee_open();
+	setup_chip();
+	fprintf(proto, "READY %s %lu %u %u %llu\n", f.mmcu, (unsigned long)avr->frequency, avr->ramend, avr->e2end,
+	        (unsigned long long)avr->cycle);
+	fflush(proto);
+
+	char *line = NULL;
+	size_t cap = 0;
+	while (getline(&line, &cap, stdin) > 0) {
+		if (!strncmp(line, "RUN ", 4)) {
+			do_run(line + 4);
+		} else if (!strncmp(line, "WATCH", 5)) {
+			do_list(line + 5, 0);
+		} else if (!strncmp(line, "PROBE", 5)) {
+			do_list(line + 5, 1);
+		} else if (!strncmp(line, "RESET", 5)) {
+			avr_reset(avr);
+			avr->state = cpu_Running;
+			setup_chip();
+			for (int i = 0; i < n_watch; i++)
+				watch_val[i] = avr->data[watch_addr[i]];
+			fprintf(proto, "OK %llu\n", (unsigned long long)avr->cycle);
+		} else if (!strncmp(line, "EEPROM", 6)) {
+			fputs("OK ", proto);
+			for (uint32_t i = 0; ee_mem && i < ee_size; i++)
+				fprintf(proto, "%02x", ee_mem[i]);
+			fputc('\n', proto);
+		} else if (!strncmp(line, "QUIT", 4)) {
+			ee_save();
+			fprintf(proto, "OK\n");
+			fflush(proto);
+			return 0;
+		} else {
+			fprintf(proto, "ERR unknown request\n");
+		}
+		fflush(proto);
+	}
+	ee_save();
+	return 0;
+}

@@ -1,0 +1,437 @@
+"""C firmware (an AVR .elf) run for real in simavr, in lockstep with the emulator.
+
+The runner of `runner.py` for `ElfFirmware` boards (`interpreter="simavr"`).
+The chip is simulated cycle by cycle by a small C harness on libsimavr
+(`simavr/harness.c`: its header documents the request/answer lines), a child
+process driven over pipes. The emulator keeps everything else (sim clock,
+`PacedUart` with its link faults, resets, pty, threads, plant); each
+`board.poll()` is one emulator tick:
+
+  1. the UART bytes the rx lane delivers by the tick's end are fed to UART0,
+     each at its own cycle (one byte time before the lane's delivery time, so
+     that the receive flag rises when the lane says the byte has arrived);
+  2. the HAL's sensor values (ADC millivolts per channel, levels of the input
+     pins it drives) are held for the slice; the harness runs the chip up to
+     the tick's cycle;
+  3. the bytes the chip wrote to UDR0 go into the tx lane at their cycles, and
+     every change of the watched registers (the HAL's output pins: port, DDR,
+     timer) goes to the HAL at its own time, which decodes it (duty from OCRnx
+     and COMnx1) and drives the plant.
+
+Time: the chip's cycle counter maps onto the emulator's clock, `cycle0` at
+`us0` (set at every boot); F_CPU is the harness's (16 MHz for the Mega).
+
+A reset (`boot()` again) resets the chip as its reset pin does: RAM and I/O
+cleared, flash and EEPROM kept. The EEPROM also goes into the HAL's
+persisted memory whenever the firmware changes it, and a fresh harness
+starts from it (`eeprom_file=` keeps it in a file across emulator runs).
+
+The board's `state` and the `on_done` hook come from the lines the firmware
+writes, as a host would see them unfaulted: `BOOT`'s and `T`'s state and the
+latching events; a `W` it answered `OK` is queued with its values, and each
+`EV DONE id` completes the queued waypoints up to `id` (`CLR`, a latch, a
+`BOOT` or a new session flush them).
+
+HAL methods the board calls (pump_hal.PumpSimHal has them): `elf_watch()` ->
+data addresses; `elf_inputs()` -> ({adc channel: mV}, {"C7": level});
+`elf_outputs(t, regs)`; `uart_read_timed(until)` -> [(t, byte)];
+`uart_write_at(t, data)`; `load_persist()` / `save_persist(data)`.
+"""
+from __future__ import annotations
+
+import ast
+import fcntl
+import hashlib
+import os
+import re
+import select
+import shutil
+import subprocess
+import tempfile
+import types
+import weakref
+from pathlib import Path
+from typing import Any, Callable
+
+from armbridge.emulator.simavr.mega2560 import ElfImage, read_elf
+from armbridge.errors import ArmbridgeError
+
+APT = "apt-get install -y --no-install-recommends gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
+ANSWER_TIMEOUT_S = 30.0
+STATES = {7: "done (slept with interrupts off)", 8: "crashed"}
+
+
+class FirmwareCrashed(RuntimeError):
+    """The chip stopped in simavr (a crash, or sleep with interrupts off)."""
+
+
+def cache_dir() -> Path:
+    """$ARMBRIDGE_CACHE, else $XDG_CACHE_HOME/armbridge, else ~/.cache/armbridge."""
+    env = os.environ.get("ARMBRIDGE_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "armbridge"
+
+
+def _locked_make(args: list[str], lock: Path, what: str) -> None:
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            r = subprocess.run(args, capture_output=True, text=True, timeout=600)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise ArmbridgeError(f"building {what} failed: {exc}") from None
+    if r.returncode != 0:
+        tail = (r.stdout + r.stderr).strip()[-1500:]
+        raise ArmbridgeError(f"building {what} failed ({' '.join(args)}):\n{tail}")
+
+
+def harness_source() -> Path:
+    return Path(__file__).resolve().parent / "simavr"
+
+
+def harness_binary() -> Path:
+    """The harness, built on first use into the cache folder (keyed by its sources)."""
+    src = harness_source()
+    key = hashlib.sha256((src / "harness.c").read_bytes() + (src / "Makefile").read_bytes()).hexdigest()[:16]
+    out = cache_dir() / f"simavr-harness-{key}"
+    exe = out / "harness"
+    if exe.is_file():
+        return exe
+    if not Path("/usr/include/simavr/sim_avr.h").is_file() or shutil.which("make") is None:
+        raise ArmbridgeError(f"the simavr runner needs libsimavr-dev and make to build its harness; run "
+                             f"scripts/setup.sh as root, or: {APT}")
+    _locked_make(["make", "-s", "-C", str(src), f"OUT={out}"], cache_dir() / "simavr-harness.lock",
+                 "the simavr harness")
+    return exe
+
+
+def firmware_elf(folder: Path, elf: str) -> Path:
+    """`folder/elf`, rebuilt with the folder's Makefile when a source is newer (in the
+    folder when it is writable, else in a copy under the cache folder)."""
+    if not (folder / "Makefile").is_file():
+        raise ArmbridgeError(f"firmware folder {folder} has no Makefile")
+    sources = [p for p in folder.rglob("*") if p.is_file() and "build" not in p.relative_to(folder).parts]
+    target = folder / elf
+    newest = max((p.stat().st_mtime for p in sources), default=0.0)
+    if target.is_file() and target.stat().st_mtime >= newest:
+        return target
+    if shutil.which("avr-gcc") is None or shutil.which("make") is None:
+        raise ArmbridgeError(f"{target} must be built and avr-gcc is missing; run scripts/setup.sh as root, or: {APT}")
+    if not os.access(folder, os.W_OK):
+        h = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(sources))).hexdigest()[:16]
+        copy = cache_dir() / f"elf-{folder.name}-{h}"
+        if not (copy / elf).is_file():
+            shutil.copytree(folder, copy, dirs_exist_ok=True, ignore=shutil.ignore_patterns("build"))
+        folder, target = copy, copy / elf
+    _locked_make(["make", "-s", "-C", str(folder)], cache_dir() / f"elf-{folder.name}.lock", f"{folder.name}")
+    if not target.is_file():
+        raise ArmbridgeError(f"make -C {folder} did not produce {elf}")
+    return target
+
+
+class Harness:
+    """One harness child process (the lockstep line protocol of harness.c)."""
+
+    def __init__(self, elf: Path, eeprom_file: Path, timeout: float = ANSWER_TIMEOUT_S) -> None:
+        self.timeout = timeout
+        self._err = tempfile.TemporaryFile()
+        argv = [str(harness_binary()), "-e", str(eeprom_file), str(elf)]
+        try:
+            self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err,
+                                         bufsize=0)
+        except OSError as exc:
+            self._err.close()
+            raise ArmbridgeError(f"cannot start the simavr harness: {exc}") from None
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self._in, self._out = self.proc.stdin.fileno(), self.proc.stdout.fileno()
+        self._buf = bytearray()
+        fields = self.readline().split()
+        if not fields or fields[0] != "READY":
+            raise ArmbridgeError(f"the simavr harness said {' '.join(fields)[:200]!r} instead of READY{self.stderr()}")
+        self.mcu, self.hz, self.ramend, self.e2end, self.cycle = fields[1], *map(int, fields[2:6])
+
+    def call(self, line: str) -> str:
+        try:
+            os.write(self._in, line.encode("ascii") + b"\n")
+        except OSError as exc:
+            raise ArmbridgeError(f"the simavr harness is gone ({exc}){self.stderr()}") from None
+        answer = self.readline()
+        if answer.startswith("ERR"):
+            raise ArmbridgeError(f"the simavr harness refused {line[:60]!r}: {answer}")
+        return answer
+
+    def readline(self) -> str:
+        while True:
+            i = self._buf.find(b"\n")
+            if i >= 0:
+                line = bytes(self._buf[:i]).decode("ascii", "replace")
+                del self._buf[:i + 1]
+                return line
+            r, _, _ = select.select([self._out], [], [], self.timeout)
+            if not r:
+                raise ArmbridgeError(f"the simavr harness did not answer within {self.timeout:g} s{self.stderr()}")
+            chunk = os.read(self._out, 1 << 16)
+            if not chunk:
+                self.proc.wait(timeout=5)
+                raise ArmbridgeError(f"the simavr harness exited (status {self.proc.returncode}){self.stderr()}")
+            self._buf += chunk
+
+    def stderr(self) -> str:
+        try:
+            self._err.seek(0)
+            tail = self._err.read()[-1500:].decode("utf-8", "replace").strip()
+        except (OSError, ValueError):
+            return ""
+        return f": {tail}" if tail else ""
+
+    def close(self) -> None:
+        p = self.proc
+        if p.poll() is None:
+            try:
+                os.write(self._in, b"QUIT\n")
+                p.stdin.close()  # type: ignore[union-attr]
+                p.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                p.kill()
+                p.wait()
+        for f in (p.stdout, self._err):
+            try:
+                f.close()  # type: ignore[union-attr]
+            except OSError:
+                pass
+
+
+def _stop(state: dict) -> None:
+    h = state.pop("harness", None)
+    if h is not None:
+        h.close()
+    tmp = state.pop("tmp", None)
+    if tmp is not None:
+        tmp.cleanup()
+
+
+class SimavrRunner:
+    """Boots an .elf in simavr (see the module docstring); `boot(hal, cfg)` -> `SimavrBoard`.
+
+    probes: {name: ELF symbol} whose calls the harness times (entry cycle and
+    duration of each), kept in `stats["probes"][name]`. eeprom_file: where the
+    EEPROM lives across emulator runs (None: a temporary file, the HAL's
+    persisted memory carries it across resets)."""
+
+    interpreter = "simavr"
+
+    def __init__(self, elf: Path, probes: dict[str, str] | None = None, eeprom_file: Path | None = None) -> None:
+        self.elf_path = Path(elf)
+        self.elf: ElfImage = read_elf(self.elf_path)
+        self.probes = dict(probes or {})
+        for name, sym in self.probes.items():
+            if sym not in self.elf.symbols:
+                raise ArmbridgeError(f"probe {name}: {self.elf_path.name} has no symbol {sym!r}")
+        self.modules: dict = {}     # the firmware does not run in this process
+        self._state: dict[str, Any] = {}
+        self._finalizer = weakref.finalize(self, _stop, self._state)
+        self.eeprom_file = Path(eeprom_file) if eeprom_file is not None else None
+        self.stats: dict[str, Any] = {"min_sp": None, "lost": 0, "probes": {n: [] for n in self.probes}}
+        self.harness: Harness | None = None
+
+    def boot(self, hal: Any, cfg: Any) -> "SimavrBoard":
+        h = self.harness
+        if h is not None and h.proc.poll() is None and not self._state.get("stopped"):
+            h.cycle = int(h.call("RESET").split()[1])
+        else:
+            if h is not None:
+                _stop(self._state)
+            h = self.harness = Harness(self.elf_path, self._eeprom_path(hal))
+            self._state["harness"] = h
+            h.call("WATCH " + " ".join(str(a) for a in hal.elf_watch()))
+            addrs = [self.elf.symbols[s][0] for s in self.probes.values()]
+            h.call("PROBE " + " ".join(map(str, addrs)))
+        self._state["stopped"] = False
+        return SimavrBoard(self, h, hal, int(cfg.N_JOINTS))
+
+    def _eeprom_path(self, hal: Any) -> Path:
+        if self.eeprom_file is not None:
+            return self.eeprom_file
+        if "tmp" not in self._state:
+            self._state["tmp"] = tempfile.TemporaryDirectory(prefix="armbridge-eeprom-")
+        path = Path(self._state["tmp"].name) / "eeprom.bin"
+        data = hal.load_persist()
+        if data:
+            path.write_bytes(bytes(data))
+        return path
+
+    def stopped(self) -> None:
+        self._state["stopped"] = True
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+class SimavrBoard:
+    """The emulator's view of the chip (poll(), state, on_done); see the module docstring."""
+
+    def __init__(self, runner: SimavrRunner, h: Harness, hal: Any, n: int) -> None:
+        self.runner, self.h, self.hal, self.n = runner, h, hal, n
+        self.state = "RESET"
+        self.on_done: Callable[..., None] | None = None
+        self.cycle0 = self.cycle = h.cycle
+        self.us0 = hal.clock.us
+        self.byte_s = 10.0 / float(getattr(hal.uart, "baud", 115200))
+        self._rx = bytearray()
+        self._tx = bytearray()
+        self._pending: dict[str, tuple[str, list[str]]] = {}   # host seq -> (verb, args) of lines fed
+        self._queue: list[tuple[int, tuple[int, ...]]] = []    # W accepted, not yet DONE
+
+    def t_of(self, cycle: int) -> float:
+        return (self.us0 + (cycle - self.cycle0) * 1e6 / self.h.hz) / 1e6
+
+    def cycle_of(self, t: float) -> int:
+        return self.cycle0 + int(round((t * 1e6 - self.us0) * self.h.hz / 1e6))
+
+    def poll(self) -> None:
+        hal, h = self.hal, self.h
+        until = self.cycle0 + (hal.clock.us - self.us0) * h.hz // 1_000_000
+        if until <= self.cycle:
+            return
+        fed = hal.uart_read_timed(self.t_of(until) + self.byte_s)
+        uart = ",".join(f"{min(max(self.cycle_of(t - self.byte_s), self.cycle), until)}:{b:02x}" for t, b in fed)
+        adc, pins = hal.elf_inputs()
+        answer = h.call("RUN %d %s %s %s" % (
+            until, uart or "-", ",".join(f"{c}:{int(mv)}" for c, mv in adc.items()) or "-",
+            ",".join(f"{p}:{int(v)}" for p, v in pins.items()) or "-"))
+        f = answer.split()
+        if len(f) != 9 or f[0] != "DONE":
+            raise ArmbridgeError(f"the simavr harness answered {answer[:200]!r}")
+        self.cycle = int(f[1])
+        for _, b in fed:
+            self._host_byte(b)
+        stats = self.runner.stats
+        if f[4] != "-":
+            watch = hal.elf_watch()
+            for rec in f[4].split(";"):
+                c, vals = rec.split(":")
+                hal.elf_outputs(self.t_of(int(c)), dict(zip(watch, (int(v, 16) for v in vals.split(".")))))
+        if f[3] != "-":
+            for item in f[3].split(","):
+                c, b = item.split(":")
+                hal.uart_write_at(self.t_of(int(c)), bytes((int(b, 16),)))
+                self._board_byte(int(b, 16))
+        if f[5] != "-":
+            names = list(self.runner.probes)
+            for item in f[5].split(","):
+                i, c0, d = map(int, item.split(":"))
+                stats["probes"][names[i]].append((self.t_of(c0), d))
+        sp = int(f[6])
+        stats["min_sp"] = sp if stats["min_sp"] is None else min(stats["min_sp"], sp)
+        stats["lost"] += int(f[8])
+        if f[7] == "1":
+            hal.save_persist(bytes.fromhex(h.call("EEPROM").split()[1]))
+        if int(f[2]) in STATES:
+            self.runner.stopped()
+            raise FirmwareCrashed(f"the chip stopped in simavr: {STATES[int(f[2])]}{h.stderr()}")
+
+    # ---------------------------------------------------------------- lines
+    def _host_byte(self, b: int) -> None:
+        if b == 0x98:          # e-stop: the firmware drops the line it was receiving
+            self._rx.clear()
+        elif b == 0x0A:
+            body = bytes(self._rx).split(b"*", 1)[0].decode("latin-1").split()
+            self._rx.clear()
+            if len(body) >= 2:
+                self._pending[body[0]] = (body[1], body[2:])
+                if len(self._pending) > 256:
+                    self._pending.pop(next(iter(self._pending)))
+        elif len(self._rx) < 200:
+            self._rx.append(b)
+
+    def _board_byte(self, b: int) -> None:
+        if b != 0x0A:
+            if len(self._tx) < 256:
+                self._tx.append(b)
+            return
+        f = bytes(self._tx).split(b"*", 1)[0].decode("latin-1").split()
+        self._tx.clear()
+        if len(f) < 2:
+            return
+        kind = f[1]
+        if kind == "BOOT" and len(f) >= 6:
+            self.state, self._queue = f[5], []
+        elif kind == "T" and len(f) >= 4:
+            self.state = f[3]
+        elif kind == "OK" and len(f) >= 3:
+            verb, args = self._pending.pop(f[2], ("", []))
+            if verb == "W" and len(args) >= 2 + self.n:
+                try:
+                    self._queue.append((int(args[0]), tuple(int(x) for x in args[2:2 + self.n])))
+                except ValueError:
+                    pass
+            elif verb == "CLR" or (verb == "HELLO" and len(f) >= 12 and f[-2] == "-"):
+                self._queue = []
+            if verb == "HELLO" and len(f) >= 5:
+                self.state = f[-1]
+        elif kind == "EV" and len(f) >= 4:
+            ev = f[3]
+            if ev in ("ESTOP", "WDOG", "FAULT"):
+                self.state, self._queue = ev, []
+            elif ev in ("HOLD", "RESUME", "START"):
+                self.state = {"HOLD": "HOLD"}.get(ev, "RUN")
+            elif ev == "CLEAR":
+                self.state, self._queue = "IDLE", []
+            elif ev == "DONE" and len(f) >= 5:
+                self._done(f[4])
+
+    def _done(self, text: str) -> None:
+        try:
+            wid = int(text)
+        except ValueError:
+            return
+        if not any(q[0] == wid for q in self._queue):
+            return
+        while self._queue:
+            qid, targets = self._queue.pop(0)
+            if self.on_done is not None:
+                self.on_done(qid, targets)
+            if qid == wid:
+                break
+
+
+# ---------------------------------------------------------------- the firmware's constants
+
+_DEFINE = re.compile(r"^\s*#define\s+([A-Z_][A-Z0-9_]*)\s+(.+)$")
+
+
+def _value(text: str) -> Any:
+    text = re.sub(r"/\*.*?\*/|//.*$", "", text).strip()
+    if text.startswith('"') and text.endswith('"'):
+        return text[1:-1]
+    if text.startswith("{"):
+        try:
+            return ast.literal_eval(re.sub(r"(\d)[uUlL]+\b", r"\1", text).replace("{", "(").replace("}", ",)"))
+        except (ValueError, SyntaxError):
+            return None
+    m = re.fullmatch(r"(-?(?:0x[0-9a-fA-F]+|\d+))[uUlL]*", text)
+    return int(m.group(1), 0) if m else None
+
+
+def read_config_h(path: Path) -> types.SimpleNamespace:
+    """The firmware's constants from its config.h, as the emulator's cfg: every
+    `#define NAME value` whose value is an integer, a string or a brace list
+    (nested lists become tuples); others are skipped. LIMITS_MRAD ((min, max) per
+    joint) is derived from LIM_MIN_MRAD/LIM_MAX_MRAD when the header has them,
+    so the plant and the checks read the limits the firmware enforces."""
+    if not path.is_file():
+        raise ArmbridgeError(f"the firmware's constants are read from {path}, which is missing")
+    found: dict[str, Any] = {}
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        m = _DEFINE.match(line)
+        if m:
+            v = _value(m.group(2))
+            if v is not None:
+                found[m.group(1)] = v
+    if "LIM_MIN_MRAD" in found and "LIM_MAX_MRAD" in found:
+        found["LIMITS_MRAD"] = tuple(zip(found["LIM_MIN_MRAD"], found["LIM_MAX_MRAD"]))
+    if "N_JOINTS" not in found:
+        raise ArmbridgeError(f"{path} defines no N_JOINTS")
+    return types.SimpleNamespace(**found)
