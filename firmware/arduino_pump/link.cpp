@@ -49,6 +49,7 @@ struct PersistRec {
     char reason[8];
     uint32_t crc;
 };
+static_assert(sizeof(PersistRec) == 32 && EE_LINK_A + 32 <= EE_LINK_B && EE_LINK_B + 32 <= EE_SETTINGS, "persist layout");
 
 static bool rec_valid(const PersistRec &r) {
     if (r.tag != 'P' || r.ver != 2) return false;

@@ -18,7 +18,7 @@
 
 #include "protodef.h"
 
-#define AB_MAX_ARGS 12       /* pointers kept per line; more are counted (ARGS later) */
+#define AB_MAX_ARGS 16       /* pointers kept per line; more are counted (ARGS later) */
 #define AB_DETAIL_MAX 12     /* an error detail: an argument's name or a number */
 
 uint32_t ab_crc32(const uint8_t *data, size_t n, uint32_t epoch);

@@ -20,6 +20,7 @@ struct SettingsRec {
     BendCal cal[N_JOINTS];
     uint32_t crc;
 };
+static_assert(sizeof(SettingsRec) == 44 && sizeof(SettingsRec) <= EE_SIZE - EE_SETTINGS, "settings layout");
 
 void PumpBoard::load_settings() {
     static const int32_t defaults[N_JOINTS][4] = BEND_DEFAULT;

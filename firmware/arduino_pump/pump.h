@@ -20,11 +20,11 @@
 #include "link.h"
 #include "traj.h"
 
-struct BendCal {
-    uint16_t adc_a;
+struct BendCal {              /* 12 bytes on the AVR and natively (EEPROM layout) */
     int32_t a;
-    uint16_t adc_b;
     int32_t b;
+    uint16_t adc_a;
+    uint16_t adc_b;
 };
 
 class PumpBoard : public BoardIf {

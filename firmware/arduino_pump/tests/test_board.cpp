@@ -1,0 +1,283 @@
+/* The board's logic natively over the fake HAL: boot and HELLO, waypoints to DONE,
+ * the e-stop within one period, the watchdog, latches and settings across a reset
+ * through the fake EEPROM, bad commands answered while the board keeps answering,
+ * end stops, the dead band and the asymmetry, retransmits, SETLIM, FAULT, Modbus. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "check.h"
+#include "control.h"
+#include "modbus.h"
+#include "rig.h"
+
+static uint8_t EE[EE_SIZE];
+
+static void fresh_eeprom() { memset(EE, 0xFF, sizeof EE); }
+
+static bool within(int32_t a, int32_t b, int32_t tol) { return a - b <= tol && b - a <= tol; }
+
+static void boot_and_hello() {
+    fresh_eeprom();
+    Rig r(EE);
+    CHECK(r.hal.tx.compare(0, strlen("\n"), "\n") == 0);
+    CHECK(r.seen("BOOT arduino_pump 0.1.0 2 IDLE"));
+    CHECK(r.cmd("PING").compare(0, strlen("OK "), "OK ") == 0);             /* read-only: no session needed */
+    CHECK(r.cmd("W 0 100 0 0 0") == "ER 10 NOSESSION");
+    r.seq = 1;
+    CHECK(r.hello(1) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 - - IDLE");
+    CHECK(r.cmd("LIM 1") == "OK 32 1 0 524 500");
+    CHECK(r.cmd("LIM 3") == "OK 32 3 0 1047 500");
+    CHECK(r.cmd("LIM 4") == "ER 6 RANGE joint");
+    CHECK(r.hal.off_calls >= 1 && r.bad_lines == 0);
+}
+
+static std::vector<int32_t> done_ids;
+static void on_done(int32_t id) { done_ids.push_back(id); }
+
+static void waypoints_to_done() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.board.on_done = on_done;
+    done_ids.clear();
+    r.hello(1);
+    CHECK(r.cmd("W 0 1500 300 500 600") == "OK 31");
+    CHECK(r.cmd("W 1 1500 150 300 400") == "OK 30");
+    r.run(200);
+    CHECK(r.seen("EV START 0") && r.board.link.state == ST_RUN);
+    r.run_live(5000);
+    CHECK(r.seen("EV DONE 1 32") && r.board.link.done == 1 && done_ids.size() == 2 && done_ids[1] == 1);
+    /* settled: every joint inside its dead band of the last target */
+    int32_t want[3] = {150, 300, 400};
+    for (int j = 0; j < 3; j++)
+        CHECK_MSG(within(r.board.q[j], want[j], DBAND_DEFAULT_MRAD), "joint %d at %d", j + 1, r.board.q[j]);
+    CHECK(r.board.link.state == ST_IDLE);
+    CHECK(r.cmd("STAT").compare(0, strlen("OK 32 IDLE 1 1"), "OK 32 IDLE 1 1") == 0);
+    /* a waypoint outside the limits, and a full queue */
+    CHECK(r.cmd("W 2 100 600 0 0") == "ER 6 RANGE 1");
+    CHECK(r.cmd("HOLD") == "OK 32");
+    for (int i = 0; i < 32; i++) r.cmd("W " + std::to_string(10 + i) + " 100 100 100 100");
+    CHECK(r.cmd("W 99 100 100 100 100") == "ER 8 FULL");
+    CHECK(r.bad_lines == 0);
+}
+
+static void estop_within_one_period() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    r.cmd("W 0 3000 500 900 1000");
+    r.run(300);
+    CHECK(r.hal.duty[0] != 0 || r.hal.duty[1] != 0);
+    r.forget();
+    r.hal.push("\x98");
+    /* the receive path: motors off before the board's next pass */
+    CHECK(r.hal.duty[0] == 0 && r.hal.duty[1] == 0 && r.hal.duty[2] == 0);
+    r.run(PERIOD_MS);   /* within one control period: latched and reported */
+    CHECK(r.board.link.state == ST_ESTOP && r.seen("EV ESTOP"));
+    r.run(100);
+    CHECK(r.hal.duty[0] == 0 && r.hal.duty[1] == 0 && r.hal.duty[2] == 0);
+    CHECK(r.cmd("W 1 100 0 0 0") == "ER 9 LATCHED");
+    CHECK(r.cmd("STAT").compare(0, strlen("OK 32 ESTOP"), "OK 32 ESTOP") == 0);
+    CHECK(r.cmd("CLR") == "OK 32" && r.board.link.state == ST_IDLE && r.seen("EV CLEAR"));
+    /* mid-line: the rest of that line is dropped silently, the next one runs */
+    r.hal.push("6 PI\x98NG*00000000\n");
+    r.run(5);
+    CHECK(r.board.link.state == ST_ESTOP);
+    CHECK(r.cmd("CLR") == "OK 32");
+}
+
+static void watchdog() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    CHECK(r.cmd("WDOG 200") == "OK 32");
+    r.cmd("W 0 5000 300 300 300");
+    for (int i = 0; i < 10; i++) {   /* PINGs (answered OK) keep it fed */
+        r.run(100);
+        r.cmd("PING");
+    }
+    CHECK(r.board.link.state == ST_RUN);
+    for (int i = 0; i < 5; i++) {    /* lines answered ER never feed it */
+        r.hal.push("99 PING*00000000\n");
+        r.run(60);
+    }
+    CHECK(r.board.link.state == ST_WDOG && r.seen("EV WDOG"));
+    CHECK(r.hal.duty[0] == 0 && r.hal.duty[1] == 0 && r.hal.duty[2] == 0);
+    CHECK(r.cmd("W 1 100 0 0 0").find(" 9 LATCHED") != std::string::npos);
+}
+
+static void latches_across_reset() {
+    fresh_eeprom();
+    {
+        Rig r(EE);
+        r.hello(3, 77);
+        r.cmd("W 5 500 100 100 100");
+        r.run_live(3000);
+        CHECK(r.board.link.done == 5);
+        r.hal.push("\x98");
+        r.run(10);
+        CHECK(r.board.link.state == ST_ESTOP);
+        CHECK(r.cmd("BEND 2 100 -50 900 1500") == "OK 32");
+    }
+    Rig r(EE);   /* the reset: a new board over the same EEPROM */
+    CHECK(r.seen("BOOT arduino_pump 0.1.0 2 ESTOP"));
+    CHECK(r.board.cal[1].adc_a == 100 && r.board.cal[1].a == -50 && r.board.cal[1].b == 1500);
+    CHECK(r.cmd("W 6 100 0 0 0") == "" && r.seen("ER - 2 CRC"));   /* checked with the persisted epoch */
+    r.epoch = 3;
+    CHECK(r.cmd("W 6 100 0 0 0") == "ER 10 NOSESSION");
+    r.seq = 9;
+    CHECK(r.hello(3, 77) == "ER 11 STALE 3");      /* the epoch survived */
+    CHECK(r.hello(4, 77) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 5 - ESTOP");   /* done and latch too */
+    r.run(100);
+    CHECK(r.hal.duty[0] == 0 && !r.board.link.outputs_allowed);
+    CHECK(r.cmd("CLR") == "OK 32" && r.board.link.outputs_allowed);
+    /* a torn record falls back to the other slot; both torn reads as power on */
+    EE[EE_LINK_A + 5] ^= 0xFF;
+    EE[EE_LINK_B + 5] ^= 0xFF;
+    Rig p(EE);
+    CHECK(p.seen("BOOT arduino_pump 0.1.0 2 IDLE") && p.board.link.sess.epoch == 0);
+}
+
+static void bad_commands_keep_answering() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    r.forget();
+    r.hal.push("garbage\n");
+    r.hal.push(std::string(200, 'x') + "\n");
+    r.hal.push("\n");
+    r.hal.push(r.frame("2 PING", 7));   /* another epoch: CRC */
+    r.run(5);
+    CHECK(r.seen("ER - 1 PARSE") && r.seen("ER - 3 LONG") && r.seen("ER - 2 CRC"));
+    CHECK(r.cmd("JUMP 1") == "ER 4 VERB");
+    CHECK(r.cmd("X 1 100 0 0 0") == "ER 4 VERB");          /* the arm's verb: not this board's */
+    CHECK(r.cmd("RATE 01") == "ER 5 ARGS");
+    CHECK(r.cmd("RATE 101") == "ER 6 RANGE hz");
+    CHECK(r.cmd("SETLIM 1 0 600 500") == "ER 6 RANGE 1");   /* past the hard limit */
+    CHECK(r.cmd("BEND 1 100 5 100 9") == "ER 6 RANGE 1");   /* adc_a == adc_b */
+    CHECK(r.cmd("HELLO 3 1 1") == "ER 12 PROTO 2");   /* a HELLO is not recorded: expect stays 8 */
+    r.seq = 20;
+    CHECK(r.cmd("PING") == "ER 7 SEQ 8");
+    r.seq = 8;
+    CHECK(r.cmd("PING").compare(0, strlen("OK 32 "), "OK 32 ") == 0 && r.bad_lines == 0);
+}
+
+static void replay_executes_once() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    std::string w = r.frame("2 W 0 2000 100 100 100", 1);
+    r.hal.push(w);
+    r.run(3);
+    r.hal.push(w);   /* the retransmit */
+    r.run(3);
+    r.seq = 3;
+    r.lines();
+    CHECK(r.board.traj.queued() + (r.board.traj.active_id >= 0) == 1);
+    int oks = 0;
+    for (size_t i = 0; i < r.log.size(); i++) oks += r.log[i].find(" OK 2 31") != std::string::npos;
+    CHECK(oks == 2);
+}
+
+static void end_stop_stops_that_pump() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    r.hal.force_stop[0] = 2;   /* pump 1 at its extended stop */
+    r.cmd("W 0 1000 400 400 400");
+    r.run(500);
+    CHECK(r.hal.duty[0] == 0 && r.seen("EV ENDSTOP 1"));
+    CHECK(r.hal.duty[1] > 0 && r.hal.duty[2] > 0);       /* the others pump on */
+    CHECK(r.board.stops & 2);
+    r.run_live(3000);   /* joint 1 cannot follow: following error latches FAULT */
+    CHECK(r.board.link.state == ST_FAULT && r.seen("EV FAULT 1"));
+    CHECK(r.cmd("STAT").find("FAULT") != std::string::npos && r.cmd("STAT").find("FOLLOW:1") != std::string::npos);
+}
+
+static void dead_band_and_asymmetry() {
+    PGain g;
+    g.kp = 4000;
+    g.dband = 70;
+    CHECK(p_control(g, 0) == 0 && p_control(g, 70) == 0 && p_control(g, -70) == 0);
+    CHECK(p_control(g, 71) >= DUTY_MIN && p_control(g, -71) <= -DUTY_MIN);
+    CHECK(p_control(g, 200) == 480 && p_control(g, -200) == -800);    /* inflation at 0.6 x kp */
+    CHECK(p_control(g, 100000) == DUTY_MAX_INFLATE && p_control(g, -100000) == -DUTY_MAX_DEFLATE);
+    g.kp = 0;
+    CHECK(p_control(g, 500) == 0);
+    /* on the board: inside the band the pumps are off */
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    r.cmd("W 0 1000 300 300 300");
+    r.run_live(4000);
+    for (int j = 0; j < 3; j++) CHECK(r.hal.duty[j] == 0 && within(r.board.q[j], 300, 70));
+    CHECK(r.cmd("DBAND 2 10") == "OK 32");
+    r.run_live(2000);
+    CHECK(within(r.board.q[1], 300, 10));
+    CHECK(r.cmd("GAIN 1 0 0 0") == "OK 32");
+    r.cmd("W 1 500 500 300 300");
+    r.run(500);
+    CHECK(r.hal.duty[0] == 0);   /* kp 0: joint 1 undriven */
+}
+
+static void setlim_ramps() {
+    fresh_eeprom();
+    Rig r(EE);
+    r.hello(1);
+    r.cmd("W 0 1000 400 400 400");
+    r.run_live(3000);
+    CHECK(r.cmd("SETLIM 1 0 200 100") == "OK 32");
+    r.run(20);
+    CHECK(r.seen("EV LIMIT 1"));
+    float last = r.board.traj.sp[0];
+    for (int i = 0; i < 100; i++) {   /* never faster than the new vmax: 1 mrad per 10 ms */
+        r.run(PERIOD_MS);
+        CHECK(last - r.board.traj.sp[0] <= 1.001f && last >= r.board.traj.sp[0]);
+        last = r.board.traj.sp[0];
+    }
+    CHECK(r.cmd("W 1 100 300 0 0") == "ER 6 RANGE 1");
+    CHECK(r.cmd("LIM 1") == "OK 32 1 0 200 100");
+}
+
+static std::string mb_frame(std::vector<uint8_t> f) {
+    uint16_t crc = mb_crc16(f.data(), (uint16_t)f.size());
+    f.push_back((uint8_t)(crc & 0xFF));
+    f.push_back((uint8_t)(crc >> 8));
+    return std::string(f.begin(), f.end());
+}
+
+static void modbus_switch() {
+    fresh_eeprom();
+    {
+        Rig r(EE);
+        r.hello(1);
+        CHECK(r.cmd("MODBUS 5") == "OK 32");
+        CHECK(r.board.link.modbus());
+        size_t before = r.hal.tx.size();
+        r.hal.push(mb_frame({5, 4, 0, 44, 0, 1}));   /* FC4: input register 44, n */
+        r.run(5);
+        std::string reply = r.hal.tx.substr(before);
+        CHECK(reply.size() == 7 && (uint8_t)reply[1] == 4 && (uint8_t)reply[4] == 3);
+    }
+    Rig r(EE);   /* kept across a reset: boots speaking Modbus, no text banner */
+    CHECK(r.board.link.modbus() && r.hal.tx.empty());
+    r.hal.push(mb_frame({5, 6, 0, MB_HR_COMMAND, 0, MB_CMD_LINE}));
+    r.run(5);
+    CHECK(r.hal.tx.size() == 8 && !r.board.link.modbus());
+    r.rd = r.hal.tx.size();
+    r.seq = 1;
+    CHECK(r.hello(2).compare(0, strlen("OK"), "OK") == 0);
+}
+
+void run_board() {
+    boot_and_hello();
+    waypoints_to_done();
+    estop_within_one_period();
+    watchdog();
+    latches_across_reset();
+    bad_commands_keep_answering();
+    replay_executes_once();
+    end_stop_stops_that_pump();
+    dead_band_and_asymmetry();
+    setlim_ramps();
+    modbus_switch();
+}
