@@ -191,3 +191,59 @@ class PumpSimHal(SimHal):
 
     def write_outputs(self, efforts) -> None:
         raise ArmbridgeError("the pump board has no write_outputs: its motors are the chip's pins")
+
+
+def _spread(xs: list[float]) -> dict[str, float]:
+    a = np.asarray(xs, dtype=float)
+    if not a.size:
+        return {"n": 0}
+    return {"n": int(a.size), "mean": float(a.mean()), "min": float(a.min()), "max": float(a.max()),
+            "std": float(a.std())}
+
+
+def pump_timing(emu: Any) -> dict[str, Any]:
+    """The board's timing in simulated cycles (a simavr-run EmulatedBoard after a run).
+
+    control_period_us: between successive entries of the control period's work
+      (PumpBoard::control); jitter = max - min. sample_period_us: the same between
+      conversions of joint 1's bend sensor (the control period samples it first).
+    control_cycles: the control period's work, per call.
+    line_check_cycles: per host line, the CRC check (ab_crc32) just before the grammar and
+      range checks (ab_parse_command) plus those; worst case = max.
+    estop_latency_us: from each e-stop byte's delivery (its receive flag) to every motor
+      pin off, and the cycles of the same.
+    free_ram_bytes: lowest stack pointer seen minus the end of .data/.bss/.noinit."""
+    runner, hal, cfg = emu.runner, emu.hal, emu.cfg
+    hz = float(runner.harness.hz)
+    ch0 = int(cfg.PIN_BEND[0])
+    starts = [t for t, ch in hal.adc_starts if ch == ch0]
+    sample = [(b - a) * 1e6 for a, b in zip(starts, starts[1:])]
+    probes = runner.stats["probes"]
+    entries = [t for t, _ in probes.get("control", [])]
+    period = [(b - a) * 1e6 for a, b in zip(entries, entries[1:])]
+    control = [d for _, d in probes.get("control", [])]
+    crcs = sorted(probes.get("crc", []))
+    lines = []
+    for t, d in probes.get("parse", []):
+        before = [c for c in crcs if c[0] <= t]
+        lines.append(d + (before[-1][1] if before else 0))
+    latency = []
+    for t in hal.estop_byte_at:
+        off = [x for x in hal.outputs_off_at if x >= t - 1e-6]
+        if off:
+            latency.append((off[0] - t) * 1e6)
+    spread = _spread(period)
+    return {
+        "hz": hz,
+        "control_period_us": spread,
+        "control_jitter_us": (spread["max"] - spread["min"]) if period else None,
+        "sample_period_us": _spread(sample),
+        "control_cycles": _spread(control),
+        "line_check_cycles": _spread(lines),
+        "estop_latency_us": _spread(latency),
+        "min_sp": runner.stats["min_sp"],
+        "free_ram_bytes": (runner.stats["min_sp"] or 0) - runner.elf.ram_end_of_statics,
+        "flash_bytes": runner.elf.flash_bytes,
+        "static_ram_bytes": runner.elf.static_ram_bytes,
+        "uart_bytes_lost": runner.stats["lost"],
+    }

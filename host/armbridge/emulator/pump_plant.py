@@ -44,7 +44,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-ADC_FULL = 1024          # 10-bit ADC
+# simavr 1.6 converts vin * 1023 / vref (the datasheet's chip: vin * 1024 / vref); the
+# sensor voltages are inverted through simavr's conversion so that the firmware reads
+# the calibrated angle, as it would on the chip with a sensor calibrated there.
+ADC_FULL = 1023
 ADC_REF_MV = 5000.0      # AVCC = 5 V
 
 

@@ -59,6 +59,9 @@ from armbridge.errors import ArmbridgeError
 APT = "apt-get install -y --no-install-recommends gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
 ANSWER_TIMEOUT_S = 30.0
 STATES = {7: "done (slept with interrupts off)", 8: "crashed"}
+# Timed whenever the image has them (docs/emulator.md, "Syringe-pump board in simavr"):
+# the control period's work, and the checks of a host line (CRC, then grammar and ranges).
+DEFAULT_PROBES = {"control": "PumpBoard::control", "crc": "ab_crc32", "parse": "ab_parse_command"}
 
 
 class FirmwareCrashed(RuntimeError):
@@ -215,8 +218,9 @@ def _stop(state: dict) -> None:
 class SimavrRunner:
     """Boots an .elf in simavr (see the module docstring); `boot(hal, cfg)` -> `SimavrBoard`.
 
-    probes: {name: ELF symbol} whose calls the harness times (entry cycle and
-    duration of each), kept in `stats["probes"][name]`. eeprom_file: where the
+    probes: {name: function} whose calls the harness times (entry time and
+    duration in cycles of each), kept in `stats["probes"][name]` (None:
+    DEFAULT_PROBES, those the image has). eeprom_file: where the
     EEPROM lives across emulator runs (None: a temporary file, the HAL's
     persisted memory carries it across resets)."""
 
@@ -225,10 +229,13 @@ class SimavrRunner:
     def __init__(self, elf: Path, probes: dict[str, str] | None = None, eeprom_file: Path | None = None) -> None:
         self.elf_path = Path(elf)
         self.elf: ElfImage = read_elf(self.elf_path)
-        self.probes = dict(probes or {})
-        for name, sym in self.probes.items():
-            if sym not in self.elf.symbols:
-                raise ArmbridgeError(f"probe {name}: {self.elf_path.name} has no symbol {sym!r}")
+        self.probes: dict[str, int] = {}
+        for name, sym in (DEFAULT_PROBES if probes is None else probes).items():
+            addr = self.elf.function(sym)
+            if addr is not None:
+                self.probes[name] = addr
+            elif probes is not None:
+                raise ArmbridgeError(f"probe {name}: {self.elf_path.name} has no function {sym!r}")
         self.modules: dict = {}     # the firmware does not run in this process
         self._state: dict[str, Any] = {}
         self._finalizer = weakref.finalize(self, _stop, self._state)
@@ -246,8 +253,7 @@ class SimavrRunner:
             h = self.harness = Harness(self.elf_path, self._eeprom_path(hal))
             self._state["harness"] = h
             h.call("WATCH " + " ".join(str(a) for a in hal.elf_watch()))
-            addrs = [self.elf.symbols[s][0] for s in self.probes.values()]
-            h.call("PROBE " + " ".join(map(str, addrs)))
+            h.call("PROBE " + " ".join(map(str, self.probes.values())))
         self._state["stopped"] = False
         return SimavrBoard(self, h, hal, int(cfg.N_JOINTS))
 

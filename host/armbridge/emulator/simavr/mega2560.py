@@ -134,6 +134,16 @@ class ElfImage:
     path: Path
     symbols: dict[str, tuple[int, int]]   # name -> (address, size); data symbols without DATA_VMA
     sections: dict[str, int]              # name -> size in bytes
+    functions: dict[str, int]             # function symbol -> flash byte address
+
+    def function(self, name: str) -> int | None:
+        """The address of function `name`: a C symbol, or a C++ name such as
+        "PumpBoard::control" matched in its mangled form (any overload, any LTO clone)."""
+        if name in self.functions:
+            return self.functions[name]
+        needle = "".join(f"{len(part)}{part}" for part in name.split("::"))
+        hits = sorted(a for s, a in self.functions.items() if s.startswith("_Z") and needle in s)
+        return hits[0] if hits else None
 
     @property
     def flash_bytes(self) -> int:
@@ -168,14 +178,17 @@ def read_elf(path: str | Path) -> ElfImage:
 
     sections: dict[str, int] = {}
     symbols: dict[str, tuple[int, int]] = {}
+    functions: dict[str, int] = {}
     for h in heads:
         sname = name_at(shstrndx, h[0])
         sections[sname] = h[5]      # SHT_NOBITS (.bss) has a size too
         if h[1] == 2:          # SHT_SYMTAB
             strtab = h[6]
             for k in range(h[5] // 16):
-                st_name, value, size, _info, _other, _shndx = struct.unpack_from("<IIIBBH", data, h[4] + k * 16)
+                st_name, value, size, info, _other, _shndx = struct.unpack_from("<IIIBBH", data, h[4] + k * 16)
                 if st_name:
                     sym = name_at(strtab, st_name)
                     symbols[sym] = (value - DATA_VMA if value >= DATA_VMA else value, size)
-    return ElfImage(p, symbols, sections)
+                    if info & 0xF == 2:     # STT_FUNC
+                        functions[sym] = value
+    return ElfImage(p, symbols, sections, functions)
