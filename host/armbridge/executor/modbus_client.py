@@ -22,7 +22,6 @@ piece becomes without the line protocol:
 """
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -172,7 +171,7 @@ class ModbusClient:
         try:
             ident = self._read_input(IR_IDENT, IR_IDENT_N)
         except ModbusError as exc:
-            raise ArmbridgeError(f"no Modbus answer from the board: {exc}") from None
+            raise ArmbridgeError(f"the board did not give its identity over Modbus: {exc}") from None
         name = b"".join(bytes([w >> 8, w & 0xFF]) for w in ident[0:8]).split(b"\0")[0].decode("ascii", "replace")
         version = ".".join(str(x) for x in ident[8:11])
         tel = self.poll()
@@ -291,7 +290,7 @@ class ModbusClient:
             self._next_poll = now + period
             self.poll()
         else:
-            time.sleep(min(0.002, self._next_poll - now))
+            self.master.idle(min(0.002, self._next_poll - now))
 
     # ------------------------------------------------------------------ streaming
     def execute(self, durations_ms: Sequence[int], q_milli: Sequence[Sequence[int]],

@@ -138,9 +138,20 @@ class RtuMaster:
                           f"({why}, {tries} tries of {self.timeout * 1000:.0f} ms): is it on this port, at this "
                           f"address and baud rate, and speaking Modbus RTU?")
 
+    def idle(self, seconds: float) -> None:
+        """Wait about `seconds` by reading the port (a late byte is dropped: no request is
+        open). Reading, not sleeping: a lockstep emulator runs only while its host reads."""
+        saved = getattr(self.port, "timeout", None)
+        self.port.timeout = max(0.0005, min(seconds, 0.01))
+        try:
+            if self.port.read(64):
+                self._quiet_since = self.now()
+        finally:
+            self.port.timeout = saved
+
     def _send(self, frame: bytes) -> None:
         while self.now() - self._quiet_since < self.gap:  # t3.5 of silence before a frame
-            time.sleep(self.gap / 4)
+            self.idle(self.gap / 4)
         try:
             stale = self.port.in_waiting
             if stale:
