@@ -30,6 +30,13 @@ Resets (`reset()`, `Faults.reset_at`, `schedule_reset(t)`) throw away the board
 and its firmware state, keep the persisted memory and the plant, switch the
 outputs off for `boot_ms` of sim time (bytes from the host are lost meanwhile),
 then boot the firmware afresh (`runner.boot`), which prints BOOT.
+
+A MicroPython board also has its flash filesystem (`boardfs.BoardFs`, seeded
+from the firmware folders; `fs_dir=` keeps it in a host folder) and its REPL
+console (`repl.Console`): a Ctrl-C from the host stops the firmware and the
+pty speaks MicroPython's raw REPL, so mpremote can copy files; a reset then
+boots the firmware in that filesystem (main.py and the modules it holds), not
+the checkout's (docs/flash.md).
 """
 from __future__ import annotations
 
@@ -49,8 +56,10 @@ import numpy as np
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.plant import PlantParams
 from armbridge.emulator.pty import Pty, open_pty
-from armbridge.emulator.registry import BoardSpec, board_spec
-from armbridge.emulator.runner import firmware_config, make_runner
+from armbridge.emulator.boardfs import BoardFs
+from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware, board_spec
+from armbridge.emulator.repl import Console, cooked
+from armbridge.emulator.runner import boot_from, firmware_config, make_runner
 from armbridge.emulator.simhal import PersistentMemory, SimClock, board_files
 from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
@@ -87,6 +96,7 @@ class EmulatedBoard:
         tick_offset_ms: int = 0,
         boot_ms: float = 250.0,
         on_line: Callable[[float, bytes], None] | None = None,
+        fs_dir: str | os.PathLike | None = None,
     ) -> None:
         spec = board_spec(device)
         self.spec = spec
@@ -124,6 +134,11 @@ class EmulatedBoard:
         self.persist = PersistentMemory(size=spec.persist_bytes)
         self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,
                             tick_offset_ms=tick_offset_ms, on_line=self._tap, files=board_files(self.cfg))
+        self.fs: BoardFs | None = None
+        self.console: Console | None = None
+        if isinstance(spec.firmware, MicroPythonFirmware):
+            self.fs = BoardFs.for_board([root / d for d in spec.firmware.dirs], self.hal.files, fs_dir)
+            self.console = Console(self.fs, self.uart.bytes_per_s, self._interrupt, self._repl_reset)
 
         # (board_ms, id, (q1..qn) in milli-units as the W line carried them) of every
         # completed waypoint (the firmware's on_done hook), across resets.
@@ -160,11 +175,40 @@ class EmulatedBoard:
         self.hal.reset_line_tap()
         self._boot_at = None
         self.boots.append(self.clock.t)
-        board = self.runner.boot(self.hal, self.cfg)
+        cfg = self.cfg
+        if self.fs is not None and not self.fs.pristine:  # boot what the filesystem holds
+            try:
+                if "main.py" not in self.fs.files:
+                    self.console.to_repl()  # type: ignore[union-attr]  # no main.py: the board sits at its REPL
+                    return
+                fw = self.spec.firmware
+                cfg = boot_from(self.runner, [self.fs.firmware_dir()], fw.config_module)  # type: ignore[union-attr]
+                self.hal.files = self.fs.board_files()
+                board = self.runner.boot(self.hal, cfg)
+            except Exception:
+                self.crash = traceback.format_exc()
+                self.console.to_repl(cooked(self.crash))  # type: ignore[union-attr]  # as main.py's traceback
+                return
+        else:
+            board = self.runner.boot(self.hal, cfg)
         board.on_done = self._on_done
         self.board = board
 
+    def _interrupt(self) -> None:
+        """Ctrl-C from the host: the firmware stops (outputs off) and the REPL has the pty."""
+        if self.board is not None:
+            self.hal.outputs_off()
+        self.board = None
+        self._boot_at = None
+        self.uart.rx.clear()
+
+    def _repl_reset(self, kind: str) -> None:
+        """machine.reset() or a soft reboot from the friendly REPL: main.py boots."""
+        self._begin_reset()
+
     def _begin_reset(self) -> None:
+        if self.console is not None:
+            self.console.to_link()
         self.hal.outputs_off()
         self.board = None
         self._counters["resets"] += 1
@@ -193,6 +237,8 @@ class EmulatedBoard:
             self._begin_reset()
         if self._pty is not None and read_host:
             data = self._pty.read()
+            if data and self.console is not None:
+                data = self.console.from_host(data, now)
             if data:
                 self.uart.host_write(data, now)
         if self.board is None and self._boot_at is not None and now >= self._boot_at:
@@ -210,6 +256,8 @@ class EmulatedBoard:
         elif self._boot_at is not None:
             self._counters["lost_in_reset"] += self.uart.rx.clear()
         out = self.uart.host_read(now + 1e-9)
+        if self.console is not None:
+            out += self.console.poll(now + 1e-9)
         if out:
             if self._pty is not None:
                 self._pty.pending += out
@@ -269,7 +317,10 @@ class EmulatedBoard:
     def inject(self, data: bytes) -> None:
         """Bytes from the host, arriving now (they go through the paced, faulty rx lane)."""
         with self._lock:
-            self.uart.host_write(bytes(data), self.clock.t)
+            data = bytes(data)
+            if self.console is not None:
+                data = self.console.from_host(data, self.clock.t)
+            self.uart.host_write(data, self.clock.t)
 
     def read_output(self) -> bytes:
         """Bytes that have left the board for the host since the last call (no-pty use)."""
@@ -331,6 +382,8 @@ class EmulatedBoard:
     def state(self) -> str:
         b = self.board
         if b is None:
+            if self.console is not None and self.console.mode == "repl":
+                return "REPL"
             return "CRASHED" if self.crash else "RESET"
         return b.state
 
@@ -400,6 +453,10 @@ class EmulatedBoard:
         if not self._closed:
             self._closed = True
             self.runner.close()
+            if self.console is not None:
+                self.console.close()
+            if self.fs is not None:
+                self.fs.close()
 
     close = stop
 

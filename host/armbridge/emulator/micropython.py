@@ -199,6 +199,15 @@ class MicroPythonRunner:
 
         return load_firmware(self.dirs, (self.config_module,))[self.config_module]
 
+    def set_dirs(self, dirs: Sequence[os.PathLike | str]) -> None:
+        """Boot from the firmware folders `dirs` from now on (runner.boot_from);
+        the spare interpreter, loaded with the old ones, is dropped."""
+        self.dirs = [Path(d) for d in dirs]
+        self.argv = self.argv[:self.argv.index("serve") + 1] + [str(d) for d in self.dirs]
+        for p in [p for p in self._procs if p.version is None]:
+            p.close()
+            self._procs.remove(p)
+
     def _spawn(self) -> NodeProcess:
         p = NodeProcess(self.argv, self.timeout)
         self._procs.append(p)

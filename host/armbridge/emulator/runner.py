@@ -28,6 +28,9 @@ and the board it returns with:
     board.on_done = f             set by the emulator after boot; the firmware calls
                                   f(id, targets_milli) for every completed waypoint
 
+`boot_from(runner, dirs, config_module)` points a runner at other folders
+(a board's emulated filesystem) for its next boots.
+
 `make_runner(spec, interpreter, root)` picks the runner; "micropython" is
 `armbridge.emulator.micropython.MicroPythonRunner(dirs, board_module,
 config_module)`, constructed like `CPythonRunner`.
@@ -122,6 +125,18 @@ class CPythonRunner:
 
     def close(self) -> None:
         pass
+
+
+def boot_from(runner: Any, dirs: list[Path], config_module: str) -> Any:
+    """Point `runner` at the firmware folders `dirs` for its next boots (an
+    emulated board's filesystem, boardfs.BoardFs.firmware_dir) -> the config
+    module found there (the firmware's own constants: FW_VERSION, ...)."""
+    set_dirs = getattr(runner, "set_dirs", None)
+    if set_dirs is not None:
+        set_dirs(dirs)
+    else:
+        runner.dirs = list(dirs)
+    return load_firmware(list(dirs), (config_module,))[config_module]
 
 
 # ---------------------------------------------------------------- choosing one
