@@ -43,6 +43,7 @@ struct Rig {
      * board's seq and the command's ("OK 31", "ER 6 RANGE 1"), "" when none came. */
     std::string cmd(const std::string &text) {
         uint16_t s = seq++;
+        lines();   /* what came before is not this command's answer */
         hal.push(frame(std::to_string(s) + " " + text, epoch));
         run(3);
         std::vector<std::string> got = lines();
