@@ -86,9 +86,25 @@ step_apt() {
     $cmd -qq >/dev/null
 }
 
+# The simavr harness of the Arduino boards' emulator (host/armbridge/emulator/simavr):
+# built into the cache folder the emulator uses, where it would otherwise be built on
+# first use. Needs the apt step's libsimavr-dev; skipped (with a note) without it.
+step_harness() {
+    if [[ ! -f /usr/include/simavr/sim_avr.h ]]; then
+        log "simavr harness skipped: libsimavr-dev is missing"
+        return
+    fi
+    local out
+    out=$("$VENV/bin/python" -c 'from armbridge.emulator.simavr_runner import harness_binary; print(harness_binary())' 2>&1) || {
+        echo "setup: building the simavr harness failed: $out" >&2
+        exit 1
+    }
+}
+
 step_venv
 step_pip
 step_npm
 step_typings
 step_apt
+step_harness
 log "environment ready"

@@ -42,7 +42,8 @@ def emulate_cmd(
     speed: float = typer.Option(1.0, "--speed", help="Sim time per wall time: 1 real time, K faster, 0 as fast as it goes."),
     interpreter: Optional[str] = typer.Option(None, "--interpreter", metavar="NAME",
                                               help="Run the firmware under cpython (default) or micropython "
-                                                   "(the real MicroPython interpreter, WebAssembly, slower)."),
+                                                   "(the real MicroPython interpreter, WebAssembly, slower); "
+                                                   "arduino_pump: simavr (its only one: the real .elf, cycle-exact)."),
     servos: Optional[str] = typer.Option(None, "--servos", metavar="RIG",
                                          help="The board's rig (its config SERVOS): " + _RIGS + ". effort: continuous "
                                               "servos driven by effort (default); pca9685: positional servos behind "
