@@ -95,12 +95,14 @@ def test_interpreter_choice_is_checked():
     assert parse_emu_url("emu:esp32?interpreter=micropython")[1] == {"interpreter": "micropython"}
 
 
-def test_an_elf_board_is_data_too_and_says_what_it_lacks():
+def test_an_elf_board_is_data_too_and_says_what_it_lacks(tmp_path):
+    (tmp_path / "pump").mkdir()
+    (tmp_path / "pump" / "Makefile").write_text("all:\n\t@true\n")   # builds nothing
     pump = BoardSpec(name="pump", description="syringe pump (AVR)", identity="pump",
-                     firmware=ElfFirmware(folder="arduino_pump", elf="build/pump.elf"))
+                     firmware=ElfFirmware(folder="pump", elf="build/pump.elf"))
     assert pump.interpreters == ("simavr",)
-    with pytest.raises(ArmbridgeError, match="simavr runner"):
-        EmulatedBoard(pump, speed=0)
+    with pytest.raises(ArmbridgeError, match="did not produce build/pump.elf|avr-gcc is missing"):
+        EmulatedBoard(pump, speed=0, firmware_root=tmp_path)
 
 
 def test_micropython_missing_is_one_clear_error(monkeypatch):
