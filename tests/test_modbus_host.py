@@ -213,6 +213,19 @@ def test_board_info_and_state_cli(peer) -> None:
     assert res.returncode == 1 and f"device {ADDR} did not answer" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_bench_round_trip(peer) -> None:
+    from armbridge.bench.modbus import modbus_round_trip, wire_ms
+
+    peer.model.hold[0:3] = [7, 8, 9]
+    r = modbus_round_trip(f"modbus:{peer.port_name}?addr={ADDR}", n=10)
+    assert r["n"] == 10 and r["retries"] == 0 and r["baud"] == 115200
+    for key in ("read_one", "write_setpoints"):
+        assert 0 < r[key]["min_ms"] <= r[key]["median_ms"] <= r[key]["p95_ms"] <= r[key]["max_ms"]
+    assert r["wire_read_ms"] == pytest.approx(wire_ms(8, 7)) and 4.9 < r["wire_read_ms"] < 5.0
+    # the set points written are those the board had: nothing moved
+    assert peer.model.hold[0:3] == [0, 0, 0] and peer.model.queue == []
+
+
 # ---------------------------------------------------------------------- the firmware in simavr
 def test_against_the_elf_in_simavr(tmp_path) -> None:
     """pymodbus-framed requests (our master) against the real pump firmware in simavr."""
