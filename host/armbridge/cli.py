@@ -67,6 +67,7 @@ def _register() -> None:
     from armbridge.draw.command import draw_cmd
     from armbridge.emulator.command import emulate_cmd
     from armbridge.executor.command import run_cmd
+    from armbridge.flash.command import flash_cmd
     from armbridge.planning.command import plan_app
     from armbridge.smm.command import smm_cmd
     from armbridge.telemetry.command import view_cmd
@@ -75,6 +76,7 @@ def _register() -> None:
     app.command("demo")(demo_cmd)
     app.command("draw")(draw_cmd)
     app.command("emulate")(emulate_cmd)
+    app.command("flash")(flash_cmd)
     app.command("run")(run_cmd)
     app.command("smm")(smm_cmd)
     app.command("view")(view_cmd)

@@ -18,6 +18,8 @@ Parameters (all optional):
   missed=J[,J]     masr_ma: joint J's magnet never fires
   slip=S:D:F[,..]  masr_ma: from sim second S for D seconds the wheel slips by F
   link=PATH        a symlink to the pty (owned while the port is open)
+  fs=DIR           a MicroPython board's filesystem kept in the host folder DIR
+                   (seeded when empty; what a flash wrote there boots next time)
 
 `parse_emu_url` turns the text into EmulatedBoard arguments (the device is its
 name, or the rig's BoardSpec when servos= picks another rig; every bad part is
@@ -36,7 +38,7 @@ from armbridge.emulator.faults import (Faults, parse_delay, parse_lanes, parse_m
 from armbridge.emulator.registry import BoardSpec, board_spec, rig_spec
 from armbridge.errors import ArmbridgeError
 
-PARAMETERS = ("servos", "speed", "interpreter", "seed", "link", "drop", "corrupt", "dup", "delay", "delay_ms",
+PARAMETERS = ("servos", "speed", "interpreter", "seed", "link", "fs", "drop", "corrupt", "dup", "delay", "delay_ms",
               "lanes", "reset_at", "stall", "missed", "slip")
 
 
@@ -113,6 +115,8 @@ def parse_emu_url(url: str) -> tuple[str | BoardSpec, dict[str, Any]]:
                 continue
             if key in ("speed", "seed", "link", "interpreter"):
                 kw[key] = _board_kw(key, value)
+            elif key == "fs":
+                kw["fs_dir"] = value
             else:
                 fk.update(_fault_kw(key, value))
         except ArmbridgeError as exc:
