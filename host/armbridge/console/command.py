@@ -16,6 +16,10 @@ Over a `modbus:` port (the pump board in Modbus RTU, docs/modbus.md) the same
 verbs run on registers (executor/modbus_client.py): info and state by reads,
 clear through the command register, rate sets how often the host polls.
 
+A board that an `armbridge flash` left half-flashed (interrupted, or a file
+that failed its hash) is refused with one line saying so (exit 1) until a
+flash completes.
+
 Exit codes as `armbridge run` (docs/formats.md §7): 0 done, 1 the board or the
 link failed (no answer, refused, busy or lost port), 2 bad input or usage,
 128 + the signal when stopped by one, except that `monitor` ends with 0 on
@@ -72,8 +76,12 @@ def board_session(port: str, *, session: int | None = None, timeout: float = 5.0
     """open_session without a robot, latch left as it is; a failure once the port
     was tried is a BoardFailure (exit 1), a --port naming no device stays exit 2."""
     from armbridge.executor.session import open_session
+    from armbridge.flash.manifest import half_flashed
     from armbridge.link.transport import PortError
 
+    note = half_flashed(port)  # an interrupted `armbridge flash` (docs/flash.md): not a board to talk to
+    if note is not None:
+        raise BoardFailure(note)
     try:
         with open_session(port, None, latched="allow", session=session, connect_timeout=timeout, **kw) as client:
             yield client

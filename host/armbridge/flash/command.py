@@ -96,10 +96,15 @@ def flash_cmd(
             write_image(micropython, port, target.chip, target.image_offset)
 
     bar = _Bar(out)
+
+    def on_plan(res: Any) -> None:
+        _describe_plan(out, res, port)
+        bar.start(res)
+
     try:
         with stop_on_signals():
             res = flash(target, port, firmware_root=firmware, dry_run=dry_run, link=link, timeout=timeout,
-                        force=force, on_plan=lambda r: (_describe_plan(out, r, port), bar.start(r)),
+                        force=force, on_plan=on_plan,
                         progress=bar.update)
     except Stopped as stop:
         bar.close()

@@ -204,6 +204,7 @@ def _hello(link: str, b: Build, label: str, timeout: float) -> Any:
     try:
         with open_session(link, None, latched="allow", connect_timeout=max(timeout, 5.0)) as client:
             info = client.info
+            assert info is not None  # connect() filled it
     except ArmbridgeError as exc:
         raise BoardFailure(f"the flashed board on {label} does not answer HELLO after its reset: {exc}") from None
     got, want = (info.fw, info.version, info.proto), (b.firmware, b.version, b.protocol)
