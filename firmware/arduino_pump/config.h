@@ -49,7 +49,7 @@
 /* Syringe travel estimate: a full stroke at full duty takes SYRINGE_STROKE_MS; the
  * estimate integrates the duty and is re-zeroed at the end stops (0 retracted,
  * 1000 extended). It starts at 0 after a reset (syringes rest retracted). */
-#define SYRINGE_STROKE_MS 3000
+#define SYRINGE_STROKE_MS 5000
 
 /* Bend-sensor calibration defaults (BEND j adc_a a adc_b b; kept in EEPROM):
  * ADC count adc_a at angle a, adc_b at b, linear between. A flex sensor in a

@@ -78,6 +78,7 @@ void PumpBoard::begin(Hal *hal) {
     }
     blocked_ = 0;
     stops = 0;
+    memset(&last_wp, 0, sizeof last_wp);
     load_settings();
     link.begin(hal, this, modbus_addr);   /* last: it calls hold_here() and sends BOOT */
 }
@@ -116,6 +117,9 @@ int PumpBoard::queue(uint16_t id, uint16_t dur, const int32_t *t, AbError *err) 
     }
     if (!traj.push(id, dur, t)) return AB_ERR_FULL;
     link.queued = id;
+    last_wp.id = id;
+    last_wp.dur = dur;
+    for (uint8_t j = 0; j < N_JOINTS; j++) last_wp.q[j] = t[j];
     return 0;
 }
 

@@ -64,6 +64,7 @@ public:
     int16_t u[N_JOINTS];                  /* duties, per-mille */
     uint8_t stops;                        /* end-stop bits */
     uint8_t modbus_addr;                  /* 0: line protocol */
+    Waypoint last_wp;                     /* the newest queued waypoint (Modbus window reads) */
     /* Test hook: called with every completed waypoint (events coalesce them). */
     void (*on_done)(int32_t id);
 

@@ -67,6 +67,10 @@ int mb_read_holding(uint16_t addr, uint16_t *val) {
         *val = (uint16_t)b.link.wdog_ms;
     } else if (addr == MB_HR_ADDRESS) {
         *val = mb_address();
+    } else if (addr >= MB_HR_WINDOW && addr < MB_HR_WINDOW + MB_WINDOW_LEN) {   /* the newest queued */
+        const Waypoint &w = b.last_wp;
+        uint16_t i = (uint16_t)(addr - MB_HR_WINDOW);
+        *val = i == 0 ? w.id : i == 1 ? w.dur : (uint16_t)(int16_t)w.q[i - 2];
     } else {
         return MB_EX_ILLEGAL_ADDRESS;
     }
