@@ -73,7 +73,8 @@ class MpBoard:
         SerialTransport, self._TransportError, self._ExecError = _transport_classes()
         self.label = label or device
         try:
-            self.t = SerialTransport(device, baudrate=115200)
+            # a read timeout: on a pty mpremote reads byte by byte, and a silent one would block for ever
+            self.t = SerialTransport(device, baudrate=115200, timeout=timeout)
         except self._TransportError as exc:
             raise BoardFailure(f"cannot open {self.label}: {exc}") from None
         except OSError as exc:
