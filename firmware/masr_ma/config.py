@@ -40,24 +40,28 @@ LOCO_KD = 0.0
 LOCO_KFF = 0.0085                    # s/mm (about 118 mm/s at full effort)
 LOCO_KPOS = 6.0                      # 1/s: speed added per mm the MA lags its reference
 LOCO_KAFF = 0.04                     # s: the reference's acceleration fed forward (the drive's lag)
-LOCO_ACCEL_MM_S2 = 400               # ramp of the speed reference, start and stop
-LOCO_CREEP_MM_S = 15                 # lowest approach speed (onto a target or a magnet)
+LOCO_ACCEL_MM_S2 = 800               # ramp of the speed reference, start and stop (80 % of the traction limit;
+                                     # the step kff kaff a it feeds forward stays within the drive)
+LOCO_CREEP_MM_S = 15                 # lowest approach speed (HOME onto the base)
+MAG_MM_S = 40                        # approach speed over the last w + 0.5 mm onto a magnet (ROT, MV onto a joint):
+                                     # braked from there the MA stays inside the hall window
 STOP_TOL_MM = 0.5                    # MV is done within this of d (and settled)
 SETTLE_MM_S = 3                      # ... at a speed below this ...
-SETTLE_MS = 50                       # ... for this long (ROT's stop and turn alike)
+SETTLE_MS = 20                       # ... for this long (MV, the stop on a magnet, ROT's turn: the angle unchanged)
 HOME_MM_S = 40                       # HOME speed while the board does not know d
 HOME_EFFORT = 0.5                    # effort cap while homing (pushing on the base stop)
 HOME_STOP_MS = 150                   # no wheel progress this long at the base magnet: homed
 
 # ---------------------------------------------------------------- joint rotation
 # Joint loop: effort per rad of angle error; kff = 1 / (joint rate at full effort).
-ROT_KP = 20.0                        # 1/rad
+ROT_KP = 60.0                        # 1/rad (3 mrad short: 0.18 effort, the play crossed in ~50 ms)
 ROT_KI = 1.0                         # 1/(rad s)
 ROT_KD = 0.0                         # s/rad
 ROT_KFF = 2.9                        # s/rad (about 0.35 rad/s at full effort)
-ROT_KAFF = 0.03                      # s: the reference's acceleration fed forward (the drive's lag)
-ROT_ACCEL_MRAD_S2 = 1400             # ramp of the angle reference
-ROT_TOL_MRAD = 1.0                   # ROT is done within this of the angle (and settled)
+ROT_KAFF = 0.05                      # s: the reference's acceleration fed forward (the drive's lag 0.03 s
+                                     # + half a period + the gear count's delay)
+ROT_ACCEL_MRAD_S2 = 3000             # ramp of the angle reference (kff kaff a: a step the drive's 5 rad/s^2 can take)
+ROT_TOL_MRAD = 1.0                   # ROT is done within this of the angle (the drive off, the angle still)
 
 # ---------------------------------------------------------------- faults
 STALL_U = 0.25                       # an effort at least this with no encoder count ...

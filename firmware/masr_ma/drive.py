@@ -8,6 +8,8 @@ Ramp: a 1-D reference (x, v) that moves toward a target at no more than vmax,
 accelerating and braking at `accel` (v <= sqrt(2 accel |target - x|)), never
 below `vmin` until it gets there (the creep onto a target or a magnet), and
 lands on the target exactly. hold: it brakes to rest at `accel` and waits.
+`dir` remembers which way it last moved (kept across resets): the side of a
+magnet the MA stopped short of (ma_act's seek).
 
 Loco: effort u = PID(v_cmd - v) + kff (v_cmd + kaff a), v_cmd = ramp.v +
 kpos (ramp.x - d): the speed loop, with the position it has fallen behind added
@@ -32,6 +34,7 @@ class Ramp:
         self.x = 0.0
         self.v = 0.0
         self.a = 0.0          # the acceleration of the last step
+        self.dir = 0          # the way it last moved (+-1; 0: never), kept across resets
 
     def reset(self, x: float) -> None:
         self.x = float(x)
@@ -65,6 +68,7 @@ class Ramp:
             vd = self.v - dv
         step = vd * dt
         if (rem > 0 and step >= rem) or (rem < 0 and step <= rem):
+            self.dir = 1 if rem > 0 else -1
             self.x = target          # lands: the last step's braking is not fed forward
             self.v = 0.0
             self.a = 0.0
@@ -72,6 +76,8 @@ class Ramp:
         self.x += step
         self.v = vd
         self.a = (vd - v0) / dt
+        if vd != 0.0:
+            self.dir = 1 if vd > 0 else -1
         return False
 
     def brake(self, dt: float, accel: float) -> bool:

@@ -4,18 +4,32 @@ ma.py's docstring; the phases of an action `b.act = [id, verb, args, phase,
 t0_ms, aux]`:
 
   MV    go                       ramp to d, done when settled on it
-  ROT   go -> stop -> turn
-        go: ramp toward w + e + 3 mm past r_j, braking so as to reach the near
-        edge of joint j's hall window (w + e + 1 mm short of r_j) at
-        LOCO_CREEP_MM_S and creeping on from there (loc.py's MISSED check fires
-        before the end; getting there without an edge is MISSED too); the hall
-        edge of magnet j -> stop: hold where the MA is until it has settled ->
-        turn: the angle loop on the gear encoder.
+  MV    seek -> stop             a d on a joint's magnet (|d - r_k| <= the hall
+        window; a plan's MV before a ROT): onto the magnet as ROT's seek, done
+        once stopped on its hall edge (where the sensor says the MA is on it)
+  ROT   seek -> stop -> turn
+        seek: ramp toward w + e + 3 mm past r_j, braking so as to reach
+        w + 0.5 mm short of r_j at MAG_MM_S and creeping on from there (loc.py's
+        MISSED check fires before the end; getting there without an edge is
+        MISSED too); the hall edge of magnet j -> stop: brake to rest where
+        the MA is (the speed loop alone), until it has settled -> turn: the angle loop on the gear encoder, off
+        (the worm holds) once the angle is within ROT_TOL_MRAD at the end of
+        its ramp, done once the angle has stopped (aux: its last estimate).
         A ROT on the magnet it stands on (sensor high, re-zeroed there) turns at once.
+        Which way to seek (`side`): toward r_j when the estimate is clear of
+        the window (w + e); inside it with the sensor low, back the way the MA
+        came if it passed magnet j (its anchor), else on the way it was going.
   GRIP  wait                     servo commanded at begin, done after GRIP_MS
   HOME  go -> push               go (d known): ramp to 0 arriving at creep;
         push: toward the base at creep (HOME_MM_S when d is unknown), effort
         at most HOME_EFFORT, until the wheel stops on magnet 1.
+
+Why the seek creeps only the last w + 0.5 mm (not the whole window): the edge
+comes where the MA truly is w short of the magnet, which the estimate puts
+within e of w short; the braking curve is still slow there (sqrt(2 a e)), and
+the stop brakes the speed to 0 wherever the MA is (no pull back: anywhere
+in the window is on the magnet), so an early edge costs a short overshoot
+inside the window, never a wrong place.
 """
 
 import link as L
@@ -38,18 +52,51 @@ def begin(b) -> None:
         b.hal.grip(args[0] == 1)
         act[3] = "wait"
         return
-    if verb == ROT:
-        j = args[0]
-        if b.loc.known and b.loc.mag == j and b._level == 1:
-            _engage(b, act)
-            return
-        act[5] = 1 if b.loc.r[j - 1] > b.loc.d() else -1
+    j = _magnet(b, act)
+    if j:
+        if _on_magnet(b, j):
+            if verb == ROT:
+                _engage(b, act)
+                return
+            act[3] = "stop"          # MV onto the magnet it stands on: nothing to drive
+        else:
+            act[3] = "seek"
+            act[5] = _side(b, j)
     if verb == HOME and not b.loc.known:
         act[3] = "push"
         act[5] = b._c
     b.rot.release()
     if b.loco.ramp.v == 0.0:
         b.loco.reset(b.loc.d())
+
+
+def _magnet(b, act) -> int:
+    """The joint whose magnet the action drives onto (1-based), 0: none."""
+    if act[1] == ROT:
+        return act[2][0]
+    if act[1] == MV and b.loc.known:
+        k = b.loc.near(act[2][0])
+        if abs(act[2][0] - b.loc.r[k - 1]) <= b.loc.w:
+            return k
+    return 0
+
+
+def _on_magnet(b, j: int) -> bool:
+    return b.loc.known and b.loc.mag == j and b._level == 1
+
+
+def _side(b, j: int) -> int:
+    """Which way (+-1) magnet j is from the MA (the module docstring)."""
+    loc = b.loc
+    rem = loc.r[j - 1] - loc.d()
+    if abs(rem) > loc.w + loc.err():
+        return 1 if rem > 0 else -1
+    way = b.loco.ramp.dir
+    if loc.mag == j and way:
+        return -way
+    if way:
+        return way
+    return 1 if rem >= 0 else -1
 
 
 def advance(b) -> None:
@@ -72,7 +119,11 @@ def advance(b) -> None:
                           c.HOME_EFFORT if phase == "push" else 1.0)
         return
     if verb == MV:
-        _mv(b, act)
+        if phase == "go":
+            _mv(b, act)
+        elif _seek(b, act, _magnet(b, act)):
+            b.loco.off()
+            _finish(b)
     elif verb == ROT:
         _rot(b, act)
     else:
@@ -98,36 +149,47 @@ def _mv(b, act) -> None:
 def _rot(b, act) -> None:
     c = b.cfg
     j = act[2][0]
-    phase = act[3]
-    loc = b.loc
-    ramp = b.loco.ramp
-    if phase == "go" and b._mag_now == j:
-        act[3] = phase = "stop"
-        ramp.reset(loc.d())
-    if phase == "turn":
+    if act[3] == "turn":
         target = act[2][1]
         th = b.theta[j - 1]
-        there = b.rot.ramp.step(b.dt, target, b.lim[j - 1][2], c.ROT_ACCEL_MRAD_S2)
-        b.rot.effort(b.dt, th)
+        rot = b.rot
+        there = rot.ramp.step(b.dt, target, b.lim[j - 1][2], c.ROT_ACCEL_MRAD_S2)
         b.loco.u = 0.0
-        if _settled(b, there and abs(target - th) <= c.ROT_TOL_MRAD and not b._turned):
-            b.rot.off()
-            _finish(b)
-        return
-    d = loc.d()
-    rj = loc.r[j - 1]
-    side = act[5]
-    margin = loc.w + loc.err()
-    vmax = b.lim[b.n - 1][2]
-    if phase == "go":
-        if ramp.step(b.dt, rj + side * (margin + 3.0), vmax, c.LOCO_ACCEL_MM_S2,
-                     c.LOCO_CREEP_MM_S, 2.0 * margin + 4.0):
-            b.link.fault([b.n, j], "MAGNET:MISSED")     # past the window, no edge
+        still = th == act[5]          # the joint's estimate did not move this period
+        act[5] = th
+        if there and abs(target - th) <= c.ROT_TOL_MRAD:
+            rot.off()                 # dead band: the worm holds; no hunting through the backlash
+            if _settled(b, still):    # the worm may still coast inside the play: the joint does not
+                _finish(b)
             return
-    b.loco.effort(b.dt, d, b.speed, vmax)
-    if phase == "stop" and _settled(b, abs(b.speed) <= c.SETTLE_MM_S):
+        b._settle = 0
+        rot.effort(b.dt, th)
+        return
+    if _seek(b, act, j):
         b.loco.off()
         _engage(b, act)
+
+
+def _seek(b, act, j: int) -> bool:
+    """Onto magnet j (phases seek -> stop) -> True once stopped on it."""
+    c = b.cfg
+    loc = b.loc
+    ramp = b.loco.ramp
+    if act[3] == "seek" and b._mag_now == j:
+        act[3] = "stop"
+    if act[3] == "stop":
+        ramp.reset(loc.d())         # the reference follows the MA: brake to rest where it is,
+        b.loco.pid.reset()          # on the speed error alone (an integral would creep on)
+    vmax = b.lim[b.n - 1][2]
+    if act[3] == "seek":
+        side = act[5]
+        margin = loc.w + loc.err()
+        if ramp.step(b.dt, loc.r[j - 1] + side * (margin + 3.0), vmax, c.LOCO_ACCEL_MM_S2,
+                     c.MAG_MM_S, margin + loc.w + 3.5):
+            b.link.fault([b.n, j], "MAGNET:MISSED")     # past the window, no edge
+            return False
+    b.loco.effort(b.dt, loc.d(), b.speed, vmax)
+    return act[3] == "stop" and _settled(b, abs(b.speed) <= c.SETTLE_MM_S)
 
 
 def _settled(b, ok: bool) -> bool:
@@ -145,6 +207,7 @@ def _settled(b, ok: bool) -> bool:
 def _engage(b, act) -> None:
     j = act[2][0]
     act[3] = "turn"
+    act[5] = b.theta[j - 1]
     b.loco.off()
     b.rot.engage(j, b.theta[j - 1], b._g)
     b._still_rot = 0
@@ -182,6 +245,8 @@ def _finish(b) -> None:
     if b.on_done is not None:   # the emulator's log of executed actions, with their arguments
         b.on_done(wid, list(args))
     b.link.completed(wid)
+    if b.queue and not b.held:
+        begin(b)                # the next one in this period: a plan's actions run back to back
 
 
 def driving(b) -> bool:

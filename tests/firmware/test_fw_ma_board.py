@@ -66,7 +66,7 @@ def test_mv_reaches_d_with_a_ramp():
     mean = sum(cruise) / len(cruise)
     assert abs(mean - 100.0) < 1.0 and min(cruise) > 97.0, (mean, min(cruise))
     # ramped start and stop: no step in the speed of more than the ramp allows
-    # (400 mm/s^2 plus the loop's correction), and it starts and ends at rest
+    # (LOCO_ACCEL_MM_S2 plus the loop's correction), and it starts and ends at rest
     steps = [abs(speeds[i + 1] - speeds[i]) for i in range(len(speeds) - 1)]
     assert max(steps) < 1.5, max(steps)              # mm/s per ms
     assert abs(speeds[-1]) < 5.0

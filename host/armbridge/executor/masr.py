@@ -44,19 +44,34 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     """(the Plan of the configuration after each step, the board commands) of a MasrPlan.
 
     home: a `HOME` first (the MA drives to the base and zeroes d): what a board that does
-    not know where it is (UNHOMED, after a power on) needs before any MV or ROT. The plan's
-    steps are absolute (MV to d, ROT to an angle), so they run the same from the base."""
+    not know where it is (UNHOMED, after a power on) needs before any MV or ROT; then the
+    arm is brought to the plan's start configuration (ROT every joint to its start angle,
+    base outward, then MV to the start d), so that the plan's own steps (absolute: MV to d,
+    ROT to an angle) run from the configuration they were planned from. The setup's arm
+    motion is not the plan's (nothing checked it against the obstacles). Those setup
+    commands are counted in the provenance's masr_plan.setup: the executed time starts at
+    the last one's DONE."""
     arm = mp.arm
     q = np.array(mp.q[0], dtype=float)
     configs: list[np.ndarray] = []
     durations: list[float] = []
     commands: list[tuple[str, list[int]]] = []
-    if home:
-        commands.append(("HOME", []))
-        travel = float(q[-1])
-        q[-1] = 0.0
+
+    def setup_step(verb: str, args: list[int], d_to: float, extra_s: float) -> None:
+        commands.append((verb, args))
+        travel = abs(d_to - q[-1])
+        q[-1] = d_to
         configs.append(q.copy())
-        durations.append(max(1.0, 1.5 * travel / arm.ma_speed))  # the board's own homing speed and ramps
+        durations.append(max(DURATION_MIN, 1.5 * travel / arm.ma_speed + extra_s))  # ramps, approach, a turn
+
+    if home:
+        start = float(q[-1])
+        setup_step("HOME", [], 0.0, 1.0)
+        turn_s = 2.0 * float(np.max(arm.theta_b)) / arm.joint_speed  # whatever angle the board believed
+        for j in range(1, arm.n + 1):
+            setup_step("ROT", [j, int(round(q[j - 1] * 1000.0))], float(arm.r[j - 1]), turn_s)
+        setup_step("MV", [int(round(start * 1000.0))], start, 0.0)
+    setup = len(commands)
     for step in mp.steps():
         if step["op"] == "move":
             q[-1] = step["d_to"]
@@ -72,7 +87,7 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     if not commands:
         raise ArmbridgeError(f"{mp.source or 'MASR plan'}: the plan has no steps: nothing to run")
     prov = dict(mp.provenance)
-    prov["masr_plan"] = {"tau": mp.total_time, "steps": len(commands),
+    prov["masr_plan"] = {"tau": mp.total_time, "steps": len(commands), "setup": setup,
                          "goal_pose": [float(x) for x in goal_pose(mp)]}
     plan = make_plan(arm, np.array(configs), np.array(durations), prov, tool="armbridge run")
     plan.source = mp.source

@@ -25,11 +25,12 @@ import numpy as np
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.signals import holding, stop_on_signals
-from armbridge.executor.summary import JointTracking, Summary, fill, plan_error
+from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, plan_error
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
+SETTLE_WAIT_S = 3.0  # board time the run waits, after the last DONE, for a board with a dead band to come to rest
 
 __all__ = ["RATE_MAX", "RATE_MIN", "JointTracking", "RunFailed", "Summary", "plan_error", "run_plan"]
 
@@ -103,6 +104,9 @@ def run_plan(
 
     robot = plan.robot
     names = list(robot.joint_names)
+    from armbridge.executor.handshake import FIRMWARE_OF
+
+    kind = FIRMWARE_OF.get(robot.name, (robot.name,))[0]  # the board's kind (its own columns): its fw once known
     rrd = Path(rrd_path) if rrd_path is not None else default_rrd_path(plan.name)
     durs_ms = [max(1, int(round(d * 1000))) for d in plan.durations]
     verb, rows = ("X", cartesian_rows(plan)) if cartesian else ("W", [P.to_milli(row) for row in plan.q])
@@ -127,12 +131,13 @@ def run_plan(
         if m.q.shape != (robot.dof,):
             return  # not this robot's board (connect() is about to say so)
         active = client.done_index + 1 if client is not None else 0
+        if masr is not None:  # the board's d is an estimate (+- its bound): a mm past an end is the MA at that end
+            m.q[-1] = min(max(float(m.q[-1]), 0.0), masr.arm.total_length)
         samples.append((t, m.state, m.q, m.target, active))
         if rec is not None:
             rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
-            if masr is not None and len(m.extra) >= 3:  # the MA's own columns: jd dlink speed
-                rec.series(t, {"ma/link": m.extra[0], "ma/d_link": m.extra[1] / 1000.0,
-                               "ma/speed": m.extra[2] / 1000.0})
+            if m.extra:  # the board's own columns, named by its kind (telemetry.layout.BOARD_COLUMNS)
+                rec.board(t, client.info.fw if client is not None and client.info is not None else kind, m.extra)
             if m.state != last_state[0]:
                 rec.event(t, f"state {m.state}")
         last_state[0] = m.state
@@ -150,7 +155,7 @@ def run_plan(
     failure: BaseException | None = None
     bar = None
     with stop_on_signals():
-        rec = _recording(rrd, robot, plan, masr)  # an unwritable --rrd is bad input: nothing sent yet
+        rec = _recording(rrd, robot, plan, masr, kind)  # an unwritable --rrd is bad input: nothing sent yet
         summary.rrd = str(rrd)
         try:
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
@@ -162,6 +167,7 @@ def run_plan(
                 if cartesian:
                     _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
+                band = _settle_band(c, robot.dof)
                 bar = _progress_bar(plan, console) if progress else None
                 try:
                     c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
@@ -170,6 +176,8 @@ def run_plan(
                         c.command("PEN", 0)  # the drawing is done: lift the pen
                     # Let the last samples (the arm settling on the final waypoint) arrive.
                     c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
+                    if band is not None:  # a board with a dead band: until the arm rests in it (bounded)
+                        c.drain(SETTLE_WAIT_S, until=lambda: _resting(samples, plan.q[-1], band[0]))
                     summary.final_state = c.stat()[0]
                 except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
                     _stop(c, summary, rec, stop)
@@ -180,15 +188,18 @@ def run_plan(
                     if bar is not None:
                         bar.stop()
                     fill(summary, c, plan, samples, names)
+                    if band is not None:
+                        fill_settle(summary, c, plan, samples, names, *band)
                     if plan.pen is not None:
                         summary.drawing = _drawing(plan, samples, summary.measured_duration_s)
                     if masr is not None:
                         from armbridge.executor.masr import masr_report
 
                         executed = summary.measured_duration_s
-                        if home:  # the plan's own time starts when HOME is DONE
+                        if home:  # the plan's own time starts when HOME and the MV to its start are DONE
                             d = c.done_times
-                            executed = d[plan.k - 1] - d[0] if 0 in d and plan.k - 1 in d else float("nan")
+                            s0 = int(plan.provenance["masr_plan"]["setup"]) - 1
+                            executed = d[plan.k - 1] - d[s0] if s0 in d and plan.k - 1 in d else float("nan")
                         summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
@@ -264,23 +275,54 @@ def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> 
     return None
 
 
-def _recording(rrd: Path, robot, plan: Plan, masr):
-    """The run's recording; a MASR plan's adds its obstacles beside the arm and the MA's series."""
+def _recording(rrd: Path, robot, plan: Plan, masr, kind: str):
+    """The run's recording; the views of the board kind's own columns (the MA's series, the
+    pump's syringe positions) beside the arm, and a MASR plan's obstacles in the arm view."""
+    from armbridge.telemetry.layout import board_views, run_layout
     from armbridge.telemetry.recording import Recording
 
-    if masr is None:
+    views = board_views(kind)
+    if masr is None and (not views or plan.pen is not None):
         return Recording(rrd, robot, plan)
-    import rerun.blueprint as rrb
-
-    from armbridge.telemetry.layout import run_layout
-
-    layout = run_layout(robot, spatial=["world/obstacles"],
-                        views=[rrb.TimeSeriesView(origin="ma", contents=["ma/speed"], name="MA speed"),
-                               rrb.TimeSeriesView(origin="ma", contents=["ma/link", "ma/d_link"], name="MA link")])
+    layout = run_layout(robot, spatial=["world/obstacles"] if masr is not None else [], views=views)
     rec = Recording(rrd, robot, plan, layout=layout)
-    if masr.env is not None:
+    if masr is not None and masr.env is not None:
         rec.obstacles(masr.env.obstacles)
     return rec
+
+
+def _settle_band(client, n: int) -> tuple[np.ndarray, str] | None:
+    """The settle times' tolerance: the board's dead band per joint (rad), and where it came
+    from. Read from the board where its protocol can (Modbus: holding registers 12..14,
+    docs/modbus.md), else the default of the board's firmware (its config's
+    DBAND_DEFAULT_MRAD: the line protocol has no query for it); None for a board without
+    a dead band (no settle times)."""
+    from armbridge.executor.modbus_client import HR_DBAND, ModbusClient
+
+    if isinstance(client, ModbusClient):
+        return np.asarray(client.master.read_holding(HR_DBAND, n), float) / 1000.0, "board"
+    from armbridge.emulator.registry import board_spec
+    from armbridge.emulator.runner import firmware_config
+    from armbridge.resources import firmware_dir
+
+    try:
+        mrad = getattr(firmware_config(board_spec(client.info.fw), firmware_dir()), "DBAND_DEFAULT_MRAD", None)
+    except (ArmbridgeError, OSError):  # a board kind this host has no firmware of
+        return None
+    return (np.full(n, float(mrad) / 1000.0), "default") if mrad is not None else None
+
+
+def _resting(samples, target: np.ndarray, band: np.ndarray, hold_s: float = 0.1) -> bool:
+    """The arm has rested within `band` of `target` for the last `hold_s` of telemetry."""
+    if not samples or samples[-1][0] - samples[0][0] < hold_s:
+        return False
+    t_end = samples[-1][0]
+    for t, _state, q, _target, _active in reversed(samples):
+        if np.any(np.abs(q - target) > band + 1e-9):
+            return False
+        if t_end - t >= hold_s:
+            return True
+    return False
 
 
 def _progress_bar(plan: Plan, console):
