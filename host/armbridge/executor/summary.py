@@ -22,6 +22,18 @@ class JointTracking:
 
 
 @dataclass
+class JointSettle:
+    """A joint's settle times (s of board time): after the DONE of each waypoint that
+    ends a move of this joint, until its measured angle stays within the tolerance of
+    the waypoint's value (`settle_times`)."""
+
+    mean_s: float = math.nan  # over the waypoints that settled
+    max_s: float = math.nan
+    waypoints: int = 0  # waypoints that end a move of this joint (DONE seen)
+    unsettled: int = 0  # of those: not within the tolerance for good before the joint's next move began
+
+
+@dataclass
 class Summary:
     """What a run did. Errors are in rad; times in s of board time."""
 
@@ -59,6 +71,9 @@ class Summary:
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)
+    settle: dict[str, JointSettle] = field(default_factory=dict)  # boards with a dead band (settle_times)
+    settle_tolerance: dict[str, float] = field(default_factory=dict)  # rad, per joint: the board's dead band
+    settle_tolerance_source: str | None = None  # "board" (read from it) or "default" (the firmware's config)
 
     @property
     def completed(self) -> bool:
@@ -111,6 +126,10 @@ class Summary:
                 f"tracking {name} (rms / max)",
                 f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} mrad",
             )
+        for name, st in self.settle.items():
+            tol = self.settle_tolerance.get(name, math.nan)
+            t.add_row(f"settle {name} (mean / max, within {_mrad(tol)} mrad)",
+                      f"{_f(st.mean_s, 3)} / {_f(st.max_s, 3)} s; {st.unsettled} of {st.waypoints} never settled")
         if self.pen:
             t.add_row("pen", "pen-lift servo (PEN)" if self.pen == "servo" else "no pen-lift servo: pen-up moves marked")
         if self.ik == "board":
@@ -175,6 +194,57 @@ def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_st
     return np.array(rows).reshape(-1, plan.n)
 
 
+def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[int, float],
+                 band: np.ndarray, end_t: float) -> list[JointSettle]:
+    """Per joint, how long after each waypoint's DONE the measured angle took to stay
+    within `band` of the waypoint's value (the board's dead band: the P controller of
+    the soft-arm paper, eq. 24, drives nothing inside it, so that is where a joint rests).
+
+    t, q: the telemetry (board time, measured q (m, n)); plan_q (k, n); done_t: plan
+    index -> board time of its DONE; end_t: the run's last board time. Only waypoints
+    that move the joint count (the first, and any whose value differs from the one
+    before it by a milli-unit or more): a repeated value is a hold that extends the
+    window. The window of waypoint i is from its DONE to the start of the joint's next
+    move (the DONE of the waypoint before it), or end_t after the last move. Settled:
+    the window's last sample is within the band; the settle time is from the DONE to
+    the first sample after the last one outside it (0 when none was). A window holding
+    no sample (the next move began at once) is judged by the last sample before its end.
+    """
+    t = np.asarray(t, float)
+    q = np.asarray(q, float).reshape(len(t), -1)
+    plan_q = np.asarray(plan_q, float)
+    k, n = plan_q.shape
+    out = []
+    for j in range(n):
+        moves = [i for i in range(k) if i == 0 or abs(plan_q[i, j] - plan_q[i - 1, j]) >= 5e-4]
+        times, unsettled = [], 0
+        for m, i in enumerate(moves):
+            if i not in done_t:
+                continue
+            a = done_t[i]
+            nxt = moves[m + 1] if m + 1 < len(moves) else None
+            b = done_t.get(nxt - 1, end_t) if nxt is not None else end_t
+            inside = (t >= a) & (t <= b)
+            if not inside.any():
+                before = np.nonzero(t <= b)[0]
+                inside = np.zeros(len(t), bool)
+                if before.size:
+                    inside[before[-1]] = True
+            idx = np.nonzero(inside)[0]
+            if idx.size == 0:
+                unsettled += 1
+                continue
+            ok = np.abs(q[idx, j] - plan_q[i, j]) <= band[j] + 1e-9
+            if not ok[-1]:
+                unsettled += 1
+                continue
+            bad = np.nonzero(~ok)[0]
+            times.append(0.0 if bad.size == 0 else max(0.0, float(t[idx[bad[-1] + 1]] - a)))
+        out.append(JointSettle(float(np.mean(times)) if times else math.nan,
+                               float(np.max(times)) if times else math.nan, len(times) + unsettled, unsettled))
+    return out
+
+
 def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> None:
     """The link statistics, the board-time duration and the tracking errors of a
     finished (or stopped) run, from the client and the telemetry samples."""
@@ -218,3 +288,19 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
     else:
         summary.tracking_setpoint = _tracking(np.zeros((0, len(names))), names)
         summary.tracking_plan = _tracking(np.zeros((0, len(names))), names)
+
+
+def fill_settle(summary: Summary, client, plan: Plan, samples, names: list[str], band: np.ndarray,
+                source: str) -> None:
+    """The settle times of a run on a board with a dead band (`settle_times`), from the
+    client's DONE times and the telemetry samples; `band` (rad per joint) and where it
+    came from (`source`: "board" or "default") go beside them."""
+    summary.settle_tolerance = {name: float(b) for name, b in zip(names, band)}
+    summary.settle_tolerance_source = source
+    if not samples:
+        summary.settle = {name: JointSettle() for name in names}
+        return
+    t = np.array([x[0] for x in samples])
+    q = np.stack([x[2] for x in samples])
+    st = settle_times(t, q, plan.q, dict(client.done_times), np.asarray(band, float), float(t[-1]))
+    summary.settle = dict(zip(names, st))

@@ -13,6 +13,11 @@ Two, built from the same parts (`arm_view`, `joint_plots`, `logs`):
   caller logs under `joints/<joint>/`, e.g. the fault-tolerant demo's artificial
   limits), error (set point - measured) and effort. A caller with entities of its
   own adds them to the arm view (`spatial`) and as views of their own (`views`).
+
+A board's own telemetry columns (the T line's after the 3n joint columns,
+`Telemetry.extra`) are named by the board kind in `BOARD_COLUMNS`: entity path,
+scale from the wire's integer, and the view that plots it (`board_views`); the
+recording logs them (`Recording.board`) and the run layout shows their views.
 """
 from __future__ import annotations
 
@@ -22,6 +27,28 @@ import rerun.blueprint as rrb
 
 # Entities of `telemetry.recording` drawn in the arm's space (see its docstring).
 ARM_ENTITIES = ("arm/**", "plan/path", "plan/waypoints", "trace/**", "workspace")
+
+
+#: board kind (its firmware name) -> its own T columns in order: (entity path, scale from the
+#: wire's integer to the logged value, the name of the view that plots it). docs/protocol.md §4.
+BOARD_COLUMNS: dict[str, tuple[tuple[str, float, str], ...]] = {
+    # the MASR actuator: the link it is on, its distance along it (mm -> m), its speed (mm/s -> m/s)
+    "masr_ma": (("ma/link", 1.0, "MA link"), ("ma/d_link", 1e-3, "MA link"), ("ma/speed", 1e-3, "MA speed")),
+    # the syringe-pump board: syringe positions (per-mille of travel -> 0..1) and the end-stop bits
+    # (bit 2k: pump k+1 retracted, 2k+1: extended), docs/pump.md
+    "arduino_pump": (("pump/syringe1", 1e-3, "syringe positions"), ("pump/syringe2", 1e-3, "syringe positions"),
+                     ("pump/syringe3", 1e-3, "syringe positions"), ("pump/end_stops", 1.0, "end stops")),
+}
+
+
+def board_views(kind: str) -> list[rrb.View]:
+    """One time-series view per view name of the board kind's own columns (none for a
+    board without any), in the order of BOARD_COLUMNS."""
+    views: dict[str, list[str]] = {}
+    for path, _scale, view in BOARD_COLUMNS.get(kind, ()):
+        views.setdefault(view, []).append(path)
+    return [rrb.TimeSeriesView(origin=paths[0].split("/")[0], contents=paths, name=name)
+            for name, paths in views.items()]
 
 
 def arm_view(dim: int, contents: Iterable[str], name: str) -> rrb.View:

@@ -16,6 +16,9 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
     drawing/target            a drawing plan's pen-down strokes LineStrips2D, static (plans with `pen`)
     drawing/trace             the measured tip while the pen is LineStrips2D, the trace so far at each
                               down (the active segment's flag)  flush (plans with `pen`)
+    ma/*, pump/*              a board's own columns (the MA's  Scalars, per the board kind's
+                              link, speed; the pump's syringe   telemetry.layout.BOARD_COLUMNS
+                              positions, end-stop bits)
     events                    board events, state changes      TextLog
     errors                    link errors, refusals, resyncs   TextLog
 
@@ -51,7 +54,7 @@ import numpy as np
 import rerun as rr
 
 from armbridge.errors import ArmbridgeError
-from armbridge.telemetry.layout import drawing_layout, run_layout
+from armbridge.telemetry.layout import BOARD_COLUMNS, drawing_layout, run_layout
 
 APPLICATION_ID = "armbridge"
 TIMELINE = "board_time"
@@ -159,6 +162,14 @@ class Recording:
         self.rec.set_time(TIMELINE, duration=float(t))
         for path, v in values.items():
             self.rec.log(path, rr.Scalars(float(v)))
+
+    def board(self, t: float, kind: str, extra) -> None:
+        """A telemetry sample's own columns of a board of this kind (Telemetry.extra), each
+        scaled and logged at its path of BOARD_COLUMNS; a kind without columns logs nothing,
+        and columns beyond the table's are not logged."""
+        cols = BOARD_COLUMNS.get(kind, ())
+        if cols and extra:
+            self.series(t, {path: scale * float(v) for (path, scale, _view), v in zip(cols, extra)})
 
     def event(self, t: float | None, text: str, level: str = "info") -> None:
         """A board event (or a state change) as a line of the `events` log.
