@@ -16,6 +16,10 @@ public:
     virtual uint32_t us() = 0;                 /* micros(): wraps at 2^32 */
     /* ---- link UART */
     virtual int uart_read() = 0;               /* next received byte, -1 when none */
+    /* The same, and when the byte arrived (us() of its receive interrupt): a byte
+     * that waited in the ring while the loop was busy keeps its own time, so the
+     * Modbus t3.5 framing sees the wire's gaps, not the loop's. */
+    virtual int uart_read_at(uint32_t *t_us) = 0;
     virtual void uart_write(const uint8_t *data, size_t n) = 0;  /* queues; waits if full */
     virtual size_t tx_room() = 0;              /* bytes the transmit queue takes without waiting */
     /* The receive path's e-stop: the byte 0x98 switches the motors off where it is

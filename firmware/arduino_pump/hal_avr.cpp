@@ -18,6 +18,7 @@ static const uint8_t kStopRet[N_JOINTS] = PIN_STOP_RET;
 static const uint8_t kStopExt[N_JOINTS] = PIN_STOP_EXT;
 
 static volatile uint8_t rx_buf[RX_RING];
+static volatile uint16_t rx_time[RX_RING];  /* low 16 bits of micros() at each byte's interrupt */
 static volatile uint8_t rx_head, rx_tail;   /* head: ISR writes; tail: loop reads */
 static volatile uint8_t tx_buf[TX_RING];
 static volatile uint16_t tx_head, tx_tail;
@@ -54,6 +55,7 @@ ISR(USART0_RX_vect) {
         return;
     }
     rx_buf[rx_head] = b;
+    rx_time[rx_head] = (uint16_t)micros();  /* interrupts are off here: micros() reads TCNT0 as is */
     rx_head = next;
 }
 
@@ -104,6 +106,19 @@ int AvrHal::uart_read() {
     if (rx_head == rx_tail) return -1;
     uint8_t b = rx_buf[rx_tail];
     rx_tail = (uint8_t)((rx_tail + 1) % RX_RING);
+    return b;
+}
+
+/* The byte's time: the low 16 bits stamped in the interrupt, widened against now
+ * (exact while a byte waits less than 65 ms in the ring: the loop drains it every
+ * pass, and a pass is far shorter). */
+int AvrHal::uart_read_at(uint32_t *t_us) {
+    if (rx_head == rx_tail) return -1;
+    uint32_t now = micros();
+    uint8_t b = rx_buf[rx_tail];
+    uint16_t t = rx_time[rx_tail];
+    rx_tail = (uint8_t)((rx_tail + 1) % RX_RING);
+    *t_us = now - (uint16_t)((uint16_t)now - t);
     return b;
 }
 

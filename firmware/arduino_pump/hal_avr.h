@@ -19,6 +19,7 @@ public:
     uint32_t ms();
     uint32_t us();
     int uart_read();
+    int uart_read_at(uint32_t *t_us);
     void uart_write(const uint8_t *data, size_t n);
     size_t tx_room();
     bool estop_seen();

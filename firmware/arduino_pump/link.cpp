@@ -477,7 +477,8 @@ void Link::switch_to_line() { pending_mode_ = 0; }
 void Link::modbus_pass() {
     static uint8_t out[MB_FRAME_MAX];
     int c;
-    while ((c = hal_->uart_read()) >= 0) mb_feed((uint8_t)c, hal_->us());
+    uint32_t at;
+    while ((c = hal_->uart_read_at(&at)) >= 0) mb_feed((uint8_t)c, at);   /* the byte's arrival time */
     int n = mb_poll(hal_->us(), out, sizeof out);
     const mb_counters *st = mb_stats();
     if (st->frames != mb_frames_) {   /* a valid frame answered without exception feeds the watchdog */

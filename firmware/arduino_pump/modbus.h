@@ -8,7 +8,7 @@
  * silence of t3.5 (3.5 character times; fixed at 1750 us above 19200 baud).
  *
  *   mb_init(addr, 115200);
- *   loop: while (Serial.available()) mb_feed(Serial.read(), micros());
+ *   loop: while (ring has a byte) mb_feed(byte, micros() of its RX interrupt);
  *         n = mb_poll(micros(), reply, sizeof reply); if (n > 0) Serial.write(reply, n);
  *
  * A frame with a bad CRC, for another address, too short or too long is dropped in
@@ -130,7 +130,7 @@ uint32_t mb_t35_us(uint32_t baud);                     /* 1750 us above 19200 ba
 void mb_init(uint8_t addr, uint32_t baud);             /* empties the buffer, zeroes the counters */
 void mb_set_address(uint8_t addr);
 uint8_t mb_address(void);
-void mb_feed(uint8_t byte, uint32_t now_us);           /* one received byte and when it was read */
+void mb_feed(uint8_t byte, uint32_t now_us);           /* one received byte and when it arrived (its RX interrupt) */
 /* When a frame has ended (t3.5 since its last byte), handle it: the reply's length
  * written into out (cap >= MB_FRAME_MAX), or 0 (nothing to send). */
 int mb_poll(uint32_t now_us, uint8_t *out, uint16_t cap);

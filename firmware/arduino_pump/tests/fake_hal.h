@@ -34,9 +34,15 @@ public:
     uint32_t ms() { return (uint32_t)(t_us / 1000); }
     uint32_t us() { return (uint32_t)t_us; }
     int uart_read() {
+        uint32_t t;
+        return uart_read_at(&t);
+    }
+    int uart_read_at(uint32_t *t) {
         if (rx.empty()) return -1;
         int b = rx.front();
+        *t = rx_t.front();
         rx.pop_front();
+        rx_t.pop_front();
         return b;
     }
     void uart_write(const uint8_t *d, size_t n) { tx.append((const char *)d, n); }
@@ -77,6 +83,7 @@ public:
                 estop_flag = true;
             }
             rx.push_back(b);
+            rx_t.push_back((uint32_t)t_us);   /* the RX interrupt's time */
         }
     }
     double angle(int k) const {
@@ -103,6 +110,7 @@ public:
     double syringe[N_JOINTS];
     int force_stop[N_JOINTS];   /* 1: retracted stop on, 2: extended stop on */
     std::deque<uint8_t> rx;
+    std::deque<uint32_t> rx_t;
     std::string tx;
 };
 
