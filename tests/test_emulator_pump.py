@@ -259,6 +259,29 @@ def test_estop_stops_the_motors_within_one_period_and_a_reset_keeps_the_latch(pu
     assert pump.hal.duties == (0.0, 0.0, 0.0)
 
 
+def test_hello_on_a_straight_arm_sends_no_limit_event():
+    """The straight joints read a count or two below 205 (sensor noise, here 8 mV: -2..-4
+    mrad, under the limit 0); the set point each new session's HELLO takes is clamped to
+    the limit inside the dead band: no ramp, no EV LIMIT (before: one per joint that read
+    below 0)."""
+    emu = EmulatedBoard("arduino_pump", speed=0, plant_params=PumpParams(sigma_mv=8.0))
+    try:
+        h = Lockstep(emu)
+        h.wait("BOOT")
+        for session in range(5, 15):
+            assert h.hello(session)[1] == "OK"
+            emu.advance(0.1)
+        h.pump()
+        assert not [l for l in h.lines if l[1] == "EV" and l[2][1] == "LIMIT"], h.lines
+        q = [cols[1:4] for _, cols in emu.hal.telemetry]
+        assert min(min(x) for x in q) < 0             # the noise did read below the limit
+        sp = [cols[4:7] for _, cols in emu.hal.telemetry]
+        assert min(min(x) for x in sp) == 0 and max(max(x) for x in sp) <= 10   # never below the limit
+        assert emu.hal.duties == (0.0, 0.0, 0.0)
+    finally:
+        emu.stop()
+
+
 POSES = np.array([[0.30, 0.50, 0.60], [0.45, 0.80, 0.95], [0.20, 0.35, 0.40]])
 
 

@@ -91,12 +91,21 @@ void PumpBoard::halt() {
     for (uint8_t j = 0; j < N_JOINTS; j++) u[j] = 0;
 }
 
+/* The set point becomes the measured angle. A joint at rest on a limit reads a
+ * little past it (sensor noise: a straight joint reads -2..+2 mrad): an angle outside
+ * the range by no more than the joint's dead band is taken as the limit itself, so
+ * HELLO or CLR on a straight arm starts no ramp into range and sends no EV LIMIT
+ * (the controller would not move the joint for that error anyway). Farther out (a
+ * SETLIM narrowed below where the joint is) the set point ramps in, with EV LIMIT. */
 void PumpBoard::hold_here() {
     halt();
     read_sensors();
     float f[N_JOINTS];
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        f[j] = (float)q[j];
+        int32_t x = q[j], lo = lim[j][0], hi = lim[j][1], band = gain[j].dband;
+        if (x < lo && lo - x <= band) x = lo;
+        if (x > hi && x - hi <= band) x = hi;
+        f[j] = (float)x;
         fe_ms_[j] = 0;
     }
     traj.set_point(f);

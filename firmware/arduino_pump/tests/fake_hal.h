@@ -29,6 +29,7 @@ public:
             duty[k] = 0;
             syringe[k] = 0.0;
             force_stop[k] = 0;
+            adc_bias[k] = 0;
         }
     }
     uint32_t ms() { return (uint32_t)(t_us / 1000); }
@@ -58,7 +59,7 @@ public:
     void write_duty(uint8_t k, int16_t d) { duty[k] = estop_flag ? 0 : d; }
     uint16_t read_adc(uint8_t k) {
         double a = angle(k);
-        double adc = 205.0 + a * (716.0 - 205.0) / 1047.0;
+        double adc = 205.0 + a * (716.0 - 205.0) / 1047.0 + adc_bias[k];
         if (adc < 0) adc = 0;
         if (adc > 1023) adc = 1023;
         return (uint16_t)(adc + 0.5);
@@ -109,6 +110,7 @@ public:
     int16_t duty[N_JOINTS];
     double syringe[N_JOINTS];
     int force_stop[N_JOINTS];   /* 1: retracted stop on, 2: extended stop on */
+    int adc_bias[N_JOINTS];     /* counts added to the sensor (noise: a straight joint reads -1 count) */
     std::deque<uint8_t> rx;
     std::deque<uint32_t> rx_t;
     std::string tx;

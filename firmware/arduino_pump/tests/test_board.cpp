@@ -238,6 +238,21 @@ static void setlim_ramps() {
     CHECK(r.cmd("LIM 1") == "OK 32 1 0 200 100");
 }
 
+/* A straight joint reads a count below its calibration (sensor noise: -2 mrad, under
+ * the limit 0): the set point HELLO takes from it is the limit, not a point outside
+ * the range to ramp in from (no EV LIMIT); a real SETLIM narrowing still ramps. */
+static void hello_on_a_straight_arm_is_no_limit() {
+    fresh_eeprom();
+    Rig r(EE);
+    for (int k = 0; k < N_JOINTS; k++) r.hal.adc_bias[k] = -1;
+    r.hello(1);
+    r.run_live(500);
+    CHECK(!r.seen("EV LIMIT"));
+    for (int j = 0; j < N_JOINTS; j++) CHECK_MSG(r.board.traj.sp[j] == 0.0f, "joint %d set point %g", j + 1,
+                                                  (double)r.board.traj.sp[j]);
+    CHECK(r.board.q[0] == -2);
+}
+
 static std::string mb_frame(std::vector<uint8_t> f) {
     uint16_t crc = mb_crc16(f.data(), (uint16_t)f.size());
     f.push_back((uint8_t)(crc & 0xFF));
@@ -304,4 +319,5 @@ void run_board() {
     setlim_ramps();
     modbus_switch();
     modbus_frame_across_a_stall();
+    hello_on_a_straight_arm_is_no_limit();
 }
