@@ -24,6 +24,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.client import LATCHED_STATES, BoardClient
+from armbridge.executor.settle import resting, settle_tolerance
 from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, plan_error
 from armbridge.link import protocol as P
@@ -167,7 +168,7 @@ def run_plan(
                 if cartesian:
                     _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
-                band = _settle_band(c, robot.dof)
+                band = settle_tolerance(c, robot.dof)  # None: the board has no dead band
                 bar = _progress_bar(plan, console) if progress else None
                 try:
                     c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
@@ -177,7 +178,7 @@ def run_plan(
                     # Let the last samples (the arm settling on the final waypoint) arrive.
                     c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
                     if band is not None:  # a board with a dead band: until the arm rests in it (bounded)
-                        c.drain(SETTLE_WAIT_S, until=lambda: _resting(samples, plan.q[-1], band[0]))
+                        c.drain(SETTLE_WAIT_S, until=lambda: resting(samples, plan.q[-1], band[0]))
                     summary.final_state = c.stat()[0]
                 except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
                     _stop(c, summary, rec, stop)
@@ -289,40 +290,6 @@ def _recording(rrd: Path, robot, plan: Plan, masr, kind: str):
     if masr is not None and masr.env is not None:
         rec.obstacles(masr.env.obstacles)
     return rec
-
-
-def _settle_band(client, n: int) -> tuple[np.ndarray, str] | None:
-    """The settle times' tolerance: the board's dead band per joint (rad), and where it came
-    from. Read from the board where its protocol can (Modbus: holding registers 12..14,
-    docs/modbus.md), else the default of the board's firmware (its config's
-    DBAND_DEFAULT_MRAD: the line protocol has no query for it); None for a board without
-    a dead band (no settle times)."""
-    from armbridge.executor.modbus_client import HR_DBAND, ModbusClient
-
-    if isinstance(client, ModbusClient):
-        return np.asarray(client.master.read_holding(HR_DBAND, n), float) / 1000.0, "board"
-    from armbridge.emulator.registry import board_spec
-    from armbridge.emulator.runner import firmware_config
-    from armbridge.resources import firmware_dir
-
-    try:
-        mrad = getattr(firmware_config(board_spec(client.info.fw), firmware_dir()), "DBAND_DEFAULT_MRAD", None)
-    except (ArmbridgeError, OSError):  # a board kind this host has no firmware of
-        return None
-    return (np.full(n, float(mrad) / 1000.0), "default") if mrad is not None else None
-
-
-def _resting(samples, target: np.ndarray, band: np.ndarray, hold_s: float = 0.1) -> bool:
-    """The arm has rested within `band` of `target` for the last `hold_s` of telemetry."""
-    if not samples or samples[-1][0] - samples[0][0] < hold_s:
-        return False
-    t_end = samples[-1][0]
-    for t, _state, q, _target, _active in reversed(samples):
-        if np.any(np.abs(q - target) > band + 1e-9):
-            return False
-        if t_end - t >= hold_s:
-            return True
-    return False
 
 
 def _progress_bar(plan: Plan, console):

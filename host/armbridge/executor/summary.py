@@ -72,7 +72,7 @@ class Summary:
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)
     settle: dict[str, JointSettle] = field(default_factory=dict)  # boards with a dead band (settle_times)
-    settle_tolerance: dict[str, float] = field(default_factory=dict)  # rad, per joint: the board's dead band
+    settle_tolerance: dict[str, float] = field(default_factory=dict)  # rad: dead band + a sensor count (settle.py)
     settle_tolerance_source: str | None = None  # "board" (read from it) or "default" (the firmware's config)
 
     @property
@@ -197,8 +197,9 @@ def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_st
 def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[int, float],
                  band: np.ndarray, end_t: float) -> list[JointSettle]:
     """Per joint, how long after each waypoint's DONE the measured angle took to stay
-    within `band` of the waypoint's value (the board's dead band: the P controller of
-    the soft-arm paper, eq. 24, drives nothing inside it, so that is where a joint rests).
+    within `band` of the waypoint's value (the board's dead band and a sensor count,
+    executor/settle.py: the P controller of the soft-arm paper, eq. 24, drives nothing
+    inside the dead band, so that is where a joint rests).
 
     t, q: the telemetry (board time, measured q (m, n)); plan_q (k, n); done_t: plan
     index -> board time of its DONE; end_t: the run's last board time. Only waypoints

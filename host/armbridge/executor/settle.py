@@ -1,0 +1,65 @@
+"""The settle times' tolerance and the wait for an arm to come to rest (executor/run.py).
+
+A board with a dead band (the syringe-pump board: the soft-arm paper's P controller,
+eq. 24, drives nothing while |theta_r - theta_c| is inside it) leaves each joint
+resting anywhere in the band, typically near its edge, where the bend sensor's
+reading dithers by one ADC count. The tolerance is therefore the dead band plus one
+count of the joint's sensor (its calibration's mrad per count), so that a reading
+flipping by a count at the edge is not taken for the joint leaving the band.
+
+Both are read from the board where its protocol can (Modbus: holding registers 12..14
+and the calibration 24..35, docs/modbus.md); the line protocol has no query for them,
+so the host takes the defaults of the board's firmware (its config's
+DBAND_DEFAULT_MRAD and BEND_DEFAULT). A board without a dead band gets no settle times.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+
+
+def count_mrad(bend: Sequence[Sequence[int]]) -> np.ndarray:
+    """mrad per ADC count of each joint's linear calibration (adc_a, a, adc_b, b)."""
+    return np.array([abs(b - a) / max(1, abs(adc_b - adc_a)) for adc_a, a, adc_b, b in bend], float)
+
+
+def settle_tolerance(client, n: int) -> tuple[np.ndarray, str] | None:
+    """(tolerance per joint in rad, "board" or "default"), or None (no dead band)."""
+    from armbridge.executor.modbus_client import HR_BEND, HR_DBAND, ModbusClient
+    from armbridge.link.modbus import to_i16
+
+    if isinstance(client, ModbusClient):
+        band = np.asarray(client.master.read_holding(HR_DBAND, n), float)
+        r = [to_i16(x) for x in client.master.read_holding(HR_BEND, 4 * n)]
+        return (band + count_mrad([r[4 * j:4 * j + 4] for j in range(n)])) / 1000.0, "board"
+    from armbridge.emulator.registry import board_spec
+    from armbridge.emulator.runner import firmware_config
+    from armbridge.resources import firmware_dir
+
+    try:
+        cfg = firmware_config(board_spec(client.info.fw), firmware_dir())
+    except (ArmbridgeError, OSError):  # a board kind this host has no firmware of
+        return None
+    mrad = getattr(cfg, "DBAND_DEFAULT_MRAD", None)
+    if mrad is None:
+        return None
+    bend = getattr(cfg, "BEND_DEFAULT", None)
+    count = count_mrad(bend) if bend is not None and len(bend) == n else np.zeros(n)
+    return (float(mrad) + count) / 1000.0, "default"
+
+
+def resting(samples, target: np.ndarray, tol: np.ndarray, hold_s: float = 0.1) -> bool:
+    """The telemetry samples (t, state, q, ...) have stayed within `tol` of `target` for
+    the last `hold_s` of board time."""
+    if not samples or samples[-1][0] - samples[0][0] < hold_s:
+        return False
+    t_end = samples[-1][0]
+    for s in reversed(samples):
+        if np.any(np.abs(s[2] - target) > tol + 1e-9):
+            return False
+        if t_end - s[0] >= hold_s:
+            return True
+    return False
