@@ -167,12 +167,16 @@ def test_settle_times_of_a_known_trace():
 # ---------------------------------------------------------------- link faults and resets
 
 def test_exactly_once_under_link_faults_and_a_reset(ports, tmp_path):
+    """A reset between the first waypoint's DONE and the second's, under 1 % dropped and
+    1 % damaged bytes both ways: the board's log holds each waypoint once, with its values
+    (the first, done before the reset, is not run again)."""
     plan = soft_plan(POSES[:1], (1.0,), (1.5,))
-    url = "emu:arduino_pump?speed=0&drop=0.01&corrupt=0.01&seed=5&reset_at=1.2"
+    url = "emu:arduino_pump?speed=0&drop=0.01&corrupt=0.01&seed=5&reset_at=1.8"
     summary = run_plan(plan, url, tmp_path / "faults.rrd", progress=False, timeout=120)
     emu = ports[0].emulator
     assert summary.completed, summary
     assert emu.counters["resets"] == 1 and summary.resyncs >= 1
+    assert emu.executed[0][0] < 1800 < emu.executed[-1][0], emu.executed   # DONE 0 before the reset, 1 after
     c = emu.counters
     assert sum(c[lane][k] for lane in ("rx", "tx") for k in ("drop", "corrupt")) > 0, c
     assert_executed_once_with_values(emu, plan)       # across the reset: each waypoint once, the values sent

@@ -21,7 +21,11 @@ def link_cmd(
     soak_s: float = typer.Option(None, "--soak", min=1.0, help="Soak length in seconds (full run: 600)."),
     damaged: int = typer.Option(None, "--damaged", min=1, help="Damaged lines per protocol version (full run: 10^7)."),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes for the damage model."),
-    json_out: Path = typer.Option(Path("runs/bench-link.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(None, "--json", help="Where to write the results "
+                                  "[default: runs/bench-link.json, runs/bench-link-BOARD.json for another board]."),
+    board: str = typer.Option("esp32", "--board", help="The emulated board: esp32 (the MicroPython firmware, paced "
+                              "to the wall clock) or arduino_pump (the .elf in simavr in lockstep, on its clock; "
+                              "adds the Modbus round trip, leaves out the damage model)."),
 ) -> None:
     """The line protocol: undetected errors of v1 and v2 under the UART fault mix, and,
     over a pty paced at 115200 baud, throughput, round trip, e-stop latency and a soak
@@ -32,13 +36,18 @@ def link_cmd(
 
     from armbridge.bench import link
 
+    if board not in link.BOARDS:
+        raise typer.BadParameter(f"{board!r}: use one of {', '.join(link.BOARDS)}", param_hint="--board")
+    if json_out is None:
+        json_out = Path("runs/bench-link.json" if board == "esp32" else f"runs/bench-link-{board}.json")
     size = link.QUICK if quick else link.FULL
     if soak_s is not None:
         size = replace(size, soak_s=soak_s, reset_every_s=min(size.reset_every_s, soak_s / 2))
     if damaged is not None:
         size = replace(size, damaged_lines=damaged)
     console = Console()
-    result = link.run(size, progress=lambda text: console.print(f"[dim]bench link: {text}[/]"), workers=workers)
+    result = link.run(size, progress=lambda text: console.print(f"[dim]bench link: {text}[/]"), workers=workers,
+                      board=board)
     write_json(result, json_out)
     link.print_result(result, console)
     console.print(f"wrote {json_out}")

@@ -23,6 +23,12 @@ is left to run):
   board reset at a fixed period; the board's own log of completed waypoints
   (id and values) must hold every waypoint once, in order, with the values
   the host sent.
+
+`--board arduino_pump` runs the same pty measurements on the syringe-pump
+board's .elf in simavr (`BOARDS`: the soft arm's waypoints, under its 0.5 rad/s)
+in lockstep, timed on the emulator's clock (cycle-exact, whatever the host's
+load), plus the Modbus round trip (bench/modbus.py); the undetected-error
+count is the codec's, the same for every board, and is not repeated there.
 """
 from __future__ import annotations
 
@@ -41,6 +47,26 @@ from armbridge.robots.catalog import get_robot
 
 LINE_BYTES_PER_S = 115200 / 10  # 8N1: ten bit times a byte
 ROBOT = "arm3r"
+
+
+@dataclass(frozen=True)
+class BenchBoard:
+    """A board the pty measurements run on: its emu: url, the robot it drives, and the
+    waypoint steps (mrad) each measurement streams, under the robot's vmax."""
+
+    url: str
+    robot: str
+    lockstep: bool  # speed=0: times on the emulator's clock; else paced, on the wall clock
+    stream_step: float  # per 2 ms waypoint (throughput)
+    soak_step: float  # per 20 ms waypoint (soak)
+    estop_step: float  # per 100 ms waypoint (e-stop)
+    period: int  # waypoints per period of the wave
+
+
+BOARDS = {
+    "esp32": BenchBoard("emu:esp32", "arm3r", False, 4.0, 20.0, 20.0, 400),  # arm3r: 3 rad/s
+    "arduino_pump": BenchBoard("emu:arduino_pump?speed=0", "soft3", True, 0.9, 8.0, 10.0, 100),  # 0.5 rad/s
+}
 V1_CRC_DIGITS, V2_CRC_DIGITS = 4, 8
 
 
@@ -73,10 +99,10 @@ class CountingPort:
             setattr(self._port, name, value)
 
 
-def wave(k: int, step_mrad: float, period: int = 400) -> np.ndarray:
-    """(k, 3) mrad: a smooth back-and-forth around the middle of arm3r's ranges,
+def wave(k: int, step_mrad: float, period: int = 400, robot_name: str = ROBOT) -> np.ndarray:
+    """(k, 3) mrad: a smooth back-and-forth around the middle of the robot's ranges,
     at most `step_mrad` per waypoint on any joint."""
-    robot = get_robot(ROBOT)
+    robot = get_robot(robot_name)
     mid = (robot.q_min + robot.q_max) / 2 * 1000
     amp = step_mrad * period / (2 * np.pi)
     phase = np.sin(2 * np.pi * np.arange(k)[:, None] / period + np.array([0.0, 1.0, 2.0]))
@@ -114,22 +140,27 @@ def undetected_errors(damaged_lines: int, version: int, seed: int = 2024, worker
 
 # ---------------------------------------------------------------- over the pty
 
-def _session(url: str, **client_kw) -> tuple[CountingPort, BoardClient]:
+def _session(url: str, robot: str = ROBOT, **client_kw) -> tuple[CountingPort, BoardClient]:
     port = CountingPort(open_port(url))
-    client = BoardClient(port, get_robot(ROBOT), **client_kw)
+    client = BoardClient(port, get_robot(robot), **client_kw)
     client.connect()
     return port, client
 
 
-def throughput_once(waypoints: int, url: str = "emu:esp32") -> dict:
-    port, client = _session(url)
+def _clock(board: BenchBoard, client: BoardClient) -> Callable[[], float]:
+    return client.now if board.lockstep else time.monotonic
+
+
+def throughput_once(waypoints: int, board: BenchBoard = BOARDS["esp32"]) -> dict:
+    port, client = _session(board.url, board.robot)
+    now = _clock(board, client)
     try:
         client.set_rate(0)  # the board->host lane carries only acks and events
-        q = wave(waypoints, step_mrad=4.0)  # 4 mrad in 2 ms = 2 rad/s, under the 3 rad/s limit
+        q = wave(waypoints, board.stream_step, board.period, board.robot)  # arm3r: 4 mrad in 2 ms = 2 rad/s
         before, verbs_before, st0 = port.written, Counter(port.by_verb), _stats(client)
-        t0 = time.monotonic()
+        t0 = now()
         client.execute([2] * waypoints, q.tolist())
-        elapsed = time.monotonic() - t0
+        elapsed = now() - t0
         sent = port.written - before
         by_verb = dict(port.by_verb - verbs_before)
         st = {k: v - st0[k] for k, v in _stats(client).items()}
@@ -155,11 +186,11 @@ def _stats(client: BoardClient) -> dict[str, int]:
                                        "window_cuts", "slow_events")}
 
 
-def throughput(waypoints: int, runs: int = 1, url: str = "emu:esp32") -> dict:
+def throughput(waypoints: int, runs: int = 1, board: BenchBoard = BOARDS["esp32"]) -> dict:
     """`runs` separate sessions of `waypoints` each; the run of median rate is the
     result, every run's rate beside it (the machine is shared: one slow run
     should not be the number, nor the fastest)."""
-    each = [throughput_once(waypoints, url) for _ in range(runs)]
+    each = [throughput_once(waypoints, board) for _ in range(runs)]
     ranked = sorted(each, key=lambda r: r["waypoints_per_s"])
     result = dict(ranked[(len(ranked) - 1) // 2])
     result["runs"] = runs
@@ -167,44 +198,50 @@ def throughput(waypoints: int, runs: int = 1, url: str = "emu:esp32") -> dict:
     return result
 
 
-def round_trip(pings: int, url: str = "emu:esp32") -> dict:
-    port, client = _session(url)
+def round_trip(pings: int, board: BenchBoard = BOARDS["esp32"]) -> dict:
+    port, client = _session(board.url, board.robot)
+    now = client.now if board.lockstep else time.perf_counter
     try:
         client.set_rate(0)
         samples = []
         for _ in range(pings):
-            t0 = time.perf_counter()
+            t0 = now()
             client.command("PING")
-            samples.append(time.perf_counter() - t0)
+            samples.append(now() - t0)
         return percentiles(samples)
     finally:
         port.close()
 
 
-def estop_latency(trials: int, url: str = "emu:esp32") -> dict:
+def estop_latency(trials: int, bench_board: BenchBoard = BOARDS["esp32"]) -> dict:
+    """Lockstep: the byte's time is the host's write on the emulator's clock, the outputs'
+    the HAL's record in sim time; paced: both on the wall clock (emu.wall_time)."""
     events: list[float] = []
+    now: list[Callable[[], float]] = [time.monotonic]
 
     def on_event(_t, ev: P.Event) -> None:
         if ev.kind == "ESTOP":
-            events.append(time.monotonic())
+            events.append(now[0]())
 
-    port, client = _session(url, on_event=on_event)
+    port, client = _session(bench_board.url, bench_board.robot, on_event=on_event)
+    now[0] = _clock(bench_board, client)
     emu = port.emulator
     board, host = [], []
     try:
-        q = wave(40, step_mrad=20.0)
+        q = wave(40, bench_board.estop_step, bench_board.period, bench_board.robot)
         for _ in range(trials):
             client.command("CLR")
             for i in range(32):  # fill the queue: 32 waypoints of 100 ms
                 client.command("W", i, 100, *q[i])
-            _wait(lambda: emu.state == "RUN", 2.0)
-            time.sleep(0.05)
+            _wait(lambda: emu.state == "RUN", 2.0, pump=lambda: client.drain(0.002))
+            client.drain(0.05)
             off_before, events_before = len(emu.outputs_off_at), len(events)
-            t0 = time.monotonic()
+            t0 = now[0]()
             client.estop()
             _wait(lambda: len(emu.outputs_off_at) > off_before and len(events) > events_before, 2.0,
                   pump=lambda: client.drain(0.002))
-            board.append(emu.wall_time(emu.outputs_off_at[-1]) - t0)
+            off = emu.outputs_off_at[-1]
+            board.append((off if bench_board.lockstep else emu.wall_time(off)) - t0)
             host.append(events[-1] - t0)
         return {"trials": trials, "byte_to_outputs_off": percentiles(board),
                 "byte_to_event_at_host": percentiles(host)}
@@ -235,22 +272,24 @@ def judge(sent: Sequence[tuple[int, tuple[int, ...]]], executed: Sequence[tuple[
             "in_order": [i for i, _ in executed] == [i for i, _ in sent]}
 
 
-def soak(seconds: float, url_faults: str, reset_every_s: float, chunk: int = 100) -> dict:
-    """Plans of `chunk` waypoints back to back in one session until `seconds` of
-    wall time have passed; the board's log must hold every waypoint once, in
-    order, with the values the host sent."""
+def soak(seconds: float, url_faults: str, reset_every_s: float, chunk: int = 100,
+         board: BenchBoard = BOARDS["esp32"]) -> dict:
+    """Plans of `chunk` waypoints back to back in one session until `seconds` have
+    passed (wall time; sim time in lockstep); the board's log must hold every waypoint
+    once, in order, with the values the host sent."""
     resets = ",".join(f"{t:g}" for t in np.arange(reset_every_s, seconds, reset_every_s))
-    url = f"emu:esp32?{url_faults}" + (f"&reset_at={resets}" if resets else "")
-    port, client = _session(url)
+    url = board.url + ("&" if "?" in board.url else "?") + url_faults + (f"&reset_at={resets}" if resets else "")
+    port, client = _session(url, board.robot)
+    now = _clock(board, client)
     emu = port.emulator
-    q = wave(chunk, step_mrad=20.0).tolist()  # 20 mrad in 20 ms = 1 rad/s
+    q = wave(chunk, board.soak_step, board.period, board.robot).tolist()  # arm3r: 20 mrad in 20 ms = 1 rad/s
     plans = 0
     try:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < seconds:
+        t0 = now()
+        while now() - t0 < seconds:
             client.execute([20] * chunk, q, timeout=600)
             plans += 1
-        elapsed = time.monotonic() - t0
+        elapsed = now() - t0
         # Ids run on across the plans of a session: 0, 1, 2, ... (mod 65536).
         sent = [(i % 65536, tuple(q[i % chunk])) for i in range(plans * chunk)]
         verdict = judge(sent, [(i, v) for _, i, v in emu.executed])
@@ -296,24 +335,40 @@ TARGET_WPS = 300
 TARGET_ESTOP_MS = 20.0
 
 
-def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: int = 2) -> dict:
-    """Every measurement of the bench, the pty ones first (so the damage model's
-    worker processes do not share the cores with the paced emulator)."""
-    progress(f"throughput: {size.throughput_runs} x {size.waypoints} waypoints")
-    result: dict = {"throughput": throughput(size.waypoints, size.throughput_runs)}
+MODBUS_URL = "modbus:emu:arduino_pump?addr=1&speed=0"
+
+
+def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: int = 2,
+        board: str = "esp32") -> dict:
+    """Every measurement of the bench on `board` (BOARDS), the pty ones first (so the
+    damage model's worker processes do not share the cores with the paced emulator);
+    the syringe-pump board adds the Modbus round trip and leaves out the damage model
+    (the codec's, the same for every board)."""
+    b = BOARDS[board]
+    clock = "emulator (sim time)" if b.lockstep else "wall"
+    progress(f"{board}: throughput: {size.throughput_runs} x {size.waypoints} waypoints, {clock} clock")
+    result: dict = {"board": board, "url": b.url, "clock": clock,
+                    "throughput": throughput(size.waypoints, size.throughput_runs, b)}
     progress(f"round trip: {size.pings} pings")
-    result["round_trip"] = round_trip(size.pings)
+    result["round_trip"] = round_trip(size.pings, b)
     progress(f"e-stop: {size.estops} trials")
-    result["estop"] = estop_latency(size.estops)
+    result["estop"] = estop_latency(size.estops, b)
     progress(f"soak: {size.soak_s:g} s with {SOAK_FAULTS}, a reset every {size.reset_every_s:g} s")
-    result["soak"] = soak(size.soak_s, SOAK_FAULTS, size.reset_every_s)
-    result["undetected"] = {}
-    for version in (1, 2):
-        progress(f"undetected errors, protocol v{version}: {size.damaged_lines:,} damaged lines, {workers} workers")
-        t0 = time.monotonic()
-        r = undetected_errors(size.damaged_lines, version, workers=workers)
-        r["seconds"] = time.monotonic() - t0
-        result["undetected"][f"v{version}"] = r
+    result["soak"] = soak(size.soak_s, SOAK_FAULTS, size.reset_every_s, board=b)
+    if board == "arduino_pump":
+        from armbridge.bench.modbus import modbus_round_trip
+
+        progress(f"Modbus round trip: {size.pings} reads of one register, {size.pings} set-point writes")
+        result["modbus"] = modbus_round_trip(MODBUS_URL, size.pings)
+    else:
+        result["undetected"] = {}
+        for version in (1, 2):
+            progress(f"undetected errors, protocol v{version}: {size.damaged_lines:,} damaged lines, "
+                     f"{workers} workers")
+            t0 = time.monotonic()
+            r = undetected_errors(size.damaged_lines, version, workers=workers)
+            r["seconds"] = time.monotonic() - t0
+            result["undetected"][f"v{version}"] = r
     result["targets"] = targets(result)
     result["size"] = size.__dict__
     return result
@@ -321,51 +376,19 @@ def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: i
 
 def targets(r: dict) -> dict[str, bool]:
     so = r["soak"]
-    return {
-        "v2 undetected == 0": r["undetected"]["v2"]["undetected"] == 0,
+    out = {"v2 undetected == 0": r["undetected"]["v2"]["undetected"] == 0} if "undetected" in r else {}
+    out.update({
         f"waypoints/s >= {TARGET_WPS}": r["throughput"]["waypoints_per_s"] >= TARGET_WPS,
         f"e-stop byte -> outputs off < {TARGET_ESTOP_MS:g} ms": r["estop"]["byte_to_outputs_off"]["max_ms"]
         < TARGET_ESTOP_MS,
         "soak 0 lost / 0 duplicated / 0 wrong, in order": (so["lost"], so["duplicated"], so["wrong_value"],
                                                             so["in_order"]) == (0, 0, 0, True),
-    }
+    })
+    return out
 
 
 def print_result(r: dict, console) -> None:
-    """The table of `armbridge bench link` (rich console)."""
-    from rich.table import Table
+    """The table of `armbridge bench link` (rich console): bench/link_table.py."""
+    from armbridge.bench.link_table import print_result as table
 
-    tp, rt, es, so, ud = r["throughput"], r["round_trip"], r["estop"], r["soak"], r["undetected"]
-    v1, v2 = ud["v1"], ud["v2"]
-    table = Table(title="armbridge bench link (115200 baud 8N1, 3-joint waypoints)")
-    table.add_column("measure", justify="left")
-    for col in ("v1 (CRC-16)", "v2 (CRC-32, epoch)", "target"):
-        table.add_column(col, justify="right")
-
-    def rate(u: dict) -> str:
-        return (f"{u['undetected']} / {u['damaged']:,} = {u['rate']:.2g}" if u["undetected"]
-                else f"0 / {u['damaged']:,} (< {u['rate_upper_95']:.1g}, 95 %)")
-
-    table.add_row("undetected errors / damaged lines", rate(v1), rate(v2), "v2: 0")
-    table.add_row("sustained waypoints/s (median run)", f"({tp['v1_line_rate_ceiling_wps']:.0f} ceiling)",
-                  f"{tp['waypoints_per_s']:.0f}", f">= {TARGET_WPS}")
-    table.add_row("line capacity used (host->board)", "", f"{tp['line_capacity_used']:.1%}", "")
-    table.add_row("bytes per waypoint (W line / all bytes)", f"{tp['v1_w_line_bytes']:.1f} / -",
-                  f"{tp['w_line_bytes']:.1f} / {tp['bytes_per_waypoint']:.1f}", "")
-    table.add_row("line-rate ceiling for these W lines (wp/s)", f"{tp['v1_line_rate_ceiling_wps']:.0f}",
-                  f"{tp['line_rate_ceiling_wps']:.0f}", "")
-    table.add_row("streaming: W resent / PINGs / timeouts (spurious)", "",
-                  f"{tp['retransmitted']} / {tp['pings']} / {tp['timeouts']} ({tp['spurious_timeouts']})", "")
-    table.add_row("ack round trip median / p95 (ms)", "", f"{rt['median_ms']:.2f} / {rt['p95_ms']:.2f}", "")
-    table.add_row("e-stop byte -> outputs off median / max (ms)", "",
-                  f"{es['byte_to_outputs_off']['median_ms']:.2f} / {es['byte_to_outputs_off']['max_ms']:.2f}",
-                  f"< {TARGET_ESTOP_MS:g}")
-    table.add_row("e-stop byte -> ESTOP event at host median / max (ms)", "",
-                  f"{es['byte_to_event_at_host']['median_ms']:.2f} / {es['byte_to_event_at_host']['max_ms']:.2f}", "")
-    table.add_row(f"soak {so['seconds']:.0f} s: waypoints executed", "", f"{so['executed']} / {so['waypoints']}", "")
-    table.add_row("soak: lost / duplicated / wrong value / in order", "",
-                  f"{so['lost']} / {so['duplicated']} / {so['wrong_value']} / {so['in_order']}", "0 / 0 / 0 / True")
-    table.add_row("soak: resets / resyncs / W resent / line errors", "",
-                  f"{so['resets']} / {so['resyncs']} / {so['retransmitted']} / {so['line_errors']}", "")
-    console.print(table)
-    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in r["targets"].items()))
+    table(r, console)
