@@ -162,7 +162,9 @@ class Stream:
             P.LATCHED: f"it is latched in {state or 'ESTOP/WDOG/FAULT'}",
             P.VERB: f"this board cannot do {cmd.verb} (a capability its firmware or rig lacks)",
             P.REACH: "the target is outside the board's safe region or its IK did not reach it",
-            P.UNHOMED: "the mobile actuator does not know where it is: run with --home to drive it to the base first",
+            P.UNHOMED: "the mobile actuator does not know where it is (a power on, a reset while it moved, or a "
+                       "localisation fault), so the rest of the plan is not run: run with --home to drive it to the "
+                       "base and back to the plan's start",
         }.get(er.code, "")
         detail = " ".join(er.detail)
         return ArmbridgeError(
