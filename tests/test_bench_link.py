@@ -6,6 +6,8 @@ damaged line through, the JSON is complete and its numbers agree with each
 other.
 """
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from typer.testing import CliRunner
 from armbridge.bench import link
 from armbridge.cli import build_app
 from armbridge.link import protocol as P
+from require import missing
 
 
 @pytest.mark.hil
@@ -103,3 +106,31 @@ def test_wave_respects_step_and_limits():
     robot = get_robot("arm3r")
     assert np.abs(np.diff(q, axis=0)).max() <= 5  # 4 mrad, plus rounding
     assert robot.within_limits(q / 1000.0).all()
+
+
+@pytest.mark.hil
+def test_bench_link_quick_on_the_pump_board(tmp_path, monkeypatch):
+    """`--board arduino_pump`: the same measurements on the .elf in simavr (lockstep, sim
+    time), the soak judged from the board's own log, and the Modbus round trip; no damage
+    model (the codec's, not the board's)."""
+    if shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file():
+        missing("the AVR toolchain or libsimavr-dev is missing (scripts/setup.sh as root installs them)")
+    monkeypatch.setattr(link, "QUICK", link.LinkBenchSize(damaged_lines=1, waypoints=100, throughput_runs=1,
+                                                          pings=10, estops=2, soak_s=5, reset_every_s=3))
+    out = tmp_path / "pump.json"
+    result = CliRunner().invoke(build_app(), ["bench", "link", "--quick", "--board", "arduino_pump",
+                                              "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert data["board"] == "arduino_pump" and data["clock"].startswith("emulator") and "undetected" not in data
+    tp, so, es, mb = data["throughput"], data["soak"], data["estop"], data["modbus"]
+    assert tp["waypoints"] == 100 and sum(tp["bytes_by_verb"].values()) == pytest.approx(tp["bytes_per_waypoint"] * 100)
+    assert tp["waypoints_per_s"] <= tp["line_rate_ceiling_wps"] * 1.001, "faster than the line can carry"
+    assert es["trials"] == 2 and es["byte_to_outputs_off"]["n"] == 2
+    assert es["byte_to_outputs_off"]["max_ms"] <= 10.0          # within one control period, in sim time
+    assert data["round_trip"]["n"] == 10
+    assert mb["n"] == 10 and mb["clock"] == "emulator" and mb["read_one"]["min_ms"] >= mb["wire_read_ms"] - 1.0
+    assert so["plans"] >= 1 and so["resets"] >= 1 and so["resyncs"] >= 1
+    assert (so["lost"], so["duplicated"], so["wrong_value"], so["in_order"]) == (0, 0, 0, True), so
+    assert "v2 undetected == 0" not in data["targets"]
+    assert "Modbus one register" in result.output and "targets:" in result.output
