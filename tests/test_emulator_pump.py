@@ -93,9 +93,12 @@ def test_the_harness_runs_the_chip_in_lockstep(sketch_root, tmp_path):
         tx = [(int(x.split(":")[0]), int(x.split(":")[1], 16)) for x in f[3].split(",")]
         # 2500 mV of 5 V: simavr converts with 1023 (not the datasheet's 1024): 511
         assert bytes(b for _, b in tx) == b"ADC 511\r\nPINS 10\r\nPWM 128\r\nEE 77\r\n"
-        burst = tx[-9:]                                  # "EE 77\r\n" and the end of "PWM 128": back to back
+        burst = tx[-6:]                                  # "E 77\r\n": back to back
         mean_gap = (burst[-1][0] - burst[0][0]) / (len(burst) - 1)
         assert 1350 <= mean_gap <= 1370   # 10-bit frames at 117647 baud (UBRR 16, U2X): 1360 cycles
+        # the EEPROM byte takes its programming time (EEPE held 3.4 ms: the read after it waits)
+        w_end = c + 1000 + 1500 * (len(data) - 1)
+        assert tx[-7][0] - w_end >= 3400 * 16
         last = f[4].split(";")[-1].split(":")[1].split(".")
         regs = dict(zip(watch, (int(v, 16) for v in last)))
         assert en.duty(regs) == pytest.approx(128 / 255) and in1.level(regs) == 1
@@ -247,8 +250,8 @@ def test_estop_stops_the_motors_within_one_period_and_a_reset_keeps_the_latch(pu
     assert pump.hal.duties == (0.0, 0.0, 0.0)
     timing = pump_timing(pump)
     assert timing["estop_latency_us"]["n"] == 1 and timing["estop_latency_us"]["max"] < 1000
-    # The firmware writes its record one EEPROM byte per main-loop pass; simavr programs a
-    # byte at once (a real chip takes 3.4 ms a byte): 0.2 s covers the chip's time too.
+    # The firmware writes its record one EEPROM byte per main-loop pass, 3.4 ms a byte
+    # (the harness models the chip's programming time): 0.2 s covers it.
     pump.advance(0.2)
     h.lines.clear()
     pump.reset()
@@ -256,6 +259,33 @@ def test_estop_stops_the_motors_within_one_period_and_a_reset_keeps_the_latch(pu
     assert h.hello(5)[2][-1] == "ESTOP"                # the latch survived the reset (EEPROM)
     assert h.request("W", 2, 1000, 100, 100, 100)[2][1] == "9"   # LATCHED
     pump.advance(0.5)
+    assert pump.hal.duties == (0.0, 0.0, 0.0)
+
+
+def test_a_reset_5_ms_after_the_estop_boots_estop(pump):
+    """The harness holds EEPE for 3.4 ms of simulated time a byte (as the chip; simavr
+    1.6 programs at once), so the write-behind latch record takes its real time: 5 ms
+    after the e-stop at most one of its bytes is programmed. The latch cell (one byte,
+    written at once) is: the board boots ESTOP (before the cell: IDLE)."""
+    h = Lockstep(pump)
+    h.wait("BOOT")
+    assert h.hello(5)[1] == "OK"
+    assert h.request("W", 1, 3000, 400, 700, 800)[1] == "OK"
+    pump.advance(0.5)
+    before = bytes(pump.hal.persist.data[:108])
+    pump.inject(bytes([0x98]))
+    h.wait("EV", lambda a: a[1] == "ESTOP")
+    t_byte = pump.estop_byte_at[-1]
+    pump.advance(t_byte + 0.005 - pump.now())
+    at_reset = bytes(pump.hal.persist.data)
+    assert sum(a != b for a, b in zip(before, at_reset[:108])) <= 1    # the record: not yet written
+    assert at_reset[108] == 0xC3                                      # the latch cell: ESTOP
+    h.lines.clear()
+    pump.reset()
+    h.wait("BOOT", max_s=2.0)
+    assert h.find("BOOT")[2][-1] == "ESTOP"
+    assert h.hello(6)[2][-1] == "ESTOP" and h.request("W", 2, 1000, 100, 100, 100)[2][1] == "9"   # LATCHED
+    pump.advance(0.3)
     assert pump.hal.duties == (0.0, 0.0, 0.0)
 
 

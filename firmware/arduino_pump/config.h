@@ -70,10 +70,14 @@
 #define PIN_STOP_RET {30, 32, 34}
 #define PIN_STOP_EXT {31, 33, 35}
 
-/* EEPROM layout (docs/pump.md): two slots of the link record, then the settings. */
+/* EEPROM layout (docs/pump.md): two slots of the link record, the settings, and the
+ * latch cell: one byte written at once when the state latches or CLR releases it (a
+ * byte programs in 3.4 ms; the 32-byte record behind it takes ~110 ms), so a reset
+ * right after an e-stop still boots latched. */
 #define EE_LINK_A 0                  /* 32 bytes: link record, slot A */
 #define EE_LINK_B 32                 /* 32 bytes: link record, slot B */
-#define EE_SETTINGS 64               /* 48 bytes: bend calibration, Modbus mode and address */
+#define EE_SETTINGS 64               /* 44 bytes: bend calibration, Modbus mode and address */
+#define EE_LATCH 108                 /* 1 byte: 0xC0 | latch state (0xC0: released) */
 #define EE_SIZE 112                  /* bytes of EEPROM the board uses (the HAL's shadow) */
 
 #endif

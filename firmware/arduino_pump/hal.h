@@ -40,6 +40,9 @@ public:
     /* ---- EEPROM (write-behind on the Mega: a byte takes 3.4 ms to program) */
     virtual void ee_read(uint16_t addr, void *dst, size_t n) = 0;
     virtual void ee_write(uint16_t addr, const void *src, size_t n) = 0;
+    /* One byte programmed now, ahead of the write-behind queue (waits only for a byte
+     * already being programmed: at most 3.4 ms on the Mega). For the latch cell. */
+    virtual void ee_write_now(uint16_t addr, uint8_t value) = 0;
 };
 
 #endif

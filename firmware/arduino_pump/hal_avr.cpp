@@ -189,6 +189,14 @@ void AvrHal::ee_read(uint16_t addr, void *dst, size_t n) {
     for (size_t i = 0; i < n; i++) d[i] = addr + i < EE_SIZE ? ee_shadow[addr + i] : 0xFF;
 }
 
+void AvrHal::ee_write_now(uint16_t addr, uint8_t value) {
+    if (addr >= EE_SIZE) return;
+    ee_shadow[addr] = value;
+    ee_dirty[addr >> 3] &= (uint8_t)~(1u << (addr & 7));
+    if (eeprom_read_byte((const uint8_t *)addr) != value)
+        eeprom_write_byte((uint8_t *)addr, value);   /* waits for EEPE, starts it, returns */
+}
+
 void AvrHal::ee_write(uint16_t addr, const void *src, size_t n) {
     const uint8_t *s = (const uint8_t *)src;
     for (size_t i = 0; i < n && addr + i < EE_SIZE; i++) {

@@ -32,6 +32,7 @@ public:
     uint8_t endstops();
     void ee_read(uint16_t addr, void *dst, size_t n);
     void ee_write(uint16_t addr, const void *src, size_t n);
+    void ee_write_now(uint16_t addr, uint8_t value);
 };
 
 #endif

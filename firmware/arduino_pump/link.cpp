@@ -50,6 +50,9 @@ struct PersistRec {
     uint32_t crc;
 };
 static_assert(sizeof(PersistRec) == 32 && EE_LINK_A + 32 <= EE_LINK_B && EE_LINK_B + 32 <= EE_SETTINGS, "persist layout");
+static_assert(EE_SETTINGS + 44 <= EE_LATCH && EE_LATCH < EE_SIZE, "latch cell layout");
+
+#define LATCH_CELL(st) ((uint8_t)(0xC0 | (st)))   /* 0xC0: released; 0xC3..0xC5: latched */
 
 static bool rec_valid(const PersistRec &r) {
     if (r.tag != 'P' || r.ver != 2) return false;
@@ -85,6 +88,19 @@ void Link::load() {
     gen_ = r->gen;
 }
 
+/* The latch cell is written first and at once, the record after it (write-behind):
+ * a cell that says latched while the record does not is newer than the record (a reset
+ * came before the record was programmed), and wins. A cell that says released while the
+ * record says latched leaves the latch: only a CLR releases it, and CLR again is safe. */
+void Link::load_latch_cell() {
+    uint8_t c;
+    hal_->ee_read(EE_LATCH, &c, 1);
+    if ((c & 0xF8) == 0xC0 && latched(c & 7) && !latched(state)) {
+        state = (uint8_t)(c & 7);
+        strcpy(reason, "-");
+    }
+}
+
 void Link::save() {
     PersistRec r;
     memset(&r, 0, sizeof r);
@@ -108,6 +124,7 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     board_ = board;
     reader_.reset();
     load();
+    load_latch_cell();
     queued = -1;
     rate = TELEMETRY_HZ;
     wdog_ms = WDOG_MS;
@@ -236,6 +253,7 @@ void Link::fault(int32_t j, int32_t detail, const char *why) {
 
 void Link::latch(uint8_t st, const char *why) {
     state = st;
+    hal_->ee_write_now(EE_LATCH, LATCH_CELL(latched(st) ? st : 0));   /* first, at once */
     strncpy(reason, why, LINK_REASON_MAX - 1);
     reason[LINK_REASON_MAX - 1] = 0;
     save();

@@ -102,6 +102,7 @@ private:
     void send(LineWriter *w);
     void flush_events();
     void load();
+    void load_latch_cell();
     void modbus_pass();
 
     Hal *hal_;

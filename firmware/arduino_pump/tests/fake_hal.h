@@ -74,6 +74,7 @@ public:
     }
     void ee_read(uint16_t a, void *d, size_t n) { memcpy(d, ee + a, n); }
     void ee_write(uint16_t a, const void *s, size_t n) { memcpy(ee + a, s, n); }
+    void ee_write_now(uint16_t a, uint8_t v) { ee[a] = v; }
 
     /* ---- the test's side */
     void push(const std::string &bytes) {

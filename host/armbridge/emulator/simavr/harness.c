@@ -44,7 +44,10 @@
  * go to stderr: fd 1 is redirected there, the protocol keeps a private copy);
  * UART byte time from the real frame (start + data + parity if enabled +
  * stop bits: simavr counts a parity bit always, which made 115200 baud
- * 8N1 a byte per 93.5 us instead of 85 us).
+ * 8N1 a byte per 93.5 us instead of 85 us); the EEPROM's programming time
+ * (simavr stores a byte and clears EEPE at once; the chip keeps EEPE set for
+ * 3.4 ms a byte, so a write-behind record takes its real time: the harness
+ * holds EEPE set for EE_WRITE_US after each write it sees start).
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -74,6 +77,7 @@ DEFINE_FIFO(uint16_t, uart_fifo);   /* the accessors of simavr's UART input FIFO
 #define MAX_FEED 4096
 #define PROBE_DEPTH 4
 #define N_PORTS 12          /* A..L */
+#define EE_WRITE_US 3400    /* a byte's programming time (datasheet: 3.4 ms, erase and write) */
 
 static avr_t *avr;
 static FILE *proto;         /* the protocol's stdout */
@@ -82,6 +86,9 @@ static uint8_t *ee_mem;
 static uint32_t ee_size;
 static uint8_t *ee_shadow;
 static avr_uart_t *uart0;
+static avr_eeprom_t *ee_io;
+static avr_cycle_count_t ee_mpe_at;     /* cycle EEMPE was last set */
+static int ee_busy;                     /* a byte is being programmed: EEPE reads 1 */
 
 static uint16_t watch_addr[MAX_WATCH];
 static uint8_t watch_val[MAX_WATCH];
@@ -216,6 +223,8 @@ static void raise_adc(int ch, int force)
 	avr_raise_irq(irq, (uint32_t)adc_mv[ch]);
 }
 
+static avr_cycle_count_t ee_ready(avr_t *a, avr_cycle_count_t when, void *param);
+
 /* after avr_init and after every reset */
 static void setup_chip(void)
 {
@@ -236,6 +245,45 @@ static void setup_chip(void)
 			raise_adc(ch, 1);
 	for (int i = 0; i < n_probe; i++)
 		probe_depth[i] = 0;
+	ee_busy = 0;    /* a reset clears EECR */
+	avr_cycle_timer_cancel(avr, ee_ready, NULL);
+	ee_mpe_at = 0;
+}
+
+/* ---- EEPROM programming time. Our write hook on EECR runs after simavr's own
+ * (simavr chains writers of one address): EEMPE then EEPE within 4 cycles starts a
+ * write; from then EEPE reads 1 until EE_WRITE_US of simulated time have passed. */
+static avr_cycle_count_t ee_ready(avr_t *a, avr_cycle_count_t when, void *param)
+{
+	(void)when; (void)param;
+	ee_busy = 0;
+	a->data[ee_io->r_eecr] &= (uint8_t)~(1u << ee_io->eepe.bit);
+	return 0;
+}
+
+static void ee_eecr_write(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+	(void)addr; (void)param;
+	int mpe = (v >> ee_io->eempe.bit) & 1, pe = (v >> ee_io->eepe.bit) & 1;
+	if (mpe && !pe) {
+		ee_mpe_at = a->cycle;
+	} else if (pe && !ee_busy && a->cycle - ee_mpe_at <= 4) {
+		ee_busy = 1;
+		avr_cycle_timer_register(a, (avr_cycle_count_t)a->frequency / 1000000 * EE_WRITE_US, ee_ready, NULL);
+	}
+	if (ee_busy)
+		a->data[ee_io->r_eecr] |= (uint8_t)(1u << ee_io->eepe.bit);
+}
+
+static void ee_timing_init(void)
+{
+	for (avr_io_t *io = avr->io_port; io; io = io->next)
+		if (io->kind && !strcmp(io->kind, "eeprom"))
+			ee_io = (avr_eeprom_t *)io;
+	if (ee_io && ee_io->r_eecr)
+		avr_register_io_write(avr, ee_io->r_eecr, ee_eecr_write, NULL);
+	else
+		ee_io = NULL;
 }
 
 static avr_uart_t *find_uart0(void)
@@ -523,6 +571,7 @@ int main(int argc, char **argv)
 	avr_load_firmware(avr, &f);
 	avr->frequency = f.frequency;
 	uart0 = find_uart0();
+	ee_timing_init();
 	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out, NULL);
 	avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff, NULL);
 	ee_open();
