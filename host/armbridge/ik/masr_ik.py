@@ -214,12 +214,12 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
                 out[:] = cand
                 s = cs
     if not has_qc:
-        return
+        return s
     link = ma_pose(out, lengths, rj, total, jp)[3]
     for k in range(link + 1, n):
         out[k] = qc[k]  # they do not move the MA: same pose, less action time
     if snap <= 0.0 or iters == 0:
-        return
+        return s
     # Sparsify: every joint left where it is saves its turn and maybe MA travel.
     # Greedily turn joints back to q_c, smallest turn first, while the others
     # can make up (span score within snap) and c(a) drops.
@@ -240,31 +240,35 @@ def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_j
             if cs <= snap and cc < cost:
                 out[:] = cand
                 cost = cc
+                s = cs
                 changed = True
             else:
                 frozen[i] = False
         if not changed:
             break
+    return s
 
 
 @njit(cache=True)
 def _refine_serial(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
                    iters, lam, neighbours, snap):
     out = np.empty_like(Q)
+    score = np.empty(Q.shape[0])
     for b in range(Q.shape[0]):
-        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
-                    iters, lam, neighbours, snap, out[b])
-    return out
+        score[b] = _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                               dm, iters, lam, neighbours, snap, out[b])
+    return out, score
 
 
 @njit(cache=True, parallel=True)
 def _refine_parallel(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
                      iters, lam, neighbours, snap):
     out = np.empty_like(Q)
+    score = np.empty(Q.shape[0])
     for b in prange(Q.shape[0]):
-        _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
-                    iters, lam, neighbours, snap, out[b])
-    return out
+        score[b] = _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
+                               dm, iters, lam, neighbours, snap, out[b])
+    return out, score
 
 
 # Below this batch size the refinement runs on the calling thread: waking the
@@ -275,7 +279,7 @@ PARALLEL_FROM = 256
 
 def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0.05,
            e_p: float = E_P, e_phi: float = E_PHI, q_c: Any = None, neighbours: bool = True,
-           snap_margin: float = SNAP_MARGIN, margin: Any = None) -> np.ndarray:
+           snap_margin: float = SNAP_MARGIN, margin: Any = None, with_score: bool = False) -> Any:
     """A few damped least-squares steps on theta_1..theta_{j_d} and d (within link j_d).
 
     x_goal (..., 3), q (..., n+1) -> refined q (..., n+1), within C_f and
@@ -292,6 +296,8 @@ def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0
     rest still reach the goal with a span score within snap_margin and c(a)
     (eq. 8) drops: on a MASR every joint not turned saves its rotation and
     often the MA's drive to it. Runs in numba, in parallel over large batches.
+    with_score=True returns (q, span score (...)): the answer's score, <= 1
+    where it passes the goal check (as span_scores, without recomputing it).
     """
     x_goal = np.asarray(x_goal, dtype=float)
     q = np.asarray(q, dtype=float)
@@ -303,10 +309,12 @@ def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0
     has_qc = q_c is not None
     QC = np.ascontiguousarray(np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)) if has_qc else Q
     kernel = _refine_parallel if Q.shape[0] >= PARALLEL_FROM else _refine_serial
-    out = kernel(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
+    out, score = kernel(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
                  np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
                  float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
                  float(e_phi), dm, int(iters), float(damping), bool(neighbours), float(snap_margin))
+    if with_score:
+        return out.reshape(shape), score.reshape(shape[:-1])
     return out.reshape(shape)
 
 
@@ -448,9 +456,10 @@ class MasrIK:
             return _refine(self.arm, x, q, iters=0)
         qc = np.broadcast_to(np.asarray(q_c, float), q.shape)
         snap = SNAP_MARGIN if sparsify else 0.0
-        out = _refine(self.arm, x, q, iters=iters if refine else 0, q_c=qc, snap_margin=snap)
+        out, score = _refine(self.arm, x, q, iters=iters if refine else 0, q_c=qc, snap_margin=snap,
+                             with_score=True)
         if refine and use_fallback:
-            miss = span_scores(self.arm, x, out) > 1.0
+            miss = score > 1.0
             if miss.any():
                 fix = fallback(self.arm, x[miss], q[miss], qc[miss], snap)
                 out[miss] = fix

@@ -138,7 +138,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     if samples.shape[0] == 0:
         raise ArmbridgeError(f"{env.name}: no collision-free goal configuration for OMPL's goal sampling")
     rng = np.random.default_rng(seed)
-    goal = np.ascontiguousarray(env.goal_pose, dtype=float)
+    goal_x = np.ascontiguousarray(env.goal_pose, dtype=float)
 
     class PoseGoal(ob.GoalSampleableRegion):
         def __init__(self, si_: Any) -> None:
@@ -151,7 +151,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
             if not env.arm.holds_margin(q[n]):
                 return math.inf
             x, y, phi = ma_pose(q, chk.lengths, rj, K[4], pts)[:3]
-            return float(span_score(goal, x, y, phi, min(max(q[n], 0.0), K[4]), K[4], env.arm.d_margin,
+            return float(span_score(goal_x, x, y, phi, min(max(q[n], 0.0), K[4]), K[4], env.arm.d_margin,
                                     env.e_p, env.e_phi))
 
         def sampleGoal(self, s: Any) -> None:  # noqa: N802
