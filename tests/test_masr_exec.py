@@ -18,6 +18,7 @@ the plan runs.
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -302,3 +303,27 @@ def test_the_masr_demo_plans_and_runs_on_the_emulated_ma(tmp_path):
                                                  out).groups())
     assert tau <= executed <= (1.0 + TIME_TOL) * tau
     assert read(rrd)["/world/obstacles"]["static_rows"] == 1
+
+
+# ---------------------------------------------------------------- the benchmark
+
+
+def test_bench_masr_exec_quick(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = subprocess.run([ARMBRIDGE, "bench", "masr-exec", "--quick", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "200"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "paper, Table II (E1)" in proc.stdout and "trapezoid ramp alone" in proc.stdout
+    r = json.loads(out.read_text())
+    assert r["paper_table_ii"] == {"environment": "E1", "planned_s": 46.16, "executed_mean_s": 48.78,
+                                   "executed_std_s": 1.81}
+    s = r["random"]["summary"]
+    assert s["runs"] == s["completed"] == 3 and "fixed" not in r
+    assert s["at_goal"] == 1.0 and s["log_exactly_once"]                   # the plant's truth, the board's log
+    for run in r["random"]["runs"]:
+        assert 0.99 <= run["time_ratio"] < 1.25 and run["executed_s"] > 0
+        assert run["loc"]["max_over_bound"] <= 1.0                          # loc.py's bound holds
+        assert run["loc"]["after_magnet_max_mm"] <= 1.5 + 0.05              # re-anchored within the hall window
+    for kind in ("MV onto a joint", "ROT"):
+        o = s["overhead"][kind]
+        assert o["actions"] > 0 and o["per_action_s"] >= o["ramp_per_action_s"] > 0   # a ramp is the least it adds
