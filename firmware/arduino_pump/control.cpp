@@ -3,18 +3,21 @@
 
 #include "config.h"
 
+/* No 64-bit division (the AVR has no divider: one costs thousands of cycles): kp <= 1e6
+ * (GAIN's range), so kp x 600 fits 32 bits; u = kp x mag / 1000 saturates at cap exactly
+ * when kp x mag >= cap x 1000 (a multiply), below which kp x mag < 1e6 fits 32 bits. */
 int16_t p_control(const PGain &g, int32_t e) {
     int32_t mag = e < 0 ? -e : e;
     if (mag <= g.dband || g.kp <= 0) return 0;
-    if (mag > 100000L) mag = 100000L;                  /* keeps the product in 32 bits below */
     int32_t kp = g.kp;
     int32_t cap = DUTY_MAX_DEFLATE;
     if (e > 0) {
-        kp = (int32_t)((int64_t)kp * KP_INFLATE_PERMILLE / 1000);
+        kp = kp * KP_INFLATE_PERMILLE / 1000;
         cap = DUTY_MAX_INFLATE;
+        if (kp <= 0) return DUTY_MIN;
     }
-    int64_t u = (int64_t)kp * mag / 1000;              /* kp thousandths x mrad -> per-mille */
-    if (u > cap) u = cap;
+    /* saturated iff kp x mag >= cap x 1000: a 32x32->64 multiply, no division */
+    int32_t u = (int64_t)kp * mag >= (int64_t)cap * 1000 ? cap : kp * mag / 1000;   /* thousandths x mrad -> per-mille */
     if (u < DUTY_MIN) u = DUTY_MIN;
     return (int16_t)(e > 0 ? u : -u);
 }

@@ -26,6 +26,56 @@ static volatile uint8_t estop_flag;         /* motors blocked: an e-stop byte ca
 static volatile uint8_t estop_lost;         /* ... and the ring had no room for it */
 static volatile uint8_t estop_on = 1;       /* 0 in Modbus mode: 0x98 is data */
 
+/* The bend sensors, converted by the ADC on its own: its interrupt stores a result and
+ * starts the next channel (A0, A1, A2, A0, ...: 104 us a conversion at the core's
+ * 125 kHz ADC clock), so read_adc() is a load of a value at most ~0.3 ms old instead of
+ * analogRead's ~112 us of waiting per channel inside the control period. */
+static volatile uint16_t adc_val[N_JOINTS];
+static volatile uint8_t adc_k;
+static volatile uint8_t adc_rounds;
+
+static void adc_start(uint8_t k) {
+    uint8_t ch = kBend[k];
+    ADCSRB = (uint8_t)((ADCSRB & ~_BV(MUX5)) | ((ch >> 3) & 1 ? _BV(MUX5) : 0));
+    ADMUX = (uint8_t)(_BV(REFS0) | (ch & 7));   /* AVcc reference, as analogRead's DEFAULT */
+    ADCSRA |= _BV(ADSC);
+}
+
+ISR(ADC_vect) {
+    uint8_t lo = ADCL, hi = ADCH;               /* ADCL first: it locks ADCH */
+    adc_val[adc_k] = (uint16_t)(((uint16_t)hi << 8) | lo);
+    uint8_t k = (uint8_t)(adc_k + 1);
+    if (k >= N_JOINTS) {
+        k = 0;
+        if (adc_rounds < 255) adc_rounds++;
+    }
+    adc_k = k;
+    adc_start(k);
+}
+
+/* The L298 pins, resolved once (digitalWrite/analogWrite look them up on every call):
+ * IN1/IN2 port bits; EN's timer compare register and its COMnx1 bit in TCCRnA. */
+struct MotorPins {
+    volatile uint8_t *in1, *in2, *en;
+    uint8_t in1_bit, in2_bit, en_bit;
+    volatile uint8_t *tccra, *ocr;
+    uint8_t com_bit;
+    bool wide;
+};
+static MotorPins mp[N_JOINTS];
+
+static void pwm_regs(uint8_t timer, MotorPins *m) {
+    switch (timer) {
+        case TIMER1A: m->tccra = &TCCR1A; m->com_bit = _BV(COM1A1); m->ocr = (volatile uint8_t *)&OCR1A; m->wide = true; break;
+        case TIMER1B: m->tccra = &TCCR1A; m->com_bit = _BV(COM1B1); m->ocr = (volatile uint8_t *)&OCR1B; m->wide = true; break;
+        case TIMER2A: m->tccra = &TCCR2A; m->com_bit = _BV(COM2A1); m->ocr = &OCR2A; m->wide = false; break;
+        case TIMER2B: m->tccra = &TCCR2A; m->com_bit = _BV(COM2B1); m->ocr = &OCR2B; m->wide = false; break;
+        case TIMER3A: m->tccra = &TCCR3A; m->com_bit = _BV(COM3A1); m->ocr = (volatile uint8_t *)&OCR3A; m->wide = true; break;
+        case TIMER4A: m->tccra = &TCCR4A; m->com_bit = _BV(COM4A1); m->ocr = (volatile uint8_t *)&OCR4A; m->wide = true; break;
+        default: m->tccra = 0; m->ocr = 0; m->com_bit = 0; m->wide = false; break;   /* no PWM: on/off */
+    }
+}
+
 static uint8_t ee_shadow[EE_SIZE];
 static uint8_t ee_dirty[(EE_SIZE + 7) / 8];
 
@@ -77,6 +127,23 @@ void AvrHal::begin() {
         pinMode(kStopExt[k], INPUT_PULLUP);
     }
     motors_off();
+    for (uint8_t k = 0; k < N_JOINTS; k++) {
+        MotorPins &m = mp[k];
+        m.in1 = portOutputRegister(digitalPinToPort(kIn1[k]));
+        m.in1_bit = digitalPinToBitMask(kIn1[k]);
+        m.in2 = portOutputRegister(digitalPinToPort(kIn2[k]));
+        m.in2_bit = digitalPinToBitMask(kIn2[k]);
+        m.en = portOutputRegister(digitalPinToPort(kEn[k]));
+        m.en_bit = digitalPinToBitMask(kEn[k]);
+        pwm_regs(digitalPinToTimer(kEn[k]), &m);
+    }
+    /* the ADC on its own (init() enabled it with the /128 prescaler), then one full
+       round so the first read_adc() is a real sample */
+    ADCSRA |= _BV(ADIE);
+    adc_k = 0;
+    adc_start(0);
+    while (adc_rounds < 1) {
+    }
     eeprom_read_block(ee_shadow, (const void *)0, EE_SIZE);
     /* 115200 baud, 8N1, double speed (as the core: UBRR 16, 2.1 % fast) */
     UCSR0A = _BV(U2X0);
@@ -156,24 +223,46 @@ void AvrHal::outputs_off() {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { motors_off(); }
 }
 
+/* Direct register writes (the pins resolved in begin()): EN's compare value with its
+ * COMnx1 bit set is the PWM (255 = always on in the core's 8-bit phase-correct mode);
+ * off is COMnx1 clear and the pin low, as digitalWrite(LOW). Interrupts are blocked
+ * around it so the receive interrupt's e-stop cannot interleave. */
 void AvrHal::write_duty(uint8_t k, int16_t duty) {
     if (duty > 1000) duty = 1000;
     if (duty < -1000) duty = -1000;
-    uint8_t pwm = (uint8_t)((uint32_t)(duty < 0 ? -duty : duty) * 255u / 1000u);
+    uint16_t mag = (uint16_t)(duty < 0 ? -duty : duty);
+    uint8_t pwm = (uint8_t)((uint16_t)(mag * 51u) / 200u);   /* x 255 / 1000 in 16 bits */
+    const MotorPins &m = mp[k];
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         if (estop_flag || pwm == 0) {
-            digitalWrite(kEn[k], LOW);
-            digitalWrite(kIn1[k], LOW);
-            digitalWrite(kIn2[k], LOW);
+            if (m.tccra) *m.tccra &= (uint8_t)~m.com_bit;
+            *m.en &= (uint8_t)~m.en_bit;
+            *m.in1 &= (uint8_t)~m.in1_bit;
+            *m.in2 &= (uint8_t)~m.in2_bit;
         } else {
-            digitalWrite(kIn1[k], duty > 0 ? HIGH : LOW);
-            digitalWrite(kIn2[k], duty > 0 ? LOW : HIGH);
-            analogWrite(kEn[k], pwm);
+            if (duty > 0) {
+                *m.in2 &= (uint8_t)~m.in2_bit;
+                *m.in1 |= m.in1_bit;
+            } else {
+                *m.in1 &= (uint8_t)~m.in1_bit;
+                *m.in2 |= m.in2_bit;
+            }
+            if (m.tccra) {
+                if (m.wide) *(volatile uint16_t *)m.ocr = pwm;
+                else *m.ocr = pwm;
+                *m.tccra |= m.com_bit;
+            } else {
+                *m.en |= m.en_bit;
+            }
         }
     }
 }
 
-uint16_t AvrHal::read_adc(uint8_t k) { return (uint16_t)analogRead(kBend[k]); }
+uint16_t AvrHal::read_adc(uint8_t k) {
+    uint16_t v;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { v = adc_val[k]; }
+    return v;
+}
 
 uint8_t AvrHal::endstops() {
     uint8_t bits = 0;

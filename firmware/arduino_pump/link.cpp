@@ -130,6 +130,8 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     wdog_ms = WDOG_MS;
     outputs_allowed = false;
     in_command_ = false;
+    in_tick_ = false;
+    save_due_ = false;
     n_events_ = 0;
     telem_acc_ = 0;
     pending_mode_ = -1;
@@ -189,6 +191,9 @@ void Link::tick() {
         event("WDOG", 0);
         st = ST_WDOG;
     }
+    /* The control function itself is the timed part: the events it raises and the
+       record of a completed waypoint are formatted and sent after it. */
+    in_tick_ = true;
     if (!outputs_allowed || st == ST_ESTOP || st == ST_FAULT) {
         board_->control(CTL_OFF);
     } else if (st == ST_WDOG) {
@@ -197,6 +202,12 @@ void Link::tick() {
         board_->control(CTL_DRIVE);
         if (state == ST_RUN && !board_->busy()) state = ST_IDLE;
     }
+    in_tick_ = false;
+    if (save_due_) {
+        save_due_ = false;
+        save();
+    }
+    flush_events();
     telemetry(now);
 }
 
@@ -213,7 +224,7 @@ void Link::estop() {
 uint32_t Link::board_ms() { return hal_->ms() & TICKS_MASK; }
 
 void Link::event(const char *kind, uint8_t nargs, int32_t a, int32_t b) {
-    if (in_command_) {
+    if (in_command_ || in_tick_) {
         if (n_events_ < LINK_MAX_EVENTS) {
             events_[n_events_].kind = kind;
             events_[n_events_].nargs = nargs;
@@ -240,7 +251,8 @@ void Link::flush_events() {
 
 void Link::completed(int32_t wid) {
     done = wid;
-    save();
+    if (in_tick_) save_due_ = true;
+    else save();
     event("DONE", 2, wid, board_->free_slots());
 }
 

@@ -57,7 +57,7 @@ public:
     virtual void telemetry(LineWriter *w) = 0;   /* the 3n columns, then its own */
 };
 
-#define LINK_MAX_EVENTS 8
+#define LINK_MAX_EVENTS 12   /* a command's or a control period's: START SLOW DONE, LIMIT and ENDSTOP per joint */
 #define LINK_REASON_MAX 9
 
 class Link {
@@ -113,6 +113,8 @@ private:
     uint32_t next_tick_us_;
     int32_t telem_acc_;
     bool in_command_;
+    bool in_tick_;           /* inside the control function: events and the save wait for its end */
+    bool save_due_;
     uint8_t n_events_;
     struct { const char *kind; uint8_t nargs; int32_t a, b; } events_[LINK_MAX_EVENTS];
     uint8_t gen_;            /* persist slot generation */

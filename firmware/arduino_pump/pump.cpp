@@ -202,20 +202,28 @@ void PumpBoard::telemetry(LineWriter *w) {
 
 /* ------------------------------------------------------------------ control */
 
+/* The calibration line in integers, rounded to the nearest mrad (half away from zero):
+ * |adc - adc_a| <= 1023 and |b - a| <= 2e6 keep the product in 32 bits; adc_b > adc_a
+ * (BEND checks it). One 32-bit division per joint: no float on a chip without an FPU. */
+static int32_t bend_mrad(const BendCal &c, int32_t adc) {
+    int32_t num = (adc - (int32_t)c.adc_a) * (c.b - c.a), den = (int32_t)c.adc_b - (int32_t)c.adc_a;
+    int32_t f = num >= 0 ? (num + den / 2) / den : -((-num + den / 2) / den);
+    return c.a + f;
+}
+
 void PumpBoard::read_sensors() {
-    for (uint8_t j = 0; j < N_JOINTS; j++) {
-        const BendCal &c = cal[j];
-        int32_t adc = hal_->read_adc(j);
-        float x = (float)c.a + (float)(adc - c.adc_a) * (float)(c.b - c.a) / (float)(c.adc_b - c.adc_a);
-        q[j] = round_mrad(x);
-    }
+    for (uint8_t j = 0; j < N_JOINTS; j++) q[j] = bend_mrad(cal[j], hal_->read_adc(j));
     stops = hal_->endstops();
 }
 
 void PumpBoard::control(uint8_t mode) {
     /* the travel estimate integrates the duty of the period that just ended */
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        syr_[j] += (int32_t)u[j] * PERIOD_MS * 1000L / SYRINGE_STROKE_MS;   /* full = 1e6 */
+#if (PERIOD_MS * 1000L) % SYRINGE_STROKE_MS == 0   /* a multiply, no division */
+        syr_[j] += (int32_t)u[j] * (PERIOD_MS * 1000L / SYRINGE_STROKE_MS);   /* full = 1e6 */
+#else
+        syr_[j] += (int32_t)u[j] * PERIOD_MS * 1000L / SYRINGE_STROKE_MS;
+#endif
         if (syr_[j] < 0) syr_[j] = 0;
         if (syr_[j] > 1000000L) syr_[j] = 1000000L;
     }

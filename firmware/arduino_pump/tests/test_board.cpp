@@ -235,6 +235,21 @@ static void dead_band_and_asymmetry() {
     CHECK(p_control(g, 71) >= DUTY_MIN && p_control(g, -71) <= -DUTY_MIN);
     CHECK(p_control(g, 200) == 480 && p_control(g, -200) == -800);    /* inflation at 0.6 x kp */
     CHECK(p_control(g, 100000) == DUTY_MAX_INFLATE && p_control(g, -100000) == -DUTY_MAX_DEFLATE);
+    /* the 32-bit arithmetic is the 64-bit reference's, over GAIN's whole kp range */
+    static const int32_t kps[] = {1, 2, 7, 999, 4000, 33333, 250000, 999999, 1000000};
+    int bad = 0;
+    for (size_t i = 0; i < sizeof kps / sizeof kps[0]; i++) {
+        g.kp = kps[i];
+        for (int32_t e = -2100000; e <= 2100000; e += (e > -3000 && e < 3000) ? 1 : 997) {
+            int32_t mag = e < 0 ? -e : e, kp = e > 0 ? (int32_t)((int64_t)g.kp * KP_INFLATE_PERMILLE / 1000) : g.kp;
+            int64_t u = (int64_t)kp * mag / 1000, cap = e > 0 ? DUTY_MAX_INFLATE : DUTY_MAX_DEFLATE;
+            if (u > cap) u = cap;
+            if (u < DUTY_MIN) u = DUTY_MIN;
+            int32_t want = mag <= g.dband ? 0 : (int32_t)(e > 0 ? u : -u);
+            if (p_control(g, e) != want && bad++ < 5) fprintf(stderr, "kp %d e %d: %d, want %d\n", kps[i], e, p_control(g, e), want);
+        }
+    }
+    CHECK(bad == 0);
     g.kp = 0;
     CHECK(p_control(g, 500) == 0);
     /* on the board: inside the band the pumps are off */
