@@ -14,7 +14,7 @@ VENV=.venv
 # Exact pins for these live in constraints.txt (one place for every pin).
 PIP_EXTRAS="[test,train,masr,ompl,smm-peer]"
 STUBS=micropython-esp32-stubs
-APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev)
+APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude)
 
 log() { printf 'setup: %s\n' "$*"; }
 

@@ -441,3 +441,48 @@ def read_config_h(path: Path) -> types.SimpleNamespace:
     if "N_JOINTS" not in found:
         raise ArmbridgeError(f"{path} defines no N_JOINTS")
     return types.SimpleNamespace(**found)
+
+
+# ------------------------------------------------------- boot mode: the real bootloader behind a pty
+
+MEGA_BOOTLOADER = Path("/usr/share/arduino/hardware/arduino/avr/bootloaders/stk500v2/stk500boot_v2_mega2560.hex")
+
+
+class BootloaderChip:
+    """The Mega booting through its stk500v2 bootloader (Debian's Arduino core) in the
+    harness's boot mode: flash kept in `flash_file` (what avrdude writes survives, the
+    next boot runs it), UART0 on a pty that resets the chip when opened (as DTR on a
+    real board), paced to real time. `path` is the pty; no plant, no lockstep."""
+
+    def __init__(self, flash_file: Path, eeprom_file: Path | None = None, bootloader: Path = MEGA_BOOTLOADER,
+                 timeout: float = ANSWER_TIMEOUT_S) -> None:
+        if not bootloader.is_file():
+            raise ArmbridgeError(f"the Mega's bootloader {bootloader} is missing (Debian's arduino-core-avr); "
+                                 f"run scripts/setup.sh as root, or: {APT}")
+        args = [str(harness_binary()), "-B", str(flash_file), "-b", str(bootloader)]
+        if eeprom_file is not None:
+            args += ["-e", str(eeprom_file)]
+        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True)
+        ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+        line = self.proc.stdout.readline() if ready and self.proc.stdout else ""
+        if not line.startswith("PTY "):
+            self.close()
+            raise ArmbridgeError(f"the simavr harness did not boot the bootloader: {line.strip() or 'no answer'}")
+        self.path = line.split(None, 1)[1].strip()
+
+    def close(self) -> None:
+        """Stop the chip (SIGTERM: the harness syncs the flash file and the EEPROM)."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def __enter__(self) -> "BootloaderChip":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -23,7 +23,7 @@ from rich.console import Console
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.signals import Stopped, stop_on_signals
 
-BOARD_HELP = "The board: esp32 (the 3R arm) or masr_ma (the MASR mobile actuator)."
+BOARD_HELP = "The board: esp32 (the 3R arm), masr_ma (the MASR mobile actuator) or arduino_pump (avrdude)."
 PORT_HELP = ("The board's MicroPython REPL: a serial device (/dev/ttyUSB0), a pyserial URL, or emu:DEVICE "
              "(emu:esp32?fs=DIR keeps the emulated filesystem in DIR) (env ARMBRIDGE_PORT).")
 
@@ -79,6 +79,9 @@ def flash_cmd(
     verify every file by sha256 on the board, write the manifest, reset, and check HELLO."""
     target, flash = _flasher(board)
     out = Console(stderr=True, highlight=False)
+    if target.kind == "avrdude":
+        _flash_avr(target, flash, port, firmware, timeout, out)
+        return
     if firmware is not None and not firmware.is_dir():
         raise ArmbridgeError(f"--firmware {firmware}: not a folder")
     if micropython is not None:
@@ -121,6 +124,25 @@ def flash_cmd(
             if res.plan.changes else "up to date, nothing written")
     print(f"flashed {res.build.firmware} {res.build.version} to {port}: {what}, {len(res.plan.unchanged)} unchanged; "
           f"HELLO {h.fw} {h.version} protocol {h.proto}")
+    sys.stdout.flush()
+
+
+def _flash_avr(target: Any, flash: Any, port: str, firmware: Optional[Path], timeout: float, out: Console) -> None:
+    """The Arduino pump board: avrdude through its bootloader (flash.avrdude), avrdude's progress lines shown."""
+    if firmware is not None and not firmware.is_dir():
+        raise ArmbridgeError(f"--firmware {firmware}: not a folder")
+    out.print(f"writing {target.board} with avrdude through the stk500v2 bootloader on {port} ...")
+    try:
+        with stop_on_signals():
+            res = flash(target, port, firmware_root=firmware, timeout=timeout,
+                        progress=lambda line: out.print(f"  {line}", highlight=False))
+    except Stopped as stop:
+        typer.secho(f"error: stopped by {stop.name}: the board on {port} may be half-flashed; "
+                    f"run armbridge flash {target.board} again", fg="red", err=True)
+        raise typer.Exit(stop.exit_code) from None
+    h = res.hello
+    print(f"flashed {res.firmware} {res.version} to {port}: {res.bytes_written} bytes written and verified "
+          f"({res.hex.name}); HELLO {h.fw} {h.version} protocol {h.proto}")
     sys.stdout.flush()
 
 

@@ -37,6 +37,17 @@
  *     EEPROM                 -> OK <hex of the whole EEPROM>
  *     QUIT                   writes the EEPROM file and exits           -> OK
  *
+ * Boot mode (harness -B FLASH_FILE -b BOOTLOADER.hex [-e EEPROM_FILE]): no
+ * lockstep and no ELF. The chip boots the bootloader (every chunk of the hex:
+ * the Mega's stk500v2 one is a single chunk at byte 0x3E000) with its flash
+ * kept in FLASH_FILE (mmap'd, created erased), so what avrdude writes through
+ * the bootloader survives the process and the next boot runs it. UART0 is a
+ * pty (simavr's uart_pty); the harness prints "PTY <path>" on stdout, runs
+ * paced to real time, and resets the chip whenever the pty is opened (inotify
+ * IN_OPEN on the slave) by nobody else, as DTR does on a real Mega (raised by
+ * the first open, dropped by the last close), so avrdude catches the
+ * bootloader's window. SIGTERM/SIGINT sync the flash and the EEPROM and exit.
+ *
  * What the harness fixes in simavr 1.6 (docs/emulator.md, toolchain notes):
  * vcc/avcc/aref 5000 mV; external interrupts not strictly level triggered
  * (a LOW level would poll every cycle); no UART poll-sleep and no usleep when
@@ -56,6 +67,12 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <time.h>
+#include <sys/inotify.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
 
 #include "sim_avr.h"
 #include "sim_elf.h"
@@ -69,6 +86,8 @@
 #include "avr_ioport.h"
 #include "avr_extint.h"
 #include "avr_eeprom.h"
+#include "sim_hex.h"
+#include "parts/uart_pty.h"
 
 DEFINE_FIFO(uint16_t, uart_fifo);   /* the accessors of simavr's UART input FIFO */
 
@@ -520,22 +539,151 @@ static void do_list(char *args, int probe)
 	fprintf(proto, "OK %d\n", n);
 }
 
+/* ------------------------------------------------------------- boot mode */
+
+static volatile sig_atomic_t boot_quit;
+
+static void boot_signal(int sig)
+{
+	(void)sig;
+	boot_quit = 1;
+}
+
+static double now_s(void)
+{
+	struct timespec ts;
+	clock_gettime(CLOCK_MONOTONIC, &ts);
+	return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+/* The chip with its bootloader, its flash in a file, UART0 on a pty that resets it when opened. */
+static int boot_main(const char *mcu, unsigned long hz, const char *flash_file, const char *boot_hex)
+{
+	avr = avr_make_mcu_by_name(mcu ? mcu : "atmega2560");
+	if (!avr) {
+		fprintf(stderr, "harness: unknown MCU %s\n", mcu);
+		return 1;
+	}
+	avr_init(avr);
+	uint32_t size = avr->flashend + 1;
+	int ffd = open(flash_file, O_RDWR | O_CREAT, 0644);
+	struct stat st;
+	if (ffd < 0 || fstat(ffd, &st) != 0) {
+		fprintf(stderr, "harness: cannot open %s: %s\n", flash_file, strerror(errno));
+		return 1;
+	}
+	int fresh = st.st_size < (off_t)size;
+	if (fresh && ftruncate(ffd, size) != 0) {
+		fprintf(stderr, "harness: cannot size %s: %s\n", flash_file, strerror(errno));
+		return 1;
+	}
+	uint8_t *flash = mmap(NULL, size, PROT_READ | PROT_WRITE, MAP_SHARED, ffd, 0);
+	if (flash == MAP_FAILED) {
+		fprintf(stderr, "harness: cannot map %s: %s\n", flash_file, strerror(errno));
+		return 1;
+	}
+	if (fresh)
+		memset(flash + st.st_size, 0xff, size - (uint32_t)st.st_size);   /* erased */
+	free(avr->flash);
+	avr->flash = flash;
+	ihex_chunk_p chunks = NULL;
+	int n = read_ihex_chunks(boot_hex, &chunks);
+	if (n <= 0) {
+		fprintf(stderr, "harness: cannot read the bootloader %s\n", boot_hex);
+		return 1;
+	}
+	uint32_t start = 0xffffffff;
+	for (int i = 0; i < n; i++) {
+		if (chunks[i].baseaddr + chunks[i].size > size) {
+			fprintf(stderr, "harness: %s: a chunk past the flash's end\n", boot_hex);
+			return 1;
+		}
+		memcpy(flash + chunks[i].baseaddr, chunks[i].data, chunks[i].size);
+		if (chunks[i].baseaddr < start)
+			start = chunks[i].baseaddr;
+	}
+	free_ihex_chunks(chunks);
+	/* avr_init reset the frequency and the pc: BOOTRST set, as the Mega's fuses have it */
+	avr->frequency = hz ? (uint32_t)hz : 16000000;
+	avr->reset_pc = avr->pc = start;
+	uart0 = find_uart0();
+	ee_timing_init();
+	ee_open();
+	setup_chip();
+
+	static uart_pty_t pty;
+	uart_pty_init(avr, &pty);
+	uart_pty_connect(&pty, '0');
+	int ino = inotify_init1(IN_NONBLOCK);
+	if (ino < 0 || inotify_add_watch(ino, pty.port[0].slavename, IN_OPEN | IN_CLOSE) < 0) {
+		fprintf(stderr, "harness: cannot watch %s: %s\n", pty.port[0].slavename, strerror(errno));
+		return 1;
+	}
+	signal(SIGTERM, boot_signal);
+	signal(SIGINT, boot_signal);
+	fprintf(proto, "PTY %s\n", pty.port[0].slavename);
+	fflush(proto);
+
+	const avr_cycle_count_t slice = avr->frequency / 1000;     /* 1 ms, then pace and look at the pty */
+	double t0 = now_s();
+	avr_cycle_count_t c0 = avr->cycle;
+	int opened = 0;     /* opens of the pty's slave not yet closed */
+	while (!boot_quit) {
+		avr_cycle_count_t until = avr->cycle + slice;
+		while (avr->cycle < until) {
+			int state = avr_run(avr);
+			if (state == cpu_Done || state == cpu_Crashed) {
+				fprintf(stderr, "harness: the chip stopped (state %d) at pc 0x%x\n", state, avr->pc);
+				boot_quit = 1;
+				break;
+			}
+		}
+		char ev[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+		ssize_t got = read(ino, ev, sizeof ev);
+		int reset = 0;
+		for (char *e = ev; got > 0 && e < ev + got; e += sizeof(struct inotify_event) + ((struct inotify_event *)e)->len) {
+			uint32_t mask = ((struct inotify_event *)e)->mask;
+			if (mask & IN_OPEN)      /* the first open raises DTR: its edge pulses the reset pin */
+				reset |= opened++ == 0;
+			if ((mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) && opened > 0)
+				opened--;       /* the last close drops DTR (HUPCL) */
+		}
+		if (reset) {
+			avr_reset(avr);
+			avr->state = cpu_Running;
+			setup_chip();
+			t0 = now_s();
+			c0 = avr->cycle;
+		}
+		double ahead = (double)(avr->cycle - c0) / avr->frequency - (now_s() - t0);
+		if (ahead > 0.001)
+			usleep((useconds_t)(ahead * 1e6));
+	}
+	msync(flash, size, MS_SYNC);
+	ee_save();
+	uart_pty_stop(&pty);
+	return 0;
+}
+
 int main(int argc, char **argv)
 {
 	const char *mcu = NULL;
 	unsigned long hz = 0;
+	const char *flash_file = NULL, *boot_hex = NULL;
 	int opt;
-	while ((opt = getopt(argc, argv, "m:f:e:")) != -1) {
+	while ((opt = getopt(argc, argv, "m:f:e:B:b:")) != -1) {
 		switch (opt) {
 		case 'm': mcu = optarg; break;
 		case 'f': hz = strtoul(optarg, NULL, 10); break;
 		case 'e': ee_file = optarg; break;
+		case 'B': flash_file = optarg; break;
+		case 'b': boot_hex = optarg; break;
 		default:
 			fprintf(stderr, "usage: %s [-m MCU] [-f HZ] [-e EEPROM_FILE] FIRMWARE.elf\n", argv[0]);
 			return 2;
 		}
 	}
-	if (optind != argc - 1) {
+	if (optind != argc - 1 && !flash_file && !boot_hex) {
 		fprintf(stderr, "usage: %s [-m MCU] [-f HZ] [-e EEPROM_FILE] FIRMWARE.elf\n", argv[0]);
 		return 2;
 	}
@@ -547,6 +695,13 @@ int main(int argc, char **argv)
 	if (!proto)
 		die("cannot open the protocol stream");
 	setvbuf(stdout, NULL, _IONBF, 0);
+	if (flash_file || boot_hex) {
+		if (!flash_file || !boot_hex || optind != argc) {
+			fprintf(stderr, "usage: %s [-m MCU] [-f HZ] [-e EEPROM_FILE] -B FLASH_FILE -b BOOTLOADER.hex\n", argv[0]);
+			return 2;
+		}
+		return boot_main(mcu, hz, flash_file, boot_hex);
+	}
 
 	elf_firmware_t f;
 	memset(&f, 0, sizeof f);
