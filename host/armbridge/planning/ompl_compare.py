@@ -67,6 +67,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     from ompl import util as ou  # type: ignore[import-untyped]
 
     from armbridge.planning.collision import config_hit, edge_hit, feasible
+    from armbridge.robots.masr import MARGIN_TOL
     from armbridge.robots.masr_kernels import action_cost, ma_pose, span_score
     from armbridge.planning.environment import find_goal_configs
 
@@ -139,6 +140,7 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
         raise ArmbridgeError(f"{env.name}: no collision-free goal configuration for OMPL's goal sampling")
     rng = np.random.default_rng(seed)
     goal_x = np.ascontiguousarray(env.goal_pose, dtype=float)
+    inner, d_margin = [float(r) for r in arm.r[1:]], float(arm.d_margin)
 
     class PoseGoal(ob.GoalSampleableRegion):
         def __init__(self, si_: Any) -> None:
@@ -148,10 +150,10 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
         def distanceGoal(self, s: Any) -> float:  # noqa: N802
             """The goal check in tolerance units: the span score over the joint margin (<= 1: in the goal)."""
             q = to_np(s)
-            if not env.arm.holds_margin(q[n]):
+            if any(abs(q[n] - r) < d_margin - MARGIN_TOL for r in inner):  # MasrArm.holds_margin, per state
                 return math.inf
             x, y, phi = ma_pose(q, chk.lengths, rj, K[4], pts)[:3]
-            return float(span_score(goal_x, x, y, phi, min(max(q[n], 0.0), K[4]), K[4], env.arm.d_margin,
+            return float(span_score(goal_x, x, y, phi, min(max(q[n], 0.0), K[4]), K[4], d_margin,
                                     env.e_p, env.e_phi))
 
         def sampleGoal(self, s: Any) -> None:  # noqa: N802
