@@ -1,0 +1,75 @@
+"""armbridge flash arduino_pump: real avrdude through the Mega's real stk500v2 bootloader in simavr (issue 14 §2)."""
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from require import missing
+
+ROOT = Path(__file__).resolve().parents[1]
+BOOTLOADER = Path("/usr/share/arduino/hardware/arduino/avr/bootloaders/stk500v2/stk500boot_v2_mega2560.hex")
+
+for tool in ("avrdude", "avr-gcc", "make"):
+    if shutil.which(tool) is None:
+        missing(f"{tool} is missing (scripts/setup.sh)")
+if not Path("/usr/include/simavr/sim_avr.h").is_file():
+    missing("libsimavr-dev is missing (scripts/setup.sh)")
+if not BOOTLOADER.is_file():
+    missing(f"{BOOTLOADER} is missing (arduino-core-avr, scripts/setup.sh)")
+
+
+def _flash(*args: str) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).with_name("armbridge")
+    return subprocess.run([str(exe), "flash", "arduino_pump", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_flash_another_version_through_the_bootloader(tmp_path):
+    """A copy of the firmware with FW_VERSION 9.8.7 goes through avrdude and the bootloader;
+    the flash file survives, and the sketch booted from it answers HELLO with 9.8.7."""
+    tree = tmp_path / "fw"
+    shutil.copytree(ROOT / "firmware" / "arduino_pump", tree / "arduino_pump",
+                    ignore=shutil.ignore_patterns("build"))
+    cfg = tree / "arduino_pump" / "config.h"
+    text = cfg.read_text()
+    assert '#define FW_VERSION "0.1.0"' in text or "#define FW_VERSION" in text
+    cfg.write_text(re.sub(r'#define FW_VERSION "[^"]*"', '#define FW_VERSION "9.8.7"', text))
+    flash = tmp_path / "flash.bin"
+    r = _flash("--port", f"emu:arduino_pump?flash={flash}", "--firmware", str(tree))
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"(\d+) bytes written and verified .*HELLO arduino_pump 9\.8\.7 protocol 2", r.stdout)
+    assert m, r.stdout
+    # what avrdude wrote is in the flash file, byte for byte the .hex's image
+    image = flash.read_bytes()
+    assert len(image) == 256 * 1024
+    hexfile = tree / "arduino_pump" / "build" / "arduino_pump.hex"
+    data = {}
+    base = 0
+    for line in hexfile.read_text().split():
+        raw = bytes.fromhex(line[1:])
+        n, addr, kind = raw[0], int.from_bytes(raw[1:3], "big"), raw[3]
+        if kind == 0:
+            for i in range(n):
+                data[base + addr + i] = raw[4 + i]
+        elif kind == 2:
+            base = int.from_bytes(raw[4:6], "big") << 4
+    assert len(data) == int(m.group(1))
+    assert all(image[a] == v for a, v in data.items())
+    assert b"9.8.7" in image
+
+
+def test_a_port_without_the_bootloader_is_one_line(tmp_path):
+    """A pty whose other end never answers (no bootloader behind it): one line, exit 1."""
+    master, slave = os.openpty()
+    try:
+        r = _flash("--port", os.ttyname(slave))
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and "does not answer the stk500v2 bootloader" in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
