@@ -464,8 +464,9 @@ class BootloaderChip:
             args += ["-e", str(eeprom_file)]
         self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
-        line = self.proc.stdout.readline() if ready and self.proc.stdout else ""
+        line = self.proc.stdout.readline() if ready else ""
         if not line.startswith("PTY "):
             self.close()
             raise ArmbridgeError(f"the simavr harness did not boot the bootloader: {line.strip() or 'no answer'}")
