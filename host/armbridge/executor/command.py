@@ -42,7 +42,9 @@ def run_cmd(
     cartesian: bool = typer.Option(False, "--cartesian", help=CARTESIAN_HELP),
     pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help=PEN_HELP),
     home: bool = typer.Option(False, "--home", help="MASR plans: HOME first (the mobile actuator drives to the base "
-                                                    "and zeroes d; a board just powered on does not know where it is)."),
+                                                    "and zeroes d; a board just powered on does not know where it is), "
+                                                    "then every joint and d to the plan's start; the executed time "
+                                                    "counts from there."),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
