@@ -80,7 +80,8 @@ def test_the_wheel_holds_the_shipped_files_and_no_tests(wheel: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
     firmware = {f"armbridge/_data/firmware/{p.relative_to(ROOT / 'firmware')}" for p in (ROOT / "firmware").rglob("*")
                 if p.is_file() and (p.suffix in (".py", ".cpp", ".c", ".h", ".md") or p.name == "Makefile")
-                and "__pycache__" not in p.parts}
+                and "__pycache__" not in p.parts and "build" not in p.parts
+                and not {"tests", "fuzz", "tools"} & set(p.relative_to(ROOT / "firmware").parts)}
     models = {f"armbridge/_data/models/{p.relative_to(ROOT / 'models')}" for p in (ROOT / "models").rglob("*")
               if p.is_file()}
     envs = {f"armbridge/planning/envs/{p.name}" for p in (ROOT / "host/armbridge/planning/envs").glob("*.json")}
