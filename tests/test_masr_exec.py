@@ -198,8 +198,8 @@ def test_estop_mid_plan_switches_the_motors_off_within_one_period(tmp_path):
 
         def on_telemetry(t, m) -> None:    # mid-plan, while the MA drives
             if not sent and client.done_index >= setup + 2 and abs(emu.plant.v) > 0.05:
+                sent.append(emu.now())     # before the byte: the board cannot read it earlier
                 client.estop()
-                sent.append(emu.now())
 
         client = BoardClient(port, plan.robot, on_telemetry=on_telemetry)
         client.connect()
@@ -211,7 +211,7 @@ def test_estop_mid_plan_switches_the_motors_off_within_one_period(tmp_path):
     hal = emu.hal
     period = emu.cfg.PERIOD_MS / 1000.0
     (t_byte,) = hal.estop_byte_at
-    assert sent and 0.0 <= t_byte - sent[0] <= 0.005
+    assert sent and 0.0 <= t_byte - sent[0] <= 0.01
     assert 0.0 <= hal.outputs_off_at[-1] - t_byte <= period
     assert all(u == 0.0 for t, u in list(hal.loco_log) + list(hal.rot_log) if t >= t_byte + period)
     assert emu.state == "ESTOP" and not hal.outputs_enabled and emu.plant.v == 0.0
