@@ -28,15 +28,13 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import shutil
-import subprocess
-import tempfile
 import weakref
 from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from armbridge.emulator.lineproc import LineProcess
 from armbridge.errors import ArmbridgeError
 
 PACKAGE = "@micropython/micropython-webassembly-pyscript"
@@ -89,22 +87,11 @@ def find_micropython() -> Path:
                          "(the MicroPython WebAssembly interpreter); " + INSTALL)
 
 
-class NodeProcess:
+class NodeProcess(LineProcess):
     """One `node bridge.mjs` child speaking the line protocol of bridgehal.py."""
 
     def __init__(self, argv: list[str], timeout: float = ANSWER_TIMEOUT_S) -> None:
-        self.timeout = timeout
-        self._err = tempfile.TemporaryFile()
-        try:
-            self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                         stderr=self._err, bufsize=0)
-        except OSError as exc:
-            self._err.close()
-            raise BridgeError(f"cannot start {argv[0]}: {exc}") from None
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self._in = self.proc.stdin.fileno()
-        self._out = self.proc.stdout.fileno()
-        self._buf = bytearray()
+        super().__init__(argv, "the MicroPython bridge", timeout, error=BridgeError)
         self.version: str | None = None
 
     def ready(self) -> str:
@@ -112,55 +99,12 @@ class NodeProcess:
         if self.version is None:
             line = self.readline()
             if not line.startswith("READY "):
-                raise BridgeError(f"the MicroPython bridge said {line[:200]!r} instead of READY{self._stderr()}")
+                raise BridgeError(f"the MicroPython bridge said {line[:200]!r} instead of READY{self.stderr()}")
             self.version = line[6:]
         return self.version
 
-    def call(self, line: str) -> str:
-        try:
-            os.write(self._in, line.encode("latin-1") + b"\n")
-        except OSError as exc:
-            raise BridgeError(f"the MicroPython bridge is gone ({exc}){self._stderr()}") from None
-        return self.readline()
-
-    def readline(self) -> str:
-        while True:
-            i = self._buf.find(b"\n")
-            if i >= 0:
-                line = bytes(self._buf[:i]).decode("latin-1")
-                del self._buf[:i + 1]
-                return line
-            r, _, _ = select.select([self._out], [], [], self.timeout)
-            if not r:
-                raise BridgeError(f"the MicroPython bridge did not answer within {self.timeout:g} s{self._stderr()}")
-            chunk = os.read(self._out, 65536)
-            if not chunk:
-                self.proc.wait(timeout=5)
-                raise BridgeError(f"the MicroPython bridge exited (status {self.proc.returncode}){self._stderr()}")
-            self._buf += chunk
-
-    def _stderr(self) -> str:
-        try:
-            self._err.seek(0)
-            tail = self._err.read()[-2000:].decode("utf-8", "replace").strip()
-        except (OSError, ValueError):
-            return ""
-        return f": {tail}" if tail else ""
-
-    def close(self) -> None:
-        p = self.proc
-        if p.poll() is None:
-            try:
-                p.stdin.close()  # type: ignore[union-attr]
-                p.wait(timeout=2)
-            except (OSError, subprocess.TimeoutExpired):
-                p.kill()
-                p.wait()
-        for f in (p.stdout, self._err):
-            try:
-                f.close()  # type: ignore[union-attr]
-            except OSError:
-                pass
+    def close(self, last: bytes | None = None, wait_s: float = 2.0) -> None:
+        super().close(last, wait_s)
 
 
 def _stop_all(procs: list[NodeProcess]) -> None:

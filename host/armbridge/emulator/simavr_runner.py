@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from armbridge.emulator.simavr.mega2560 import ElfImage, read_elf
+from armbridge.emulator.lineproc import LineProcess
 from armbridge.errors import ArmbridgeError
 
 APT = "apt-get install -y --no-install-recommends gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
@@ -134,76 +135,25 @@ def firmware_elf(folder: Path, elf: str) -> Path:
     return target
 
 
-class Harness:
+class Harness(LineProcess):
     """One harness child process (the lockstep line protocol of harness.c)."""
 
     def __init__(self, elf: Path, eeprom_file: Path, timeout: float = ANSWER_TIMEOUT_S) -> None:
-        self.timeout = timeout
-        self._err = tempfile.TemporaryFile()
-        argv = [str(harness_binary()), "-e", str(eeprom_file), str(elf)]
-        try:
-            self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err,
-                                         bufsize=0)
-        except OSError as exc:
-            self._err.close()
-            raise ArmbridgeError(f"cannot start the simavr harness: {exc}") from None
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self._in, self._out = self.proc.stdin.fileno(), self.proc.stdout.fileno()
-        self._buf = bytearray()
+        super().__init__([str(harness_binary()), "-e", str(eeprom_file), str(elf)], "the simavr harness", timeout,
+                         encoding="ascii")
         fields = self.readline().split()
         if not fields or fields[0] != "READY":
             raise ArmbridgeError(f"the simavr harness said {' '.join(fields)[:200]!r} instead of READY{self.stderr()}")
         self.mcu, self.hz, self.ramend, self.e2end, self.cycle = fields[1], *map(int, fields[2:6])
 
     def call(self, line: str) -> str:
-        try:
-            os.write(self._in, line.encode("ascii") + b"\n")
-        except OSError as exc:
-            raise ArmbridgeError(f"the simavr harness is gone ({exc}){self.stderr()}") from None
-        answer = self.readline()
+        answer = super().call(line)
         if answer.startswith("ERR"):
             raise ArmbridgeError(f"the simavr harness refused {line[:60]!r}: {answer}")
         return answer
 
-    def readline(self) -> str:
-        while True:
-            i = self._buf.find(b"\n")
-            if i >= 0:
-                line = bytes(self._buf[:i]).decode("ascii", "replace")
-                del self._buf[:i + 1]
-                return line
-            r, _, _ = select.select([self._out], [], [], self.timeout)
-            if not r:
-                raise ArmbridgeError(f"the simavr harness did not answer within {self.timeout:g} s{self.stderr()}")
-            chunk = os.read(self._out, 1 << 16)
-            if not chunk:
-                self.proc.wait(timeout=5)
-                raise ArmbridgeError(f"the simavr harness exited (status {self.proc.returncode}){self.stderr()}")
-            self._buf += chunk
-
-    def stderr(self) -> str:
-        try:
-            self._err.seek(0)
-            tail = self._err.read()[-1500:].decode("utf-8", "replace").strip()
-        except (OSError, ValueError):
-            return ""
-        return f": {tail}" if tail else ""
-
-    def close(self) -> None:
-        p = self.proc
-        if p.poll() is None:
-            try:
-                os.write(self._in, b"QUIT\n")
-                p.stdin.close()  # type: ignore[union-attr]
-                p.wait(timeout=5)
-            except (OSError, subprocess.TimeoutExpired):
-                p.kill()
-                p.wait()
-        for f in (p.stdout, self._err):
-            try:
-                f.close()  # type: ignore[union-attr]
-            except OSError:
-                pass
+    def close(self, last: bytes | None = b"QUIT\n", wait_s: float = 5.0) -> None:
+        super().close(last, wait_s)
 
 
 def _stop(state: dict) -> None:
