@@ -42,7 +42,7 @@ TOL = BAND + COUNT    # the settle tolerance (executor/settle.py): a reading dit
 POSES = np.array([[0.25, 0.45, 0.50], [0.12, 0.25, 0.30]])   # inside 0-30, 0-55, 0-60 deg
 
 
-def soft_plan(poses=POSES, move_s=(1.5, 1.0), hold_s=(3.0, 1.5)):
+def soft_plan(poses=POSES, move_s=(1.5, 1.0), hold_s=(3.5, 1.5)):
     """The soft arm through `poses`, each reached in move_s and held hold_s (a repeated
     waypoint): a joint-space plan of 2 x len(poses) waypoints for soft3."""
     q = np.repeat(np.asarray(poses, float), 2, axis=0)
@@ -95,7 +95,7 @@ def test_each_joint_settles_in_its_dead_band_at_every_waypoint(line_run):
     assert s.settle_tolerance_source == "default"            # the line protocol cannot ask for DBAND
     for name, st in s.settle.items():                        # two moves per joint, both settled in their hold
         assert (st.waypoints, st.unsettled) == (2, 0), (name, st)
-        assert 0.0 <= st.mean_s <= st.max_s < 3.0
+        assert 0.0 <= st.mean_s <= st.max_s < 3.5
     track = line_run["track"]
     t = np.array([r[0] for r in track])
     for k, end in enumerate(hold_ends(emu, plan)):
@@ -166,19 +166,30 @@ def test_settle_times_of_a_known_trace():
 
 # ---------------------------------------------------------------- link faults and resets
 
-def test_exactly_once_under_link_faults_and_a_reset(ports, tmp_path):
-    """A reset between the first waypoint's DONE and the second's, under 1 % dropped and
-    1 % damaged bytes both ways: the board's log holds each waypoint once, with its values
-    (the first, done before the reset, is not run again)."""
+def test_exactly_once_under_link_faults_and_a_reset(ports, tmp_path, monkeypatch):
+    """A reset 0.4 s (sim time) after the first waypoint's DONE, under 2 % dropped and 2 %
+    damaged bytes on the host's lane (lines lost and resent, answers intact so the BOOT
+    after the reset is seen): the board's log holds each waypoint once, with its values (the
+    first, done before the reset, is not run again). The reset is scheduled from the board's
+    own DONE, so it falls between the two DONEs however long the handshake took."""
+    from armbridge.emulator.board import EmulatedBoard
+
+    real = EmulatedBoard._on_done
+
+    def on_done(self, wid, targets):
+        real(self, wid, targets)
+        if len(self.executed) == 1:
+            self.schedule_reset(self.clock.t + 0.4)
+
+    monkeypatch.setattr(EmulatedBoard, "_on_done", on_done)
     plan = soft_plan(POSES[:1], (1.0,), (1.5,))
-    url = "emu:arduino_pump?speed=0&drop=0.01&corrupt=0.01&seed=5&reset_at=1.8"
-    summary = run_plan(plan, url, tmp_path / "faults.rrd", progress=False, timeout=120)
+    url = "emu:arduino_pump?speed=0&drop=0.02&corrupt=0.02&lanes=rx&seed=5"
+    summary = run_plan(plan, url, tmp_path / "faults.rrd", progress=False, timeout=30)
     emu = ports[0].emulator
     assert summary.completed, summary
     assert emu.counters["resets"] == 1 and summary.resyncs >= 1
-    assert emu.executed[0][0] < 1800 < emu.executed[-1][0], emu.executed   # DONE 0 before the reset, 1 after
     c = emu.counters
-    assert sum(c[lane][k] for lane in ("rx", "tx") for k in ("drop", "corrupt")) > 0, c
+    assert c["rx"]["drop"] + c["rx"]["corrupt"] > 0 and summary.waypoints_retransmitted + summary.line_errors > 0, c
     assert_executed_once_with_values(emu, plan)       # across the reset: each waypoint once, the values sent
 
 
@@ -298,7 +309,7 @@ def test_the_plan_runs_over_modbus_with_the_same_summary(ports, tmp_path, monkey
     assert summary.settle_tolerance == {n: pytest.approx(TOL) for n in SOFT3.joint_names}
     for name, st in summary.settle.items():
         assert (st.waypoints, st.unsettled) == (2, 0), (name, st)
-        assert 0.0 <= st.mean_s <= st.max_s < 3.0
+        assert 0.0 <= st.mean_s <= st.max_s < 3.5
     assert set(summary.to_dict()["settle"]["joint1"]) == {"mean_s", "max_s", "waypoints", "unsettled"}
     done = clients[0].done_times
     for k, pose in enumerate(POSES):
