@@ -284,7 +284,7 @@ def test_keepalive_pings_on_the_clock():
     c = client_for(peer, robot=None)
     pings = c.stats.pings
     c.drain(2.0)
-    assert 6 <= c.stats.pings - pings <= 9  # every 0.25 s of the clock (watchdog 1000 ms / 4)
+    assert 13 <= c.stats.pings - pings <= 17  # every 0.125 s of the clock (watchdog 1000 ms / 8)
 
 
 def test_a_boot_resyncs_and_resumes_after_done():

@@ -206,7 +206,9 @@ class BoardClient:
         newest = info.queued if info.queued is not None else info.done
         if newest is not None and self._stream is None:
             self._base = newest + 1
-        self.arq.keepalive = min(0.25, info.wdog_ms / 4000.0)
+        # 8 keep-alives a watchdog period: on a lossy link (1 % of bytes damaged) four lost in a
+        # row were a real risk for an idle queue (a MASR action list sent whole); eight are not.
+        self.arq.keepalive = min(0.25, info.wdog_ms / 8000.0)
         self.arq.live = True
         info.limits_milli = read_limits(self.command, info.n)
         if self.robot is not None:

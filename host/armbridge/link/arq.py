@@ -40,7 +40,7 @@ Reliability:
   `max_epoch_commands` (32768) commands the layer issues nothing more, and once
   everything is answered asks for a new epoch (`need_resync = RENEWAL`).
 * Keep-alive: PING when nothing was sent for `keepalive` s (the upper layer
-  sets it to a quarter of the board's watchdog, at most 250 ms).
+  sets it to an eighth of the board's watchdog, at most 250 ms).
 * Resync requests (`need_resync`, a reason): a BOOT line, a NOSESSION error,
   silence, a board expecting a seq that is not in flight, a full epoch. The
   handshake (executor/handshake.py) acts on them.
