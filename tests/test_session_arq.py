@@ -385,3 +385,18 @@ def test_lines_lost_at_the_tail_are_resent_after_a_second_timeout():
     s = c.stats
     assert (s.timeouts, s.spurious_timeouts, s.retransmissions) == (2, 0, 3)
     assert s.window_cuts == 1, "the real loss restarted the window (at MIN_WINDOW)"
+
+
+def test_a_board_checking_another_epoch_is_resynchronised():
+    """A board that reset, restored an older record and lost its BOOT answers every line of
+    ours with a framing error (our CRCs start from the newer epoch): it talks, so it is not
+    silent, but nothing of ours is answered; after silence_timeout the host says HELLO again
+    (framed from epoch 0, which reaches it) and the plan finishes, each waypoint once."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer)
+    durs, q = plan(6)
+    peer.epoch -= 1  # the older record: every host line now fails its CRC on the board
+    c.execute(durs, q)
+    assert c.stats.resyncs >= 1
+    assert [v for _, v in peer.executed] == [tuple(row) for row in q]  # each once, in order

@@ -42,7 +42,9 @@ Reliability:
 * Keep-alive: PING when nothing was sent for `keepalive` s (the upper layer
   sets it to an eighth of the board's watchdog, at most 250 ms).
 * Resync requests (`need_resync`, a reason): a BOOT line, a NOSESSION error,
-  silence, a board expecting a seq that is not in flight, a full epoch. The
+  silence, no answer to our lines while the board still talks (framing errors
+  only: it checks another epoch), a board expecting a seq that is not in
+  flight, a full epoch. The
   handshake (executor/handshake.py) acts on them.
 """
 from __future__ import annotations
@@ -145,6 +147,7 @@ class Arq:
         self._last_damage = -math.inf  # latest sign of a noisy link (a damaged line either way, ER SEQ)
         self._last_send = -math.inf
         self.last_rx = self.now()  # latest valid board line
+        self.last_answer = self.last_rx  # latest answer naming one of our seqs (OK, or ER with a seq)
         self._last_bytes = self.last_rx  # latest byte of any kind from the board
         self._bseq: int | None = None
         self._credit_n = 0  # command number of the newest OK
@@ -220,7 +223,7 @@ class Arq:
         self._credit_n = hello.n
         self._credit = ok.free
         self._w_sent_n = []
-        self.last_rx = self.now()
+        self.last_rx = self.last_answer = self.now()
         self.need_resync = None
         self.stats.epochs += 1
 
@@ -410,6 +413,7 @@ class Arq:
 
     def _on_answer(self, ok: P.Ok) -> str | None:
         """Settle the command `ok` answers; returns its verb (None: no such command)."""
+        self.last_answer = self.now()
         cmd = self._find(ok.seq)
         if cmd is None:
             return None  # a late duplicate of an answer we already have
@@ -465,6 +469,7 @@ class Arq:
                 if c.arrive_at <= now:
                     c.deadline = min(c.deadline, now + self.answer_time)
             return
+        self.last_answer = self.now()
         cmd = self._find(er.seq)
         if er.code == P.SEQ:
             self.stats.seq_errors += 1
@@ -530,6 +535,13 @@ class Arq:
             self.issue("PING")
         if now - self.last_rx > self.silence_timeout and self.need_resync is None:
             self.need_resync = f"the board was silent for {now - self.last_rx:.1f} s"
+        talking = now - self.last_rx < 0.5 * self.silence_timeout  # (a silent board is the check above)
+        if self.out and talking and now - self.last_answer > self.silence_timeout and self.need_resync is None:
+            # Lines arrive but none of ours is answered, only framing errors: the board checks
+            # our CRCs from another epoch (it reset and restored an older record, and its BOOT
+            # was lost). Only a HELLO (framed from epoch 0) reaches it.
+            self.need_resync = (f"no line of ours answered for {now - self.last_answer:.1f} s "
+                                "(the board reports them damaged: another epoch?)")
         if self.epoch_left() <= 0 and not self.out and self.need_resync is None:
             self.need_resync = RENEWAL
 
