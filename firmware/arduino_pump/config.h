@@ -78,6 +78,7 @@
 #define EE_LINK_B 32                 /* 32 bytes: link record, slot B */
 #define EE_SETTINGS 64               /* 44 bytes: bend calibration, Modbus mode and address */
 #define EE_LATCH 108                 /* 1 byte: 0xC0 | latch state (0xC0: released) */
+#define KEEP_SIZE 36                 /* bytes of .noinit SRAM: magic and the link record */
 #define EE_SIZE 112                  /* bytes of EEPROM the board uses (the HAL's shadow) */
 
 #endif

@@ -43,6 +43,11 @@ public:
     /* One byte programmed now, ahead of the write-behind queue (waits only for a byte
      * already being programmed: at most 3.4 ms on the Mega). For the latch cell. */
     virtual void ee_write_now(uint16_t addr, uint8_t value) = 0;
+    /* ---- SRAM kept across a reset, undefined after a power cycle (a `.noinit`
+     * area on the Mega: the C runtime neither copies nor clears it). KEEP_SIZE
+     * bytes; written at once, so the link record there is never behind. */
+    virtual void keep_read(void *dst, size_t n) = 0;
+    virtual void keep_write(const void *src, size_t n) = 0;
 };
 
 #endif

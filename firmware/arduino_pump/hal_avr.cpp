@@ -6,6 +6,7 @@
 #include <avr/eeprom.h>
 #include <avr/interrupt.h>
 #include <util/atomic.h>
+#include <string.h>
 
 #include "config.h"
 #include "protodef.h"
@@ -20,8 +21,11 @@ static const uint8_t kStopExt[N_JOINTS] = PIN_STOP_EXT;
 static volatile uint8_t rx_buf[RX_RING];
 static volatile uint16_t rx_time[RX_RING];  /* low 16 bits of micros() at each byte's interrupt */
 static volatile uint8_t rx_head, rx_tail;   /* head: ISR writes; tail: loop reads */
+static_assert(RX_RING <= 256, "rx_head/rx_tail are 8-bit");
 static volatile uint8_t tx_buf[TX_RING];
 static volatile uint16_t tx_head, tx_tail;
+/* Kept across a reset (not a power cycle): the C runtime leaves .noinit as it was. */
+static uint8_t keep_area[KEEP_SIZE] __attribute__((section(".noinit")));
 static volatile uint8_t estop_flag;         /* motors blocked: an e-stop byte came */
 static volatile uint8_t estop_lost;         /* ... and the ring had no room for it */
 static volatile uint8_t estop_on = 1;       /* 0 in Modbus mode: 0x98 is data */
@@ -296,3 +300,6 @@ void AvrHal::ee_write(uint16_t addr, const void *src, size_t n) {
         }
     }
 }
+
+void AvrHal::keep_read(void *dst, size_t n) { memcpy(dst, keep_area, n < KEEP_SIZE ? n : KEEP_SIZE); }
+void AvrHal::keep_write(const void *src, size_t n) { memcpy(keep_area, src, n < KEEP_SIZE ? n : KEEP_SIZE); }

@@ -62,13 +62,29 @@ static bool rec_valid(const PersistRec &r) {
     return r.latch == 0 || latched(r.latch);
 }
 
+/* The live copy: the same record behind a magic in .noinit SRAM (hal.h keep_*),
+ * written at once on every save. The EEPROM slots are written behind, a byte per
+ * main-loop pass (3.4 ms a byte), so while waypoints complete every 20 ms a slot is
+ * never finished and EEPROM alone would lose every DONE since the stream began on a
+ * reset. SRAM survives a reset (as the ESP32's RTC memory does for the MicroPython
+ * boards), not a power cycle: there the EEPROM copy is read. */
+#define KEEP_MAGIC 0x4B50554DUL   /* "MUPK" */
+struct KeepRec {
+    uint32_t magic;
+    PersistRec rec;
+};
+static_assert(sizeof(KeepRec) <= KEEP_SIZE, "keep area");
+
 void Link::load() {
     PersistRec a, b;
+    KeepRec k;
+    hal_->keep_read(&k, sizeof k);
     hal_->ee_read(EE_LINK_A, &a, sizeof a);
     hal_->ee_read(EE_LINK_B, &b, sizeof b);
     bool va = rec_valid(a), vb = rec_valid(b);
     const PersistRec *r = NULL;
-    if (va && vb) r = (int8_t)(a.gen - b.gen) >= 0 ? &a : &b;
+    if (k.magic == KEEP_MAGIC && rec_valid(k.rec)) r = &k.rec;   /* a reset: SRAM is newest */
+    else if (va && vb) r = (int8_t)(a.gen - b.gen) >= 0 ? &a : &b;
     else if (va) r = &a;
     else if (vb) r = &b;
     strcpy(reason, "-");
@@ -114,6 +130,10 @@ void Link::save() {
     r.done = done;
     strncpy(r.reason, reason, 8);
     r.crc = ab_crc32((const uint8_t *)&r, sizeof r - 4, 0);
+    KeepRec k;
+    k.magic = KEEP_MAGIC;
+    k.rec = r;
+    hal_->keep_write(&k, sizeof k);
     hal_->ee_write((gen_ & 1) ? EE_LINK_B : EE_LINK_A, &r, sizeof r);
 }
 

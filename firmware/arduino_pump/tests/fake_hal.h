@@ -23,7 +23,10 @@
 
 class FakeHal : public Hal {
 public:
-    explicit FakeHal(uint8_t *eeprom) : t_us(1000), ee(eeprom), estop_flag(false), estop_on(true),
+    /* noinit: the .noinit SRAM a test keeps across a reset; NULL (a power cycle):
+     * an area of its own, filled with noise as SRAM powers up. */
+    explicit FakeHal(uint8_t *eeprom, uint8_t *noinit = NULL)
+        : t_us(1000), ee(eeprom), keep(noinit ? noinit : own_keep), estop_flag(false), estop_on(true),
                                         lost(false), off_calls(0), tx_limit(100000) {
         for (int k = 0; k < N_JOINTS; k++) {
             duty[k] = 0;
@@ -31,6 +34,7 @@ public:
             force_stop[k] = 0;
             adc_bias[k] = 0;
         }
+        for (int i = 0; i < KEEP_SIZE; i++) own_keep[i] = (uint8_t)(0xA5 ^ (i * 37));
     }
     uint32_t ms() { return (uint32_t)(t_us / 1000); }
     uint32_t us() { return (uint32_t)t_us; }
@@ -75,6 +79,8 @@ public:
     void ee_read(uint16_t a, void *d, size_t n) { memcpy(d, ee + a, n); }
     void ee_write(uint16_t a, const void *s, size_t n) { memcpy(ee + a, s, n); }
     void ee_write_now(uint16_t a, uint8_t v) { ee[a] = v; }
+    void keep_read(void *d, size_t n) { memcpy(d, keep, n < KEEP_SIZE ? n : KEEP_SIZE); }
+    void keep_write(const void *s, size_t n) { memcpy(keep, s, n < KEEP_SIZE ? n : KEEP_SIZE); }
 
     /* ---- the test's side */
     void push(const std::string &bytes) {
@@ -105,6 +111,8 @@ public:
 
     uint64_t t_us;
     uint8_t *ee;
+    uint8_t *keep;              /* the .noinit area: kept across a reset by the test */
+    uint8_t own_keep[KEEP_SIZE];
     bool estop_flag, estop_on, lost;
     int off_calls;
     size_t tx_limit;

@@ -15,7 +15,7 @@
 #include "pump.h"
 
 struct Rig {
-    explicit Rig(uint8_t *eeprom) : hal(eeprom), seq(1), epoch(0), rd(0), bad_lines(0) { board.begin(&hal); }
+    explicit Rig(uint8_t *eeprom, uint8_t *noinit = NULL) : hal(eeprom, noinit), seq(1), epoch(0), rd(0), bad_lines(0) { board.begin(&hal); }
 
     /* ms of simulated time in 100 us steps: the plant moves, the board polls */
     void run(uint32_t ms) {

@@ -28,9 +28,12 @@ starts from it (`eeprom_file=` keeps it in a file across emulator runs).
 
 The board's `state` and the `on_done` hook come from the lines the firmware
 writes, as a host would see them unfaulted: `BOOT`'s and `T`'s state and the
-latching events; a `W` it answered `OK` is queued with its values, and each
-`EV DONE id` completes the queued waypoints up to `id` (`CLR`, a latch, a
-`BOOT` or a new session flush them).
+latching events; a `W` it answered `OK` is queued by its id with the values
+of the `W` that first queued that id (a replayed `OK`, or an id already
+completed, adds nothing), and each `EV DONE id` completes the queued
+waypoints up to `id`, in queue order, each once (`CLR`, a latch, a `BOOT`
+or a new session flush the queue; `CLR` and a new session also forget the
+completed ids).
 
 HAL methods the board calls (pump_hal.PumpSimHal has them): `elf_watch()` ->
 data addresses; `elf_inputs()` -> ({adc channel: mV}, {"C7": level});
@@ -238,7 +241,8 @@ class SimavrBoard:
         self._rx = bytearray()
         self._tx = bytearray()
         self._pending: dict[str, tuple[str, list[str]]] = {}   # host seq -> (verb, args) of lines fed
-        self._queue: list[tuple[int, tuple[int, ...]]] = []    # W accepted, not yet DONE
+        self._queue: dict[int, tuple[int, ...]] = {}           # id -> values of the W that first queued it, queue order
+        self._logged: set[int] = set()                          # ids completed (EV DONE) in this session
 
     def t_of(self, cycle: int) -> float:
         return (self.us0 + (cycle - self.cycle0) * 1e6 / self.h.hz) / 1e6
@@ -313,28 +317,32 @@ class SimavrBoard:
             return
         kind = f[1]
         if kind == "BOOT" and len(f) >= 6:
-            self.state, self._queue = f[5], []
+            self.state = f[5]
+            self._queue = {}
         elif kind == "T" and len(f) >= 4:
             self.state = f[3]
         elif kind == "OK" and len(f) >= 3:
             verb, args = self._pending.pop(f[2], ("", []))
             if verb == "W" and len(args) >= 2 + self.n:
                 try:
-                    self._queue.append((int(args[0]), tuple(int(x) for x in args[2:2 + self.n])))
+                    wid, vals = int(args[0]), tuple(int(x) for x in args[2:2 + self.n])
                 except ValueError:
                     pass
+                else:   # a replayed OK (or a W resent after a reset) does not queue its id twice
+                    if wid not in self._queue and wid not in self._logged:
+                        self._queue[wid] = vals
             elif verb == "CLR" or (verb == "HELLO" and len(f) >= 12 and f[-2] == "-"):
-                self._queue = []
+                self._queue, self._logged = {}, set()
             if verb == "HELLO" and len(f) >= 5:
                 self.state = f[-1]
         elif kind == "EV" and len(f) >= 4:
             ev = f[3]
             if ev in ("ESTOP", "WDOG", "FAULT"):
-                self.state, self._queue = ev, []
+                self.state, self._queue = ev, {}
             elif ev in ("HOLD", "RESUME", "START"):
                 self.state = {"HOLD": "HOLD"}.get(ev, "RUN")
             elif ev == "CLEAR":
-                self.state, self._queue = "IDLE", []
+                self.state, self._queue = "IDLE", {}
             elif ev == "DONE" and len(f) >= 5:
                 self._done(f[4])
 
@@ -343,10 +351,12 @@ class SimavrBoard:
             wid = int(text)
         except ValueError:
             return
-        if not any(q[0] == wid for q in self._queue):
+        if wid not in self._queue:
             return
-        while self._queue:
-            qid, targets = self._queue.pop(0)
+        while self._queue:   # EV DONE coalesces per control tick: every queued id up to wid
+            qid = next(iter(self._queue))
+            targets = self._queue.pop(qid)
+            self._logged.add(qid)
             if self.on_done is not None:
                 self.on_done(qid, targets)
             if qid == wid:

@@ -32,8 +32,8 @@
  *         ee     1 when the EEPROM changed in the slice (then written to the file)
  *         lost   UART0 input bytes the full receive FIFO refused in the slice
  *         state  simavr's cpu state: 2 running, 3 sleeping, 7 done, 8 crashed
- *     RESET                  the chip's reset pin: RAM and I/O cleared, the
- *                            EEPROM and the flash kept                  -> OK <cycle>
+ *     RESET                  the chip's reset pin: registers and I/O reset,
+ *                            SRAM, EEPROM and flash kept                -> OK <cycle>
  *     EEPROM                 -> OK <hex of the whole EEPROM>
  *     QUIT                   writes the EEPROM file and exits           -> OK
  *
@@ -243,6 +243,23 @@ static void raise_adc(int ch, int force)
 }
 
 static avr_cycle_count_t ee_ready(avr_t *a, avr_cycle_count_t when, void *param);
+
+/* The reset pin as the chip has it: registers and I/O to their reset values, the
+ * SRAM kept (it is only undefined at power on; the firmware keeps its link record
+ * in .noinit there across a reset). simavr's avr_reset may clear the data space,
+ * so the SRAM above the I/O area is put back after it. */
+static void chip_reset(void)
+{
+	size_t lo = avr->ioend ? (size_t)avr->ioend + 1 : 0x200, n = (size_t)avr->ramend + 1 - lo;
+	uint8_t *keep = malloc(n);
+	if (keep)
+		memcpy(keep, avr->data + lo, n);
+	avr_reset(avr);
+	if (keep) {
+		memcpy(avr->data + lo, keep, n);
+		free(keep);
+	}
+}
 
 /* after avr_init and after every reset */
 static void setup_chip(void)
@@ -649,7 +666,7 @@ static int boot_main(const char *mcu, unsigned long hz, const char *flash_file, 
 				opened--;       /* the last close drops DTR (HUPCL) */
 		}
 		if (reset) {
-			avr_reset(avr);
+			chip_reset();
 			avr->state = cpu_Running;
 			setup_chip();
 			t0 = now_s();
@@ -745,7 +762,7 @@ int main(int argc, char **argv)
 		} else if (!strncmp(line, "PROBE", 5)) {
 			do_list(line + 5, 1);
 		} else if (!strncmp(line, "RESET", 5)) {
-			avr_reset(avr);
+			chip_reset();
 			avr->state = cpu_Running;
 			setup_chip();
 			for (int i = 0; i < n_watch; i++)
