@@ -25,6 +25,7 @@ from typing import Any, Callable
 from urllib.parse import parse_qs
 
 from armbridge.errors import ArmbridgeError, BoardFailure
+from armbridge.flash.manifest import Journal
 
 AVRDUDE_APT = "apt-get install -y avrdude"
 
@@ -78,6 +79,9 @@ def avrdude_args(target: AvrTarget, port: str, hexfile: Path) -> list[str]:
             "-U", f"flash:w:{hexfile}:i"]
 
 
+NO_BOOTLOADER = "does not answer the stk500v2 bootloader"
+
+
 def run_avrdude(target: AvrTarget, port: str, hexfile: Path, label: str,
                 progress: Callable[[str], None] | None = None) -> int:
     """Run avrdude; its progress bars go to `progress` line by line. Returns the bytes written;
@@ -100,7 +104,7 @@ def run_avrdude(target: AvrTarget, port: str, hexfile: Path, label: str,
         m = re.search(r"(\d+) bytes of flash verified", text)
         return int(m.group(1)) if m else 0
     if re.search(r"not in sync|timeout|no response|cannot communicate|initialization failed", text, re.I):
-        raise BoardFailure(f"the board on {label} does not answer the stk500v2 bootloader (avrdude: "
+        raise BoardFailure(f"the board on {label} {NO_BOOTLOADER} (avrdude: "
                            f"{_last_error(lines)}): not a Mega with its bootloader, or it was not reset")
     if re.search(r"verification (error|mismatch)|content mismatch", text, re.I):
         raise BoardFailure(f"the flash on {label} failed avrdude's verify ({_last_error(lines)}): "
@@ -161,7 +165,17 @@ def flash_avrdude(target: AvrTarget, port: str, *, firmware_root: Path | None = 
     if shutil.which("avrdude") is None:
         raise ArmbridgeError(f"avrdude is missing: run scripts/setup.sh as root, or: {AVRDUDE_APT}")
     if not port.startswith("emu:"):
-        res.bytes_written = run_avrdude(target, port, hexfile, port, progress)
+        # The host's journal says "half-flashed" to `armbridge board` until avrdude has
+        # written and verified the whole image (a cut-short write leaves a broken sketch).
+        journal = Journal(port)
+        journal.start(target.board, f"{res.firmware} {res.version}", 1)
+        try:
+            res.bytes_written = run_avrdude(target, port, hexfile, port, progress)
+        except BoardFailure as exc:
+            if NO_BOOTLOADER in str(exc):
+                journal.done()  # nothing was written: the board holds what it held
+            raise
+        journal.done()
         res.hello = _hello(port, res, port, timeout)
         return res
     from armbridge.emulator.simavr_runner import BootloaderChip
