@@ -59,6 +59,7 @@ from typing import Any, Callable
 from armbridge.emulator.simavr.mega2560 import ElfImage, read_elf
 from armbridge.emulator.lineproc import LineProcess
 from armbridge.errors import ArmbridgeError
+from armbridge.link import protocol as P
 
 APT = "apt-get install -y --no-install-recommends gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
 ANSWER_TIMEOUT_S = 30.0
@@ -242,6 +243,7 @@ class SimavrBoard:
         self._tx = bytearray()
         self._pending: dict[str, tuple[str, list[str]]] = {}   # host seq -> (verb, args) of lines fed
         self._queue: dict[int, tuple[int, ...]] = {}           # id -> values of the W that first queued it, queue order
+        self._epoch = 0                                         # the epoch of the session the board accepted
         self._logged: set[int] = set()                          # ids completed (EV DONE) in this session
 
     def t_of(self, cycle: int) -> float:
@@ -297,8 +299,16 @@ class SimavrBoard:
         if b == 0x98:          # e-stop: the firmware drops the line it was receiving
             self._rx.clear()
         elif b == 0x0A:
-            body = bytes(self._rx).split(b"*", 1)[0].decode("latin-1").split()
+            raw = bytes(self._rx).rstrip(b"\r")
             self._rx.clear()
+            # Only a line the board accepts (its CRC from the session's epoch, HELLO's
+            # from 0): a damaged copy of a line fed in the same slice as the good one
+            # must not lend its values to the good one's OK.
+            text, star, crc = raw.rpartition(b"*")
+            epoch = 0 if P.is_hello(text) else self._epoch
+            if not star or _CRC.fullmatch(crc) is None or P.crc32(text, epoch) != int(crc, 16):
+                return
+            body = text.decode("latin-1").split()
             if len(body) >= 2:
                 self._pending[body[0]] = (body[1], body[2:])
                 if len(self._pending) > 256:
@@ -335,6 +345,8 @@ class SimavrBoard:
                 self._queue, self._logged = {}, set()
             if verb == "HELLO" and len(f) >= 5:
                 self.state = f[-1]
+                if len(args) >= 3 and args[2].isdigit():
+                    self._epoch = int(args[2])
         elif kind == "EV" and len(f) >= 4:
             ev = f[3]
             if ev in ("ESTOP", "WDOG", "FAULT"):
@@ -366,6 +378,9 @@ class SimavrBoard:
 # ---------------------------------------------------------------- the firmware's constants
 
 _DEFINE = re.compile(r"^\s*#define\s+([A-Z_][A-Z0-9_]*)\s+(.+)$")
+
+
+_CRC = re.compile(rb"[0-9A-F]{8}")
 
 
 def _value(text: str) -> Any:
