@@ -75,8 +75,9 @@ def flash_cmd(
     timeout: float = typer.Option(10.0, "--timeout", min=0.5, metavar="SECONDS",
                                   help="How long to wait for the raw REPL and for HELLO after the reset."),
 ) -> None:
-    """Compile the board's firmware (mpy-cross, main.py as source), copy what changed with mpremote,
-    verify every file by sha256 on the board, write the manifest, reset, and check HELLO."""
+    """Flash a board and check its HELLO: esp32/masr_ma compile with mpy-cross and copy what changed
+    over the raw REPL (sha256 checked, a manifest); arduino_pump builds the .hex and writes it with
+    avrdude through the Mega's bootloader (verified)."""
     target, flash = _flasher(board)
     out = Console(stderr=True, highlight=False)
     if target.kind == "avrdude":
