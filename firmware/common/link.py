@@ -114,6 +114,33 @@ def parse_persist(data):
     return sid, epoch, hseq, done, latch, parts[6], parts[7] if len(parts) == 8 else None
 
 
+class LinkedBoard:
+    """The entry points every board gives its main loop and the emulator, all the
+    link's: a board class derives from this and sets self.link = BoardLink(...)."""
+
+    link: "BoardLink" = None  # type: ignore[assignment]  # the board sets BoardLink(hal, cfg, self)
+
+    def poll(self) -> bool:
+        """One pass of the main loop (BoardLink.poll). -> True if bytes came."""
+        return self.link.poll()
+
+    def tick(self) -> None:
+        """One control period (BoardLink.tick)."""
+        self.link.tick()
+
+    def estop(self) -> None:
+        """What the e-stop byte does (BoardLink.estop)."""
+        self.link.estop()
+
+    @property
+    def state(self) -> str:
+        return self.link.state
+
+    @property
+    def done(self) -> int:
+        return self.link.done
+
+
 class BoardLink:
     def __init__(self, hal, cfg, board) -> None:
         self.hal = hal

@@ -41,7 +41,7 @@ def _milli(x: float) -> int:
     return int(round(x * 1000.0))
 
 
-class Board:
+class Board(L.LinkedBoard):
     def __init__(self, hal, cfg) -> None:
         self.hal = hal
         self.cfg = cfg
@@ -82,28 +82,6 @@ class Board:
         if self.positional and hasattr(hal, "set_calibration"):
             self.verbs["CAL"] = self._cmd_cal
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls hold_here() and sends BOOT
-
-    # ------------------------------------------------------------ entry points
-
-    def poll(self) -> bool:
-        """One pass of the main loop (BoardLink.poll). -> True if bytes came."""
-        return self.link.poll()
-
-    def tick(self) -> None:
-        """One control period (BoardLink.tick)."""
-        self.link.tick()
-
-    def estop(self) -> None:
-        """What the e-stop byte does (BoardLink.estop)."""
-        self.link.estop()
-
-    @property
-    def state(self) -> str:
-        return self.link.state
-
-    @property
-    def done(self) -> int:
-        return self.link.done
 
     # ------------------------------------------------------------ verbs
 

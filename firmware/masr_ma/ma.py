@@ -49,7 +49,7 @@ def _milli(x: float) -> int:
     return int(round(x * 1000.0))
 
 
-class Board:
+class Board(L.LinkedBoard):
     def __init__(self, hal, cfg) -> None:
         self.hal = hal
         self.cfg = cfg
@@ -95,25 +95,6 @@ class Board:
         self.motion_verbs = [MV, ROT, GRIP, HOME]
         self._sense_counts()
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls restore(), hold_here(), sends BOOT
-
-    # ------------------------------------------------------------ entry points
-
-    def poll(self) -> bool:
-        return self.link.poll()
-
-    def tick(self) -> None:
-        self.link.tick()
-
-    def estop(self) -> None:
-        self.link.estop()
-
-    @property
-    def state(self) -> str:
-        return self.link.state
-
-    @property
-    def done(self) -> int:
-        return self.link.done
 
     def d(self) -> float:
         return self.loc.d()
