@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from armbridge.errors import ArmbridgeError
+from armbridge.planning.polygons import chain_points, points_hit, polygon_arrays
 from armbridge.robots.masr import ANGLE_TOL, POS_TOL, MasrArm
 
 #: Default sweep resolution in m (see module doc).
@@ -41,109 +42,10 @@ SWEEP_RES = 0.01
 
 
 # ----------------------------------------------------------------- primitives
-@njit(cache=True, inline="always")
-def _pt_seg_d2(px, py, ax, ay, bx, by):
-    """Squared distance from point p to segment ab."""
-    vx, vy = bx - ax, by - ay
-    wx, wy = px - ax, py - ay
-    vv = vx * vx + vy * vy
-    t = 0.0
-    if vv > 0.0:
-        t = (wx * vx + wy * vy) / vv
-        if t < 0.0:
-            t = 0.0
-        elif t > 1.0:
-            t = 1.0
-    dx, dy = wx - t * vx, wy - t * vy
-    return dx * dx + dy * dy
-
-
-@njit(cache=True)
-def _seg_seg_d2(ax, ay, bx, by, cx, cy, dx, dy):
-    """Squared distance between segments ab and cd; 0 when they cross."""
-    o1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    o2 = (bx - ax) * (dy - ay) - (by - ay) * (dx - ax)
-    o3 = (dx - cx) * (ay - cy) - (dy - cy) * (ax - cx)
-    o4 = (dx - cx) * (by - cy) - (dy - cy) * (bx - cx)
-    if ((o1 > 0.0 and o2 < 0.0) or (o1 < 0.0 and o2 > 0.0)) and ((o3 > 0.0 and o4 < 0.0) or (o3 < 0.0 and o4 > 0.0)):
-        return 0.0
-    m = _pt_seg_d2(ax, ay, cx, cy, dx, dy)
-    v = _pt_seg_d2(bx, by, cx, cy, dx, dy)
-    if v < m:
-        m = v
-    v = _pt_seg_d2(cx, cy, ax, ay, bx, by)
-    if v < m:
-        m = v
-    v = _pt_seg_d2(dx, dy, ax, ay, bx, by)
-    if v < m:
-        m = v
-    return m
-
-
-@njit(cache=True)
-def _inside(px, py, verts, s, e):
-    """Even-odd point-in-polygon for the vertices verts[s:e]."""
-    inside = False
-    j = e - 1
-    for i in range(s, e):
-        xi, yi = verts[i, 0], verts[i, 1]
-        xj, yj = verts[j, 0], verts[j, 1]
-        if (yi > py) != (yj > py):
-            xc = xi + (py - yi) * (xj - xi) / (yj - yi)
-            if px < xc:
-                inside = not inside
-        j = i
-    return inside
-
-
 @njit(cache=True)
 def arm_points(q, lengths, pts):
-    """Fill pts (n+1, 2) with the arm polyline of configuration q (base at the origin)."""
-    n = lengths.size
-    th = 0.0
-    x = 0.0
-    y = 0.0
-    pts[0, 0] = 0.0
-    pts[0, 1] = 0.0
-    for j in range(n):
-        th += q[j]
-        x += lengths[j] * math.cos(th)
-        y += lengths[j] * math.sin(th)
-        pts[j + 1, 0] = x
-        pts[j + 1, 1] = y
-
-
-@njit(cache=True)
-def points_hit(pts, verts, starts, bbox, r2):
-    """First (polygon, link) the polyline pts touches, encoded poly * n_links + link; -1 if free."""
-    nl = pts.shape[0] - 1
-    # bounding box of the whole arm
-    axmin = pts[0, 0]
-    axmax = pts[0, 0]
-    aymin = pts[0, 1]
-    aymax = pts[0, 1]
-    for k in range(1, nl + 1):
-        axmin = min(axmin, pts[k, 0])
-        axmax = max(axmax, pts[k, 0])
-        aymin = min(aymin, pts[k, 1])
-        aymax = max(aymax, pts[k, 1])
-    for p in range(starts.size - 1):
-        if axmax < bbox[p, 0] or axmin > bbox[p, 2] or aymax < bbox[p, 1] or aymin > bbox[p, 3]:
-            continue
-        s, e = starts[p], starts[p + 1]
-        for k in range(nl):
-            ax, ay, bx, by = pts[k, 0], pts[k, 1], pts[k + 1, 0], pts[k + 1, 1]
-            if (max(ax, bx) < bbox[p, 0] or min(ax, bx) > bbox[p, 2]
-                    or max(ay, by) < bbox[p, 1] or min(ay, by) > bbox[p, 3]):
-                continue
-            if _inside(ax, ay, verts, s, e):
-                return p * nl + k
-            j = e - 1
-            for i in range(s, e):
-                if _seg_seg_d2(ax, ay, bx, by, verts[j, 0], verts[j, 1], verts[i, 0], verts[i, 1]) <= r2:
-                    return p * nl + k
-                j = i
-    return -1
+    """Fill pts (n+1, 2) with the arm polyline of configuration q (base at the origin, heading 0)."""
+    chain_points(q, lengths, 0.0, 0.0, 0.0, pts)
 
 
 @njit(cache=True)
@@ -262,20 +164,6 @@ def path_hit(P, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, swe
 
 
 # -------------------------------------------------------------- Python facade
-def _polygon_arrays(polygons: Sequence[Any], r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    polys = [np.asarray(p, dtype=float).reshape(-1, 2) for p in polygons]
-    if polys:
-        verts = np.ascontiguousarray(np.concatenate(polys, axis=0))
-    else:
-        verts = np.zeros((0, 2))
-    starts = np.zeros(len(polys) + 1, dtype=np.int64)
-    starts[1:] = np.cumsum([len(p) for p in polys])
-    bbox = np.zeros((len(polys), 4))
-    for i, p in enumerate(polys):
-        bbox[i] = [p[:, 0].min() - r, p[:, 1].min() - r, p[:, 0].max() + r, p[:, 1].max() + r]
-    return verts, starts, bbox
-
-
 @dataclass(frozen=True, eq=False)
 class CollisionChecker:
     """The arm against polygonal obstacles inflated by `margin` (default half the link width).
@@ -303,7 +191,7 @@ class CollisionChecker:
             raise ArmbridgeError(f"collision margin must be a finite number >= 0 m, got {margin}")
         if sweep_res < 0 or not math.isfinite(sweep_res):
             raise ArmbridgeError(f"sweep_res must be a finite number >= 0 m, got {sweep_res}")
-        verts, starts, bbox = _polygon_arrays(polygons, r)
+        verts, starts, bbox = polygon_arrays(polygons, r)
         lengths = np.ascontiguousarray(arm.link_lengths, dtype=float)
         reach = np.ascontiguousarray(np.cumsum(lengths[::-1])[::-1])
         return cls(arm, tuple(np.asarray(p, float).reshape(-1, 2) for p in polygons), r, float(sweep_res),
