@@ -242,48 +242,16 @@ def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = 
 
 
 def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
-    """Fig. 5 (success rate and cost vs iterations) and Fig. 7 (share below the 15th/25th percentile)."""
-    import matplotlib
+    """Fig. 5 (success rate and cost vs iterations) and Fig. 7 (share below the 15th/25th percentile), as PNGs.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    The figures themselves are bench.plots.fig5_figure / fig7_figure.
+    """
+    from armbridge.bench.plots import fig5_figure, fig7_figure
+    from armbridge.planning.figure import finish
 
-    png_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     if "fig5" in result:
-        f5 = result["fig5"]
-        fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-        its = np.arange(1, f5["iterations"] + 1)
-        for pl, c in f5["curves"].items():
-            a.plot(its, np.array(c["success_rate"]) * 100, label=pl)
-        ks = [r["iterations"] for r in f5["rows"]]
-        for pl in f5["curves"]:
-            ys = [r[pl]["mean_cost_common_s"] for r in f5["rows"]]
-            b.plot(ks, [np.nan if y is None else y for y in ys], marker="o", label=pl)
-        a.set(xlabel="iterations N_c", ylabel="success rate (%)", title=f"{f5['environments']} random environments")
-        b.set(xlabel="iterations N_c", ylabel="mean cost tau (s), commonly solved", xscale="log")
-        a.legend()
-        b.legend()
-        fig.tight_layout()
-        p = png_dir / "masr-fig5.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
+        written.append(finish(fig5_figure(result["fig5"]), png_dir / "masr-fig5.png"))
     if "fig7" in result:
-        f7 = result["fig7"]
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-        its = np.arange(1, f7["iterations"] + 1)
-        for ax, key, title in zip(axes, ("below_p15", "below_p25"), ("15th", "25th")):
-            for name, e in f7["environments"].items():
-                for pl, c in e["curves"].items():
-                    ax.plot(its, np.array(c[key]) * 100, ls="-" if "MASR" in pl else "--",
-                            label=f"{name} {pl}")
-            ax.set(xlabel="iterations", ylabel=f"trials below the {title} percentile (%)",
-                   title=f"{f7['trials']} trials per environment")
-        axes[1].legend(fontsize=7)
-        fig.tight_layout()
-        p = png_dir / "masr-fig7.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
+        written.append(finish(fig7_figure(result["fig7"], LEVELS), png_dir / "masr-fig7.png"))
     return written
