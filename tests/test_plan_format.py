@@ -179,7 +179,7 @@ def test_wrong_joint_count(tmp_path):
 def test_unknown_robot_lists_the_known_ones(tmp_path):
     doc = _doc(3)
     doc["robot"] = "arm9x"
-    assert _err(tmp_path, doc) == 'robot: unknown robot "arm9x" (known: arm3r, masr5, planar3r, soft3, spatial4r, spatial7r)'
+    assert _err(tmp_path, doc) == 'robot: unknown robot "arm9x" (known: arm3r, masr5, planar3r, soft2, soft3, soft7, spatial4r, spatial7r)'
 
 
 @pytest.mark.parametrize("dur,shown", [(0.0, "0"), (0.0005, "0.0005"), (61, "61"), (-1, "-1")])

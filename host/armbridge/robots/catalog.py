@@ -46,6 +46,17 @@ inflated by 100 mL syringes on the syringe-pump board (firmware/arduino_pump):
   neither; 0.5 rad/s is about what a 12 V linear motor on a 100 mL syringe
   inflates a joint at (docs/emulator.md, the pneumatic plant).
 
+SOFT2 (planar) is the paper's two-arm soft prototype (section V-C-1): joint
+ranges 0-30 deg (base) and 0-55 deg (end joint), as measured there; links
+0.10 m and v_max 0.5 rad/s are our choices, as for SOFT3.
+
+SOFT7 (planar) is the seven-arm redundant manipulator of section IV-C, which
+plans "in a narrow tube without colliding the walls". The paper gives no
+dimensions or ranges for it; everything here is our choice: links 0.06 m
+(reach 0.42 m, near SOFT3's 0.30 m), every joint in [-40, 40] deg
+(symmetric: a snake in a tube must bend both ways; 40 deg is inside the
+largest bend the prototype's joints reached, 40-60 deg), v_max 0.5 rad/s.
+
 The SMM arms (dh) of Clark and Xie's self-motion-manifold paper; each has one
 degree of redundancy (n = m + 1), so its SMMs are 1-D loops (section III-B).
 Their joints have no stops (the DHChain defaults); SMMs ignore limits anyway.
@@ -117,6 +128,24 @@ SOFT3 = PlanarChain(
     joint_names=("joint1", "joint2", "joint3"),
 )
 
+SOFT2 = PlanarChain(
+    name="soft2",
+    link_lengths=np.array([0.10, 0.10]),
+    q_min=np.zeros(2),
+    q_max=np.deg2rad([30.0, 55.0]),
+    v_max=np.full(2, 0.5),
+    joint_names=("joint1", "joint2"),
+)
+
+SOFT7 = PlanarChain(
+    name="soft7",
+    link_lengths=np.full(7, 0.06),
+    q_min=np.full(7, -np.deg2rad(40.0)),
+    q_max=np.full(7, np.deg2rad(40.0)),
+    v_max=np.full(7, 0.5),
+    joint_names=tuple(f"joint{i + 1}" for i in range(7)),
+)
+
 # name -> description (with its kind); built robots are kept in _BUILT.
 _DATA: dict[str, dict[str, Any]] = {
     "planar3r": {"kind": "dh", "name": "planar3r", "a": [1.0, 1.0, 1.0], "alpha": [0.0] * 3, "d": [0.0] * 3,
@@ -144,7 +173,7 @@ def register(robot: Robot) -> Robot:
     return robot
 
 
-for _r in (ARM3R, MASR5, SOFT3):
+for _r in (ARM3R, MASR5, SOFT2, SOFT3, SOFT7):
     register(_r)
 
 
