@@ -35,9 +35,9 @@ from armbridge.executor.masr import masr_commands
 from armbridge.executor.run import RunFailed, run_plan
 from armbridge.geometry import wrap_angle
 from armbridge.planning.command import resolve_goal_ik
-from armbridge.planning.environment import load_environment
-from armbridge.planning.masr_plan import load_masr_plan, save_masr_plan
-from armbridge.planning.rrt_star import plan as plan_rrt
+from armbridge.planning.masr.environment import load_environment
+from armbridge.planning.masr.plan_file import load_masr_plan, save_masr_plan
+from armbridge.planning.masr.rrt_star import plan as plan_rrt
 from plan_runs import ports, wave_plan  # noqa: F401 - the fixture
 from test_emulator import Lockstep
 from test_recording import read

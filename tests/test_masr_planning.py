@@ -8,18 +8,19 @@ import shapely
 from shapely.geometry import LineString, Polygon
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning import dls_ik, rrt_star
-from armbridge.planning.collision import CollisionChecker, rotation_order
+from armbridge.ik import masr_dls as dls_ik
+from armbridge.planning.masr import rrt_star
+from armbridge.planning.masr.collision import CollisionChecker, rotation_order
 from armbridge.planning.command import plan_app, resolve_goal_ik, shipped_ik_card
-from armbridge.planning.environment import (
+from armbridge.planning.masr.environment import (
     FIXED,
     environment_from_dict,
     fixed_environment,
     load_environment,
-    random_environment,
     save_environment,
 )
-from armbridge.planning.masr_plan import load_masr_plan, masr_plan_document, plan_from_document, save_masr_plan
+from armbridge.planning.masr.plan_file import load_masr_plan, masr_plan_document, plan_from_document, save_masr_plan
+from armbridge.planning.masr.random_env import random_environment
 from armbridge.robots import MASR5
 
 ARM = MASR5
@@ -390,7 +391,7 @@ def test_numeric_ik_answers_hold_the_margin():
 
 
 def test_ompl_comparison_runs():
-    from armbridge.planning.ompl_compare import ompl_available, ompl_rrt_star
+    from armbridge.planning.masr.ompl_compare import ompl_available, ompl_rrt_star
 
     if ompl_available():
         missing(f"ompl not importable: {ompl_available()}")

@@ -84,7 +84,7 @@ def test_the_wheel_holds_the_shipped_files_and_no_tests(wheel: Path) -> None:
                 and not {"tests", "fuzz", "tools"} & set(p.relative_to(ROOT / "firmware").parts)}
     models = {f"armbridge/_data/models/{p.relative_to(ROOT / 'models')}" for p in (ROOT / "models").rglob("*")
               if p.is_file()}
-    envs = {f"armbridge/planning/envs/{p.name}" for p in (ROOT / "host/armbridge/planning/envs").glob("*.json")}
+    envs = {f"armbridge/planning/masr/envs/{p.name}" for p in (ROOT / "host/armbridge/planning/masr/envs").glob("*.json")}
     assert "armbridge/_data/firmware/common/protodef.py" in firmware and "armbridge/_data/firmware/esp32/main.py" in firmware
     assert len(envs) == 3 and any(m.endswith("smm-arm3r/card.json") for m in models)
     extra = {"armbridge/_data/vectors/lines.json", "armbridge/py.typed", "armbridge/emulator/mpbridge/bridge.mjs"}

@@ -56,8 +56,8 @@ def model_dir(name: str) -> Path:
 
 
 def envs_dir() -> Path:
-    """The built-in planning environments E1, E2, E3 (`planning/envs/*.json`)."""
-    return _resource("planning", "envs")
+    """The built-in MASR planning environments E1, E2, E3 (`planning/masr/envs/*.json`)."""
+    return _resource("planning", "masr", "envs")
 
 
 def vectors_file() -> Path:

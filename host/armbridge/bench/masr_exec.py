@@ -1,6 +1,6 @@
 """`armbridge bench masr-exec`: MASR plans executed on the emulated mobile actuator (issue 11 §5).
 
-Over `environments` random solvable environments (planning.environment.
+Over `environments` random solvable environments (planning.masr.random_env.
 random_environment, seeds 0, 1, ...: random obstacles, start and goal, each
 with a known solution) and, unless --quick, E1-E3: MASR-RRT* (p_c 0.6, the
 shipped IK-NN as the goal IK, `iterations` iterations, seeded by the
@@ -69,8 +69,8 @@ def ramp_extra(x: float, v: float, a: float) -> float:
 
 def plan_masr(env: Any, iterations: int, seed: int, goal_ik: Callable) -> Any:
     """A MasrPlan of MASR-RRT* in env (in memory, as `armbridge plan masr` writes it), or None."""
-    from armbridge.planning.masr_plan import masr_plan_document, plan_from_document
-    from armbridge.planning.rrt_star import plan as plan_rrt
+    from armbridge.planning.masr.plan_file import masr_plan_document, plan_from_document
+    from armbridge.planning.masr.rrt_star import plan as plan_rrt
 
     r = plan_rrt(env, iterations=iterations, goal_ik=goal_ik, seed=seed)
     if r.path is None:
@@ -192,7 +192,8 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
 def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     from armbridge.errors import ArmbridgeError
     from armbridge.planning.command import resolve_goal_ik
-    from armbridge.planning.environment import fixed_environment, random_environment
+    from armbridge.planning.masr.environment import fixed_environment
+    from armbridge.planning.masr.random_env import random_environment
     from armbridge.robots import get_masr
 
     arm = get_masr("masr5")

@@ -1,6 +1,6 @@
 """`armbridge bench masr-plan`: the planning experiments of the masr paper (section V-C).
 
-* Fig. 5: `environments` random environments (planning.environment.
+* Fig. 5: `environments` random environments (planning.masr.random_env.
   random_environment, seeds 0..environments-1, each with a known solution);
   per environment one run of each planner with the same seed: the baseline
   RRT* (p_c = 0, goal bias 0.1, the paper's "p_c = 0") and MASR-RRT* with
@@ -16,7 +16,7 @@
   of both planners on that environment).
 * Timing: seconds per 1,000 iterations of each planner on E1-E3 (median of
   `timing_runs` runs).
-* OMPL: OMPL's RRT* (PyPI `ompl`, planning.ompl_compare, objective eq. 8, our
+* OMPL: OMPL's RRT* (PyPI `ompl`, planning.masr.ompl_compare, objective eq. 8, our
   collision checker) for 1,000 iterations on E1-E3: time per 1,000 iterations
   and the eq. (7) cost of its path, beside ours at 1,000 iterations.
 """
@@ -70,7 +70,7 @@ def label(p_c: float) -> str:
 
 
 def _run(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, checker: Any) -> Any:
-    from armbridge.planning import rrt_star
+    from armbridge.planning.masr import rrt_star
 
     if p_c == 0:
         return rrt_star.plan(env, planner="rrt*", iterations=iterations, seed=seed, checker=checker)
@@ -79,7 +79,7 @@ def _run(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, ch
 
 
 def fig5(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.environment import random_environment
+    from armbridge.planning.masr.random_env import random_environment
     from armbridge.robots import get_masr
 
     arm = get_masr("masr5")
@@ -120,8 +120,8 @@ def fig5(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], N
 
 
 def fig7(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.environment import fixed_environment
-    from armbridge.planning.rrt_star import percentile_success
+    from armbridge.planning.masr.environment import fixed_environment
+    from armbridge.planning.masr.rrt_star import percentile_success
 
     its = size.fig7_iterations
     cps = checkpoints(its)
@@ -157,7 +157,7 @@ def fig7(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], N
 
 
 def timing(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.environment import fixed_environment
+    from armbridge.planning.masr.environment import fixed_environment
 
     out: dict[str, Any] = {}
     for name in FIXED:
@@ -177,8 +177,8 @@ def timing(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str],
 
 
 def ompl(size: MasrPlanBenchSize, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.environment import fixed_environment
-    from armbridge.planning.ompl_compare import ompl_available, ompl_rrt_star
+    from armbridge.planning.masr.environment import fixed_environment
+    from armbridge.planning.masr.ompl_compare import ompl_available, ompl_rrt_star
 
     why = ompl_available()
     if why or size.ompl_runs == 0:

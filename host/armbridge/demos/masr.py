@@ -1,6 +1,6 @@
 """The MASR demo: plan in a built-in environment, execute the plan on the emulated MA.
 
-MASR-RRT* (`planning.rrt_star`, the shipped IK-NN as its goal IK) plans in E1 of
+MASR-RRT* (`planning.masr.rrt_star`, the shipped IK-NN as its goal IK) plans in E1 of
 the masr paper (Fig. 6), the plan is written as an armbridge-masr-plan file,
 and `armbridge run`'s own run_command executes its actions (MV / ROT) on the
 MA's firmware in the emulator (`emu:masr_ma`): the recording draws the arm,
@@ -22,9 +22,9 @@ ITERATIONS = 600
 def run(opts: DemoOptions, console: Any) -> None:
     from armbridge.executor.command import run_command
     from armbridge.planning.command import resolve_goal_ik
-    from armbridge.planning.environment import load_environment
-    from armbridge.planning.masr_plan import save_masr_plan
-    from armbridge.planning.rrt_star import plan as plan_rrt
+    from armbridge.planning.masr.environment import load_environment
+    from armbridge.planning.masr.plan_file import save_masr_plan
+    from armbridge.planning.masr.rrt_star import plan as plan_rrt
 
     env = load_environment(ENV)
     goal_ik, ik = resolve_goal_ik(env)

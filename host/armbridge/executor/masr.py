@@ -34,7 +34,7 @@ def load_any_plan(path: str | Path):
     """A plan file of either format: a Plan, or a MasrPlan (by its `format` field)."""
     doc = read_json(path, "plan file")
     if isinstance(doc, dict) and doc.get("format") == MASR_FORMAT:
-        from armbridge.planning.masr_plan import plan_from_document
+        from armbridge.planning.masr.plan_file import plan_from_document
 
         return plan_from_document(doc, Path(path))
     return load_plan(path)

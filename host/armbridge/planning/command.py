@@ -45,13 +45,13 @@ def resolve_goal_ik(env: Any, ik: str = "auto") -> tuple[Callable, str]:
     goal configuration is cheaper to reach but more often blocked in clutter
     (E2: 14 of 20 runs found a path with it, 20 of 20 without).
     """
-    from armbridge.planning import dls_ik
+    from armbridge.ik import masr_dls
 
     if ik == "dls":
-        return dls_ik.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi), "dls (numeric damped least squares)"
+        return masr_dls.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi), "dls (numeric damped least squares)"
     card = shipped_ik_card(env.arm.name) if ik == "auto" else Path(ik)
     if card is None:
-        return (dls_ik.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi),
+        return (masr_dls.goal_ik(env.arm, e_p=env.e_p, e_phi=env.e_phi),
                 f"dls (no shipped IK-NN model card {resources.models_dir()}/{env.arm.name}-iknn*.json)")
     if not card.is_file():
         raise ArmbridgeError(f"{card}: no such IK-NN model card")
@@ -92,9 +92,9 @@ def masr_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the run summary as JSON."),
 ) -> None:
     """Plan a MASR path (masr paper, Alg. 1-2), write it as a plan file with the MA's actions."""
-    from armbridge.planning import rrt_star
-    from armbridge.planning.environment import load_environment
-    from armbridge.planning.masr_plan import save_masr_plan
+    from armbridge.planning.masr import rrt_star
+    from armbridge.planning.masr.environment import load_environment
+    from armbridge.planning.masr.plan_file import save_masr_plan
 
     console = Console()
     if planner not in rrt_star.PLANNERS:

@@ -38,7 +38,7 @@ Everything else is shared and follows Algorithms 1-2:
 * Best_path: the node of G with the least tau.
 
 Tree arrays are numpy with capacity N_c + 1, the per-iteration work runs in
-numba (`_nearest_steer`, `_extend`); Python does the IK call and bookkeeping.
+numba (kernels.py: `nearest_steer`, `extend`); Python does the IK call and bookkeeping.
 """
 from __future__ import annotations
 
@@ -48,12 +48,10 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 import numpy as np
-from numba import njit
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.collision import config_hit, edge_hit, rotation_order
-from armbridge.robots.masr import POS_TOL
-from armbridge.robots.masr_kernels import action_cost, margin_range, wrap
+from armbridge.planning.masr.kernels import best_goal, extend, nearest_steer, sample_free
+from armbridge.robots.masr_kernels import action_cost  # noqa: F401 - eq. (8), the planner's cost
 
 GoalIK = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -67,301 +65,7 @@ N_NEAR = 7
 P_C = 0.6
 GOAL_BIAS = 0.1
 
-_EPS = 1e-9  # s: a rewire must save more than this
 _WARM = False  # kernels loaded in this process (see plan)
-
-
-# --------------------------------------------------------------------- kernels
-@njit(cache=True)
-def _steer_linear(qa, qb, inv_ms, inv_js, delta, out):
-    """The paper's Steer: q_a + s (q_b - q_a), s = min(1, delta / |q_b - q_a|_t)."""
-    n = qa.size - 1
-    norm = abs(qb[n] - qa[n]) * inv_ms
-    for j in range(n):
-        norm += abs(qb[j] - qa[j]) * inv_js
-    if norm <= delta:
-        for j in range(n + 1):
-            out[j] = qb[j]
-        return
-    s = delta / norm
-    for j in range(n + 1):
-        out[j] = qa[j] + s * (qb[j] - qa[j])
-
-
-@njit(cache=True)
-def _steer_convention(qa, qb, rj, inv_ms, inv_js, delta, out):
-    """Steer along the motion convention: where the MA's action q_a -> q_b is after delta seconds."""
-    n = rj.size
-    for j in range(n + 1):
-        out[j] = qa[j]
-    order = np.empty(n, dtype=np.int64)
-    m = rotation_order(qa, qb, rj, order)
-    t = 0.0
-    d = qa[n]
-    for k in range(m + 1):
-        target = qb[n] if k == m else rj[order[k]]
-        if k < m and abs(target - qa[n]) <= POS_TOL:
-            target = d  # the joint under the MA
-        move = abs(target - d) * inv_ms
-        if t + move >= delta:
-            out[n] = d + (target - d) * ((delta - t) / move)
-            return
-        t += move
-        d = target
-        out[n] = d
-        if k == m:
-            break
-        j = order[k]
-        rot = abs(qb[j] - qa[j]) * inv_js
-        if t + rot >= delta:
-            out[j] = qa[j] + (qb[j] - qa[j]) * ((delta - t) / rot)
-            return
-        t += rot
-        out[j] = qb[j]
-    for j in range(n + 1):
-        out[j] = qb[j]
-
-
-@njit(cache=True)
-def _nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, delta, mode, out):
-    """Nearest by eq. (8); writes Steer(v_nearest, q_rand) into out; returns the nearest index."""
-    best = np.inf
-    bi = 0
-    for i in range(count):
-        c = action_cost(Q[i], q_rand, rj, inv_ms, inv_js)
-        if c < best:
-            best = c
-            bi = i
-    if mode == 0:
-        _steer_linear(Q[bi], q_rand, inv_ms, inv_js, delta, out)
-    else:
-        _steer_convention(Q[bi], q_rand, rj, inv_ms, inv_js, delta, out)
-    return bi
-
-
-@njit(cache=True)
-def _on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link):
-    """OnGoal: links whose rectangle holds the goal point and whose heading is within e_phi, and
-    where the goal check holds over the joint margin.
-
-    For each such link, GoalFix's MA position is the goal's projection moved
-    into the link's margin_range (at least dm from the joints at its ends,
-    masr_kernels.margin_range); the link counts only if the goal is within
-    e_p of the MA for every d within dm of it: on one link the heading is
-    constant and the point moves linearly, so the two ends of [d - dm, d + dm]
-    (clipped to the arm) decide, exactly. Writes each such d and link into
-    cand_d / cand_link; returns how many.
-    """
-    n = lengths.size
-    th = 0.0
-    x = 0.0
-    y = 0.0
-    m = 0
-    for i in range(n):
-        th += q[i]
-        c = math.cos(th)
-        s = math.sin(th)
-        if abs(wrap(th - goal[2])) <= e_phi:
-            gx = goal[0] - x
-            gy = goal[1] - y
-            t = gx * c + gy * s
-            perp = abs(gx * s - gy * c)
-            if t >= 0.0 and t <= lengths[i] and perp <= half_w:
-                lo, hi = margin_range(i, lengths, rj, total, dm)
-                if i < n - 1:
-                    hi = min(hi, rj[i] + lengths[i] - 1e-7)  # stay on link i, not on joint i+1
-                d = min(max(rj[i] + t, lo), hi)
-                ok = True
-                for end in (max(d - dm, 0.0), min(d + dm, total)):
-                    if math.hypot(rj[i] + t - end, perp) > e_p:
-                        ok = False
-                if ok:
-                    cand_d[m] = d
-                    cand_link[m] = i
-                    m += 1
-        x += lengths[i] * c
-        y += lengths[i] * s
-    return m
-
-
-@njit(cache=True)
-def _unlink(first_child, next_sib, p, u):
-    c = first_child[p]
-    if c == u:
-        first_child[p] = next_sib[u]
-        return
-    while c >= 0:
-        if next_sib[c] == u:
-            next_sib[c] = next_sib[u]
-            return
-        c = next_sib[c]
-
-
-@njit(cache=True)
-def _link(first_child, next_sib, p, u):
-    next_sib[u] = first_child[p]
-    first_child[p] = u
-
-
-@njit(cache=True)
-def _shift_subtree(tau, first_child, next_sib, u, delta, stack):
-    top = 0
-    stack[0] = u
-    top = 1
-    while top > 0:
-        top -= 1
-        v = stack[top]
-        tau[v] += delta
-        c = first_child[v]
-        while c >= 0:
-            stack[top] = c
-            top += 1
-            c = next_sib[c]
-
-
-@njit(cache=True)
-def _extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
-            q_new, i_near, n_near,
-            lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, sweep_res,
-            inv_ms, inv_js, goal, half_w, e_p, e_phi, dm):
-    """Alg. 1 lines 11-19 for one candidate q_new from v_nearest = i_near.
-
-    counts = [tree size, |G|, collision checks]. Returns 0 (edge not free,
-    nothing added), 1 (added) or 2 (added to G).
-    """
-    N = counts[0]
-    n = lengths.size
-    counts[2] += 1
-    if edge_hit(Q[i_near], q_new, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                sweep_res, False) != -1:
-        return 0
-    tau_min = tau[i_near] + action_cost(Q[i_near], q_new, rj, inv_ms, inv_js)
-    par = i_near
-
-    # Near: the n_near nodes not in G with least c(u -> q_new), kept sorted
-    near = np.full(n_near, -1, dtype=np.int64)
-    near_c = np.full(n_near, np.inf)
-    k_near = 0
-    for i in range(N):
-        if is_goal[i]:
-            continue
-        c = action_cost(Q[i], q_new, rj, inv_ms, inv_js)
-        if k_near < n_near or c < near_c[k_near - 1]:
-            pos = k_near if k_near < n_near else n_near - 1
-            while pos > 0 and near_c[pos - 1] > c:
-                near_c[pos] = near_c[pos - 1]
-                near[pos] = near[pos - 1]
-                pos -= 1
-            near_c[pos] = c
-            near[pos] = i
-            if k_near < n_near:
-                k_near += 1
-
-    # Connect (Alg. 2): candidates by u.tau + c, cheapest first; the first free one wins
-    cand_tau = np.empty(k_near)
-    for a in range(k_near):
-        cand_tau[a] = tau[near[a]] + near_c[a]
-    idx = np.argsort(cand_tau)
-    for a in range(k_near):
-        u = near[idx[a]]
-        if not cand_tau[idx[a]] < tau_min:
-            break
-        if u == i_near:
-            continue
-        counts[2] += 1
-        if edge_hit(Q[u], q_new, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                    sweep_res, False) == -1:
-            par = u
-            tau_min = cand_tau[idx[a]]
-            break
-
-    # add v_new
-    v = N
-    for j in range(n + 1):
-        Q[v, j] = q_new[j]
-    parent[v] = par
-    tau[v] = tau_min
-    first_child[v] = -1
-    next_sib[v] = -1
-    is_goal[v] = False
-    _link(first_child, next_sib, par, v)
-    counts[0] = N + 1
-
-    # OnGoal / GoalFix
-    cand_d = np.empty(n)
-    cand_link = np.empty(n, dtype=np.int64)
-    m = _on_goal(q_new, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link)
-    if m > 0:
-        fixes = np.empty((2 * m, n + 1))
-        fcost = np.empty(2 * m)
-        for a in range(m):
-            for b in range(2):  # b = 0: d and distal joints; b = 1: d only
-                f = 2 * a + b
-                for j in range(n + 1):
-                    fixes[f, j] = q_new[j]
-                fixes[f, n] = cand_d[a]
-                if b == 0:
-                    for j in range(n):
-                        if rj[j] > cand_d[a]:
-                            fixes[f, j] = Q[par, j]
-                fcost[f] = action_cost(Q[par], fixes[f], rj, inv_ms, inv_js)
-        order = np.argsort(fcost)
-        for a in range(2 * m):
-            f = order[a]
-            counts[2] += 1
-            if edge_hit(Q[par], fixes[f], lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                        sweep_res, False) == -1:
-                for j in range(n + 1):
-                    Q[v, j] = fixes[f, j]
-                tau[v] = tau[par] + fcost[f]
-                is_goal[v] = True
-                goal_list[counts[1]] = v
-                counts[1] += 1
-                return 2
-
-    # RewireTree(U \ {parent}, v_new)
-    for a in range(k_near):
-        u = near[a]
-        if u == par:
-            continue
-        c = action_cost(Q[v], Q[u], rj, inv_ms, inv_js)
-        if tau[v] + c < tau[u] - _EPS:
-            counts[2] += 1
-            if edge_hit(Q[v], Q[u], lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                        sweep_res, False) == -1:
-                _unlink(first_child, next_sib, parent[u], u)
-                parent[u] = v
-                _link(first_child, next_sib, v, u)
-                _shift_subtree(tau, first_child, next_sib, u, tau[v] + c - tau[u], stack)
-    return 1
-
-
-@njit(cache=True)
-def _best_goal(tau, goal_list, n_goal):
-    best = np.inf
-    bi = -1
-    for a in range(n_goal):
-        g = goal_list[a]
-        if tau[g] < best:
-            best = tau[g]
-            bi = g
-    return bi
-
-
-@njit(cache=True)
-def _sample_free(U, lengths, theta_b, total, verts, starts, bbox, r2):
-    """Map uniform numbers U (B, n+1) in [0, 1) to C_f and flag the collision-free rows."""
-    n = lengths.size
-    B = U.shape[0]
-    Q = np.empty((B, n + 1))
-    ok = np.empty(B, dtype=np.bool_)
-    pts = np.empty((n + 1, 2))
-    for b in range(B):
-        for j in range(n):
-            Q[b, j] = (2.0 * U[b, j] - 1.0) * theta_b[j]
-        Q[b, n] = U[b, n] * total
-        ok[b] = config_hit(Q[b], lengths, verts, starts, bbox, r2, pts) < 0
-    return Q, ok
 
 
 # --------------------------------------------------------------------- Python
@@ -371,7 +75,7 @@ def _draw_free(rng: np.random.Generator, count: int, lengths, theta_b, total, ve
     got: list[np.ndarray] = []
     have = 0
     for _ in range(10 * (count // 1024 + 1) + 100):
-        Qs, ok = _sample_free(rng.random((1024, n + 1)), lengths, theta_b, total,
+        Qs, ok = sample_free(rng.random((1024, n + 1)), lengths, theta_b, total,
                               verts, starts, bbox, r2)
         got.append(Qs[ok])
         have += int(ok.sum())
@@ -435,7 +139,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
          step: float = STEP, steer: str = "linear", sweep_res: Optional[float] = None,
          goal_rect_width: Optional[float] = None,
          seed: Optional[int] = 0, checker: Any = None) -> PlanResult:
-    """Run MASR-RRT* or RRT* on an Environment (planning.environment) for `iterations` iterations.
+    """Run MASR-RRT* or RRT* on an Environment (planning.masr.environment) for `iterations` iterations.
 
     goal_ik(x_goal (3,), q_c (n+1,)) -> q (n+1,) is the IK of Alg. 1 line 7
     (the IK-NN, MasrIK.solve); needed when p_c > 0. p_c defaults to 0.6 for
@@ -492,7 +196,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
         _WARM = True
         plan(env, planner="rrt*", iterations=2, goal_bias=0.0, n_near=n_near, step=step, steer=steer,
              checker=chk, seed=0)
-        _best_goal(np.zeros(1), np.zeros(1, dtype=np.int64), 1)
+        best_goal(np.zeros(1), np.zeros(1, dtype=np.int64), 1)
 
     t0 = time.perf_counter()
     ss = np.random.SeedSequence(seed)
@@ -530,7 +234,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
         if goal_bias > 0 and u_gb[it] < goal_bias:
             q_rand = q_goal
         count = int(counts[0])
-        i_near = _nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, step, mode, q_new)
+        i_near = nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, step, mode, q_new)
         if u_ik[it] < p_c and not is_goal[i_near] and not checked[i_near]:
             checked[i_near] = True
             ik_calls += 1
@@ -540,12 +244,12 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
                 raise ArmbridgeError("goal IK returned a non-finite configuration")
             q_new[:n] = np.clip(q_ik[:n], -theta_b, theta_b)
             q_new[n] = min(max(q_ik[n], 0.0), total)
-        status = _extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
+        status = extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
                          q_new, i_near, int(n_near), lengths, rj, reach, theta_b, total, verts, starts, bbox,
                          r2, sres, inv_ms, inv_js, goal, half_w, e_p, e_phi, dm)
         if status > 0 and counts[1] > 0:
             # a new goal node, or a rewire that lowered some goal node's tau
-            g = _best_goal(tau, goal_list, int(counts[1]))
+            g = best_goal(tau, goal_list, int(counts[1]))
             best = tau[g]
         best_costs[it] = best
     elapsed = time.perf_counter() - t0
@@ -553,7 +257,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
     path = None
     cost = math.inf
     if counts[1] > 0:
-        g = _best_goal(tau, goal_list, int(counts[1]))
+        g = best_goal(tau, goal_list, int(counts[1]))
         chain = []
         v = int(g)
         while v >= 0:

@@ -1,6 +1,6 @@
 """OMPL's RRT* on a MASR environment, with our collision checker and cost, for comparison.
 
-    from armbridge.planning.ompl_compare import ompl_rrt_star
+    from armbridge.planning.masr.ompl_compare import ompl_rrt_star
     r = ompl_rrt_star(fixed_environment("E1"), iterations=1000, seed=0)
     r["time_per_1000_s"], r["cost_s"], r["success"]
 
@@ -66,10 +66,10 @@ def ompl_rrt_star(env: Any, iterations: int = 1000, seed: int = 0, *, objective:
     from ompl import geometric as og  # type: ignore[import-untyped]
     from ompl import util as ou  # type: ignore[import-untyped]
 
-    from armbridge.planning.collision import config_hit, edge_hit, feasible
+    from armbridge.planning.masr.collision import config_hit, edge_hit, feasible
     from armbridge.robots.masr import MARGIN_TOL
     from armbridge.robots.masr_kernels import action_cost, ma_pose, span_score
-    from armbridge.planning.environment import find_goal_configs
+    from armbridge.planning.masr.environment import find_goal_configs
 
     if objective not in ("eq8", "length"):
         raise ArmbridgeError(f"objective must be eq8 or length, got {objective!r}")

@@ -32,7 +32,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import read_json
-from armbridge.planning.environment import Environment, environment_from_dict
+from armbridge.planning.masr.environment import Environment, environment_from_dict
 from armbridge.robots.catalog import get_masr, is_registered
 from armbridge.robots.masr import MasrArm
 
