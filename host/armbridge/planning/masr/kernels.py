@@ -18,10 +18,13 @@ import numpy as np
 from numba import njit
 
 from armbridge.planning.masr.collision import config_hit, edge_hit, rotation_order
+from armbridge.planning.tree import link, shift_subtree, unlink
 from armbridge.robots.masr import POS_TOL
 from armbridge.robots.masr_kernels import action_cost, margin_range, wrap
 
 EPS = 1e-9  # s: a rewire must save more than this
+#: Tree.kind of MASR-RRT*'s nodes: an ordinary node, a node of the goal set G (made by GoalFix).
+ORDINARY, GOAL = 0, 1
 
 
 @njit(cache=True)
@@ -137,49 +140,16 @@ def on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_li
 
 
 @njit(cache=True)
-def _unlink(first_child, next_sib, p, u):
-    c = first_child[p]
-    if c == u:
-        first_child[p] = next_sib[u]
-        return
-    while c >= 0:
-        if next_sib[c] == u:
-            next_sib[c] = next_sib[u]
-            return
-        c = next_sib[c]
-
-
-@njit(cache=True)
-def _link(first_child, next_sib, p, u):
-    next_sib[u] = first_child[p]
-    first_child[p] = u
-
-
-@njit(cache=True)
-def _shift_subtree(tau, first_child, next_sib, u, delta, stack):
-    top = 0
-    stack[0] = u
-    top = 1
-    while top > 0:
-        top -= 1
-        v = stack[top]
-        tau[v] += delta
-        c = first_child[v]
-        while c >= 0:
-            stack[top] = c
-            top += 1
-            c = next_sib[c]
-
-
-@njit(cache=True)
-def extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
+def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack,
             q_new, i_near, n_near,
             lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, sweep_res,
             inv_ms, inv_js, goal, half_w, e_p, e_phi, dm):
     """Alg. 1 lines 11-19 for one candidate q_new from v_nearest = i_near.
 
-    counts = [tree size, |G|, collision checks]. Returns 0 (edge not free,
-    nothing added), 1 (added) or 2 (added to G).
+    The tree is planning.tree.Tree's arrays (tau is its cost, eq. 7; kind[v]
+    is GOAL for the nodes of G, ORDINARY otherwise); counts = [tree size, |G|,
+    collision checks]. Returns 0 (edge not free, nothing added), 1 (added) or
+    2 (added to G).
     """
     N = counts[0]
     n = lengths.size
@@ -195,7 +165,7 @@ def extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, st
     near_c = np.full(n_near, np.inf)
     k_near = 0
     for i in range(N):
-        if is_goal[i]:
+        if kind[i] == GOAL:
             continue
         c = action_cost(Q[i], q_new, rj, inv_ms, inv_js)
         if k_near < n_near or c < near_c[k_near - 1]:
@@ -235,8 +205,8 @@ def extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, st
     tau[v] = tau_min
     first_child[v] = -1
     next_sib[v] = -1
-    is_goal[v] = False
-    _link(first_child, next_sib, par, v)
+    kind[v] = ORDINARY
+    link(first_child, next_sib, par, v)
     counts[0] = N + 1
 
     # OnGoal / GoalFix
@@ -266,7 +236,7 @@ def extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, st
                 for j in range(n + 1):
                     Q[v, j] = fixes[f, j]
                 tau[v] = tau[par] + fcost[f]
-                is_goal[v] = True
+                kind[v] = GOAL
                 goal_list[counts[1]] = v
                 counts[1] += 1
                 return 2
@@ -281,10 +251,10 @@ def extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, st
             counts[2] += 1
             if edge_hit(Q[v], Q[u], lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
                         sweep_res, False) == -1:
-                _unlink(first_child, next_sib, parent[u], u)
+                unlink(first_child, next_sib, parent[u], u)
                 parent[u] = v
-                _link(first_child, next_sib, v, u)
-                _shift_subtree(tau, first_child, next_sib, u, tau[v] + c - tau[u], stack)
+                link(first_child, next_sib, v, u)
+                shift_subtree(tau, first_child, next_sib, u, tau[v] + c - tau[u], stack)
     return 1
 
 

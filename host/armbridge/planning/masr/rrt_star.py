@@ -37,8 +37,9 @@ Everything else is shared and follows Algorithms 1-2:
   an ordinary node. Fixed nodes join G.
 * Best_path: the node of G with the least tau.
 
-Tree arrays are numpy with capacity N_c + 1, the per-iteration work runs in
-numba (kernels.py: `nearest_steer`, `extend`); Python does the IK call and bookkeeping.
+The tree is planning.tree's Tree with capacity N_c + 1 (goal nodes are
+Tree.kind GOAL); the per-iteration work runs in numba on its arrays
+(kernels.py: `nearest_steer`, `extend`); Python does the IK call and bookkeeping.
 """
 from __future__ import annotations
 
@@ -50,7 +51,8 @@ from typing import Any, Callable, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.masr.kernels import best_goal, extend, nearest_steer, sample_free
+from armbridge.planning.masr.kernels import GOAL, best_goal, extend, nearest_steer, sample_free
+from armbridge.planning.tree import Tree
 from armbridge.robots.masr_kernels import action_cost  # noqa: F401 - eq. (8), the planner's cost
 
 GoalIK = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -206,22 +208,17 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
     samples = _draw_free(rng_q, iterations, lengths, theta_b, total, verts, starts, bbox, r2)
 
     cap = iterations + 1
-    Q = np.empty((cap, n + 1))
-    parent = np.full(cap, -1, dtype=np.int64)
-    tau = np.zeros(cap)
-    first_child = np.full(cap, -1, dtype=np.int64)
-    next_sib = np.full(cap, -1, dtype=np.int64)
-    is_goal = np.zeros(cap, dtype=np.bool_)
+    tree = Tree(env.start, capacity=cap)  # one node per iteration at most; the kernels never grow it
+    Q, parent, tau, kind = tree.Q, tree.parent, tree.cost, tree.kind
     checked = np.zeros(cap, dtype=np.bool_)
     goal_list = np.zeros(cap, dtype=np.int64)
     stack = np.zeros(cap, dtype=np.int64)
     counts = np.zeros(3, dtype=np.int64)
-    Q[0] = env.start
-    counts[0] = 1
+    counts[0] = tree.count
     best_costs = np.full(iterations, np.inf)
     best = np.inf
     if bool(env.in_goal(env.start)):  # already there: the empty path, tau = 0
-        is_goal[0] = True
+        kind[0] = GOAL
         goal_list[0] = 0
         counts[1] = 1
         best = 0.0
@@ -235,7 +232,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
             q_rand = q_goal
         count = int(counts[0])
         i_near = nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, step, mode, q_new)
-        if u_ik[it] < p_c and not is_goal[i_near] and not checked[i_near]:
+        if u_ik[it] < p_c and kind[i_near] != GOAL and not checked[i_near]:
             checked[i_near] = True
             ik_calls += 1
             assert goal_ik is not None  # p_c > 0 needs one (checked above)
@@ -244,7 +241,7 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
                 raise ArmbridgeError("goal IK returned a non-finite configuration")
             q_new[:n] = np.clip(q_ik[:n], -theta_b, theta_b)
             q_new[n] = min(max(q_ik[n], 0.0), total)
-        status = extend(Q, parent, tau, first_child, next_sib, is_goal, goal_list, counts, stack,
+        status = extend(Q, parent, tau, tree.first_child, tree.next_sib, kind, goal_list, counts, stack,
                          q_new, i_near, int(n_near), lengths, rj, reach, theta_b, total, verts, starts, bbox,
                          r2, sres, inv_ms, inv_js, goal, half_w, e_p, e_phi, dm)
         if status > 0 and counts[1] > 0:
@@ -256,14 +253,10 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
 
     path = None
     cost = math.inf
+    tree.count = int(counts[0])
     if counts[1] > 0:
         g = best_goal(tau, goal_list, int(counts[1]))
-        chain = []
-        v = int(g)
-        while v >= 0:
-            chain.append(v)
-            v = int(parent[v])
-        path = Q[chain[::-1]].copy()
+        path = Q[tree.path_to(int(g))].copy()
         cost = float(arm.path_time(path)) if path.shape[0] > 1 else 0.0
     return PlanResult(
         planner=planner, path=path, cost=cost, best_costs=best_costs, iterations=iterations, time_s=elapsed,
