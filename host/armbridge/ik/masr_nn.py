@@ -414,7 +414,7 @@ def _train(arm: Any, poses: np.ndarray, cfg: TrainConfig, checkpoint: Path | Non
     history: list[dict[str, float]] = []
     start_epoch, step = 0, 0
     if resume and checkpoint is not None and checkpoint.exists():
-        ck = torch.load(checkpoint, weights_only=False)
+        ck = torch.load(checkpoint, weights_only=True)  # tensors, numbers, strings and dicts only: no pickled objects
         if ck["config"] != asdict(cfg):
             raise ArmbridgeError(f"checkpoint {checkpoint} was made with other settings; start without --resume")
         model.load_state_dict(ck["model"])

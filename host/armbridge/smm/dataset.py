@@ -27,10 +27,10 @@ time (Table III's 2.16 %); the boundary points sample it finer.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm import automaton, fourier
 from armbridge.smm.arms import SmmArm
 from armbridge.smm.manifold import SmmSet, concat
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner, Shard
 
 Progress = Callable[[int, int], None]
 DEFAULT_SHAPES = {1: (200,), 2: (250, 400)}
@@ -232,18 +235,56 @@ def compute_smms(
     n_points: int = 128,
     batch: int = 2048,  # locations per nullspace call: larger batches amortise the per-step overhead
     progress: Progress | None = None,
+    runner: Runner | None = None,
+    job: str = "smm",
     **nullspace_options: Any,
 ) -> SmmSet:
-    """Nullspace SMMs at canonical locations (no shift), `batch` locations per call."""
-    from armbridge.smm import nullspace
+    """Nullspace SMMs at canonical locations (no shift), `batch` locations per call, one shard each.
+
+    The shards (armbridge.shards) run where `runner` says (None: here, one
+    after the other); each traces its locations with the same IK seed
+    `seed` (a nullspace option), as the serial path always has, so the
+    result does not depend on where or in which order the shards ran.
+    progress(done, total) follows the shards in order.
+    """
+    from armbridge.shards import Job, Runner, Shard
 
     x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64)))
-    parts: list[SmmSet] = []
-    for s in range(0, len(x), batch):
-        parts.append(nullspace.compute(arm, x[s : s + batch], n_points=n_points, **nullspace_options))
+    options = dict(nullspace_options)
+    seed = options.pop("seed", 0)
+    if "device" in options and options["device"] is not None:
+        options["device"] = str(options["device"])
+    work = Job(job, smm_shard, {"arm": arm.to_dict(), "n_points": int(n_points), "options": options},
+               gpu=options.get("device") is None)
+    shards = [Shard(i, seed, {"start": s}, {"x": x[s : s + batch]}) for i, s in enumerate(range(0, len(x), batch))]
+    done = 0
+
+    def advance(shard: Shard, arrays: dict[str, np.ndarray]) -> None:
+        nonlocal done
+        done += len(arrays["count"])
         if progress is not None:
-            progress(min(s + batch, len(x)), len(x))
-    return concat(parts, n_points, arm.n)
+            progress(done, len(x))
+
+    parts = (runner or Runner()).map(work, shards, on_result=advance, label=f"SMM {job}")
+    return concat([SmmSet(p["points"], p["count"], p["singular"]) for p in parts], n_points, arm.n)
+
+
+def smm_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
+    """One shard of compute_smms: nullspace.compute on its locations, on one torch thread (the
+    tracer's ops are small: a second thread only adds hand-offs, nullspace's docstring)."""
+    import torch
+
+    from armbridge.robots.dh import DHChain
+    from armbridge.smm import nullspace
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        s = nullspace.compute(DHChain.from_dict(params["arm"]), shard.inputs["x"], n_points=params["n_points"],
+                              seed=shard.seed, **params["options"])
+    finally:
+        torch.set_num_threads(threads)
+    return {"points": s.points, "count": s.count, "singular": s.singular}
 
 
 def harmonics(smms: SmmSet, label: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -314,6 +355,7 @@ def build_dataset(
     exact_phase: bool = True,
     min_cells: int = 4,
     per_cell: int = 4,
+    runner: Runner | None = None,
     **nullspace_options: Any,
 ) -> Build:
     """Section V pipeline for `arm` over `grid` (default_grid if None).
@@ -322,12 +364,14 @@ def build_dataset(
     device, seed). progress(done, total) is called after every batch of SMMs,
     first of the grid, then of the boundary points. The rest is `assemble`
     and `add_boundary` (per_cell points in each boundary cell; 0 adds none).
+    The SMMs are two sharded jobs, "smm-grid" and "smm-boundary", run by
+    `runner` (compute_smms); the rest is cheap and runs here.
     """
     g = grid or default_grid(arm)
     _check(arm, g, K, N)
-    smms = compute_smms(arm, g.centres(), N, batch, progress, **nullspace_options)
+    smms = compute_smms(arm, g.centres(), N, batch, progress, runner, "smm-grid", **nullspace_options)
     build = assemble(arm, g, smms, K, exact_phase, min_cells)
-    return add_boundary(arm, build, per_cell, batch, progress, **nullspace_options)
+    return add_boundary(arm, build, per_cell, batch, progress, runner=runner, **nullspace_options)
 
 
 def boundary_cells(clusters: automaton.Clusters, count: np.ndarray) -> np.ndarray:
@@ -352,6 +396,7 @@ def add_boundary(
     batch: int = 2048,
     progress: Progress | None = None,
     seed: int = 0,
+    runner: Runner | None = None,
     **nullspace_options: Any,
 ) -> Build:
     """`build` with per_cell uniform random points in every boundary cell as classifier-only samples.
@@ -367,7 +412,7 @@ def add_boundary(
     offset = np.random.default_rng([seed, 1]).uniform(-0.5, 0.5, (cells.size * per_cell, len(g.shape)))
     at = np.repeat(automaton.cell_indices(g.shape)[cells], per_cell, axis=0) + offset
     canon = np.asarray(g.lo) + (at + 0.5) * size
-    count = compute_smms(arm, canon, 16, batch, progress, seed=seed, **nullspace_options).count
+    count = compute_smms(arm, canon, 16, batch, progress, runner, "smm-boundary", seed=seed, **nullspace_options).count
     label = automaton.nearest_cluster(build.clusters, at, count, LABEL_REACH)
     return replace(build, dataset=replace(build.dataset, boundary_canon=canon, boundary_label=label))
 

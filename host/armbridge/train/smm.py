@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -43,6 +43,9 @@ from armbridge.smm.arms import SmmArm, get_smm_arm
 from armbridge.smm.dataset import GridSpec, SmmDataset
 from armbridge.smm.learned import CARD_NAME, CARD_VERSION, KIND, LearnedSmm
 from armbridge.smm.manifold import SmmSet
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
 
 Log = Callable[[str], None]
 ROBOTS = {"smm-3r": "planar3r", "smm-4r": "spatial4r", "smm-7r": "spatial7r"}
@@ -270,7 +273,7 @@ def _train(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, checkpoint: Pa
         data.update(np.ascontiguousarray(a).tobytes())
     fingerprint = {"config": asdict(cfg), "data": data.hexdigest(), "networks": [j.key for j in jobs]}
     if resume and checkpoint is not None and checkpoint.exists():
-        ck = torch.load(checkpoint, weights_only=False, map_location=device)
+        ck = torch.load(checkpoint, weights_only=True, map_location=device)
         if ck["fingerprint"] != fingerprint:
             raise ArmbridgeError(f"checkpoint {checkpoint} was made with other settings or data; start without --resume")
         states = ck["states"]
@@ -416,8 +419,14 @@ def grid_for(arm: SmmArm, text: str) -> GridSpec:
 
 
 def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int, progress: bool,
-                  log: Log | None, per_cell: int = 4, sing_tol: float = 0.02) -> tuple[SmmDataset, dict[str, Any]]:
-    """The data set at `path`, or a new one built over --grid and saved there; and its card entry."""
+                  log: Log | None, per_cell: int = 4, sing_tol: float = 0.02,
+                  runner: Runner | None = None) -> tuple[SmmDataset, dict[str, Any]]:
+    """The data set at `path`, or a new one built over --grid and saved there; and its card entry.
+
+    The SMMs are traced in shards where `runner` says (armbridge.shards; None:
+    here, serially), with one progress bar per sharded job.
+    """
+    from armbridge.shards import Runner
     from armbridge.smm.dataset import build_dataset
 
     if path.exists():
@@ -426,19 +435,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
         return SmmDataset.load(path), {"built": "loaded from an existing file"}
     g = grid_for(arm, grid)
     t0 = time.perf_counter()
-    bar = None
-    if progress:
-        bar = _progress_bar("[bold]SMM data[/] nullspace")
-        task = bar.add_task("data", total=g.size)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the tracer's ops are small: a second thread only adds hand-offs (nullspace doc)
-    try:
-        build = build_dataset(arm, g, K=K, N=N, seed=seed, per_cell=per_cell, sing_tol=sing_tol,
-                              progress=(lambda done, total: bar.update(task, completed=done, total=total)) if bar else None)
-    finally:
-        torch.set_num_threads(threads)
-        if bar is not None:
-            bar.stop()
+    runner = runner or Runner(progress=progress)
+    build = build_dataset(arm, g, K=K, N=N, seed=seed, per_cell=per_cell, sing_tol=sing_tol, runner=runner)
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     build.dataset.save(path)
@@ -446,7 +444,7 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
         log(f"data set: {g.size} cells in {seconds:.1f} s -> {path}")
     return build.dataset, {"built": "armbridge.smm.dataset.build_dataset", "grid_lo": list(g.lo), "grid_hi": list(g.hi),
                            "grid_shape": list(g.shape), "boundary_points_per_cell": per_cell, "sing_tol": sing_tol,
-                           "seconds": round(seconds, 1), "seed": seed}
+                           "seconds": round(seconds, 1), "seed": seed, "shards": runner.backend}
 
 
 # ------------------------------------------------------------------ pipeline
