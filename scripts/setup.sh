@@ -12,7 +12,7 @@ cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
 VENV=.venv
 # Exact pins for these live in constraints.txt (one place for every pin).
-PIP_EXTRAS="[test,train,masr,ompl,smm-peer]"
+PIP_EXTRAS="[test,train,masr,ompl,smm-peer,ray]"
 STUBS=micropython-esp32-stubs
 APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude)
 
