@@ -22,6 +22,7 @@ from rich.table import Table
 from armbridge import resources
 from armbridge.errors import ArmbridgeError
 from armbridge.extras import require
+from armbridge.shards import cli as shard_options
 
 train_app = typer.Typer(help="Train models and export them as ONNX with a model card (into runs/ unless --out).",
                         no_args_is_help=True)
@@ -200,8 +201,16 @@ def smm_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite an existing model in --out (also a shipped one)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint in --work-dir."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards"),
 ) -> None:
-    """Train the learned-SMM networks (section V-D), export ONNX and a card with held-out accuracy."""
+    """Train the learned-SMM networks (section V-D), export ONNX and a card with held-out accuracy.
+
+    The data set's SMMs are traced in shards of 2,048 locations (--ray,
+    --workers; docs/cluster.md), each written to --checkpoint as it
+    finishes, so a stopped build resumes; the networks train here (CUDA
+    when a device is visible)."""
     _require_train_extra()
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.networks import default_architecture
@@ -228,7 +237,9 @@ def smm_cmd(
 
     argv = sys.argv[sys.argv.index(kind) + 1 :] if kind in sys.argv else []
     command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
-    ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol)
+    with shard_options.runner(ray, workers, checkpoint or work / "shards", progress) as runner:
+        ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol,
+                                    runner)
     pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=model_dir,
                              work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
     card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)
