@@ -426,3 +426,48 @@ def board_ik_cmd(
     write_json(result, json_out)
     board_ik.print_report(result, console)
     console.print(f"wrote {json_out}")
+
+
+@bench_app.command("wjrrt")
+def wjrrt_cmd(
+    seeds: int = typer.Option(None, "--seeds", min=1, help="Seeds per scene and planner (full run: 100)."),
+    scenes: str = typer.Option("two-arm,three-arm,seven-tube,horn", "--scenes",
+                               help="Comma-separated fixed scenes (planning/soft/scenes)."),
+    planners: str = typer.Option("wjrrt,jt-rrt,birrt,RRTConnect,KPIECE1,STRIDE", "--planners",
+                                 help="Comma-separated: ours (wjrrt, jt-rrt, birrt) and OMPL's (RRTConnect, "
+                                      "KPIECE1, STRIDE)."),
+    time_limit: float = typer.Option(None, "--time-limit", min=0.001,
+                                     help="Wall-clock budget T per run, every planner (s; full run: 2)."),
+    iterations: int = typer.Option(None, "--iterations", min=1,
+                                   help="Our planners' iteration budget [default: each scene's, Table 1's Iter.]."),
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 2 seeds, T = 0.5 s."),
+    json_out: Path = typer.Option(Path("runs/bench-wjrrt.json"), "--json", help="Where to write the results."),
+    png: Path = typer.Option(None, "--png", help="Also write the figures (wjrrt-success.png, wjrrt-time.png) "
+                                                 "into this folder."),
+) -> None:
+    """Table 1 of the WJRRT paper (success, iterations, time, nodes, track / goal / random nodes,
+    obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT and OMPL's RRTConnect, KPIECE1, STRIDE on the
+    same scenes and checker, every run with the same time budget; success against the budget."""
+    from dataclasses import replace
+
+    from rich.console import Console
+
+    from armbridge.bench import wjrrt
+
+    size = wjrrt.QUICK if quick else wjrrt.FULL
+    if seeds is not None:
+        size = replace(size, seeds=seeds)
+    if time_limit is not None:
+        size = replace(size, time_limit=time_limit)
+    console = Console()
+    result = wjrrt.run(size, tuple(s.strip() for s in scenes.split(",") if s.strip()),
+                       tuple(p.strip() for p in planners.split(",") if p.strip()), iterations=iterations,
+                       progress=lambda text: console.print(f"[dim]bench wjrrt: {text}[/]"))
+    write_json(result, json_out)
+    wjrrt.print_result(result, console)
+    if png is not None:
+        from armbridge.bench.wjrrt_plots import plots
+
+        for p in plots(result, png):
+            console.print(f"wrote {p}")
+    console.print(f"wrote {json_out}")

@@ -1,0 +1,276 @@
+"""`armbridge bench wjrrt`: Table 1 of the WJRRT paper, with OMPL's planners on the same scenes and checker.
+
+Protocol (docs/benchmarks.md, "Soft arm"):
+
+* scenes: the shipped fixed scenes (planning.soft.scene.FIXED: the paper's
+  two-arm, three-arm and seven-arm cases, and OMPL's horn); seeds 0..seeds-1.
+* planners: ours (planning.soft.planners: WJRRT, JT-RRT, Bi-RRT) with the
+  scene's parameters and its iteration budget N (Table 1's "Iter.": a run
+  ends at the goal or after N iterations), and OMPL's RRTConnect, KPIECE1,
+  STRIDE (planning.soft.ompl_planners) on the same scene.problem(): the same
+  joint box, ChainChecker (edge resolution `res`) and tip goal.
+* equal time: every run of every planner has the same wall-clock budget T
+  (`time_limit`); OMPL's planners have no iteration budget (their iterations
+  are another unit). A run succeeds when it returns a path that our checker
+  accepts again (path_problem: valid start, every edge free at `res`) and
+  whose last state is in the goal. A budget only stops a planner, so a run
+  that succeeded after s seconds succeeds with any budget >= s: success at
+  budget t <= T is the share of runs whose time to success is <= t, read off
+  the same runs (`success_at`). Our planners' iteration budget can only lower
+  their curve.
+* Table 1's columns per scene and planner: success x/seeds, iterations
+  (budget, and the median done), total time (median over successful runs,
+  s), nodes, track nodes (path nodes but the start), goal nodes, random
+  nodes, obstacle checks (the checker's counter), objective H (WJRRT's eq. 9
+  at the last path node): counts are means over the successful runs. Plus
+  the time to success over all runs (median, p90; a failure counts as
+  infinitely slow, so these are None when fewer than half / 90 % succeed).
+
+Runs go scene by scene, seed by seed, every planner on that seed in turn, in
+one process (OMPL's seed is per process: ompl_bridge.seed_once), so a load
+change on the machine falls on all planners alike.
+"""
+from __future__ import annotations
+
+import math
+import platform
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+
+OURS = ("wjrrt", "jt-rrt", "birrt")
+OMPL = ("RRTConnect", "KPIECE1", "STRIDE")
+PLANNERS = OURS + OMPL
+LABELS = {"wjrrt": "WJRRT", "jt-rrt": "JT-RRT", "birrt": "Bi-RRT", "RRTConnect": "OMPL RRTConnect",
+          "KPIECE1": "OMPL KPIECE1", "STRIDE": "OMPL STRIDE"}
+#: Table 1's count columns (means over the successful runs) and H.
+COUNTS = ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H")
+#: Table 1's columns as the keys of a planner's summary on a scene.
+COLUMNS = ("success", "iterations_budget", "iterations_median", "time_median_s") + COUNTS
+PAPER_COLUMNS = ("success", "iterations", "time_s") + COUNTS
+#: Table 1 of the paper: (success of 10, Iter., time s, nodes, track, goal, random, obstacle checks, H).
+PAPER = {
+    "two-arm": {"jt-rrt": (8, 500, 7.63, 376, 43, 23, 20, 121, None), "birrt": (8, 500, 7.10, 398, 57, None, 57, 102,
+                                                                                None),
+                "TB-RRT": (9, 500, 6.23, 352, 90, None, 90, 113, None), "wjrrt": (10, 500, 5.63, 345, 93, 70, 23, 98,
+                                                                                  0.001)},
+    "three-arm": {"jt-rrt": (7, 1000, 10.43, 753, 181, 138, 43, 234, None),
+                  "birrt": (9, 1000, 11.02, 749, 190, None, 190, 274, None),
+                  "TB-RRT": (10, 1000, 10.27, 645, 213, None, 213, 334, None),
+                  "wjrrt": (9, 1000, 9.43, 674, 209, 163, 46, 359, 0.005)},
+    "seven-tube": {"jt-rrt": (6, 2000, 18.43, 1290, 932, 503, 429, 1023, None),
+                   "birrt": (7, 2000, 17.63, 1323, 1078, None, 1078, 1092, None),
+                   "TB-RRT": (7, 2000, 12.23, 1054, 870, None, 870, 1287, None),
+                   "wjrrt": (8, 2000, 13.21, 1583, 1231, 903, 328, 1340, 0.002)},
+}
+#: The targets: WJRRT's success at least the paper's (share), median time per plan under this (s).
+TARGET_SUCCESS = {"two-arm": 1.0, "three-arm": 0.9, "seven-tube": 0.8}
+TARGET_MEDIAN_S = 0.5
+
+
+@dataclass(frozen=True)
+class WjrrtBenchSize:
+    seeds: int
+    time_limit: float  # T, s per run, every planner
+
+
+FULL = WjrrtBenchSize(seeds=100, time_limit=2.0)
+QUICK = WjrrtBenchSize(seeds=2, time_limit=0.5)
+
+
+def budgets(time_limit: float) -> list[float]:
+    """Budgets t to report success at: 1-2-5 steps from 10 ms up to T, and T."""
+    out = [m * 10.0 ** e for e in range(-2, 3) for m in (1, 2, 5) if m * 10.0 ** e < time_limit - 1e-9]
+    return out + [float(time_limit)]
+
+
+def one_run(scene: Any, planner: str, seed: int, time_limit: float, iterations: Optional[int],
+            res: float) -> dict[str, Any]:
+    """One planner on one scene and seed -> the run's record (module doc: success is re-checked)."""
+    from armbridge.planning.soft import ompl_planners, planners
+
+    if planner in OURS:
+        r = planners.plan(scene, planner, seed=seed, time_limit=time_limit, iterations=iterations, res=res)
+    else:
+        r = ompl_planners.plan(scene, planner, seed=seed, time_limit=time_limit, res=res)
+    recheck = None
+    if r.path is not None:
+        chk = scene.checker(res)
+        recheck = chk.path_problem(r.path)
+        if recheck is None and not bool(np.linalg.norm(chk.tip(r.path[-1]) - scene.goal_point) <= scene.goal_tol):
+            recheck = "the last state is not in the goal"
+    rec: dict[str, Any] = {"seed": seed, "success": r.path is not None and recheck is None,
+                           "planner_success": r.path is not None, "recheck": recheck, "time_s": float(r.time_s),
+                           "iterations": int(r.iterations)}
+    for key in ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H", "tip_error_m"):
+        v = r.stats.get(key)
+        rec[key] = None if v is None else float(v) if key in ("final_H", "tip_error_m") else int(v)
+    if "status" in r.stats:
+        rec["status"] = r.stats["status"]
+    return rec
+
+
+def _mean(runs: Sequence[dict], key: str) -> Optional[float]:
+    vals = [r[key] for r in runs if r["success"] and r[key] is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def time_to_success(runs: Sequence[dict]) -> np.ndarray:
+    """Per run its time if it succeeded, else inf."""
+    return np.array([r["time_s"] if r["success"] else math.inf for r in runs], float)
+
+
+def summarise(runs: Sequence[dict], time_limit: float, budget: Optional[int]) -> dict[str, Any]:
+    """Table 1's columns and the equal-time numbers of one planner on one scene (module doc)."""
+    ok = [r for r in runs if r["success"]]
+    tts = time_to_success(runs)
+    n = len(runs)
+
+    def q(p: float) -> Optional[float]:
+        v = float(np.quantile(tts, p, method="higher")) if n else math.inf
+        return v if math.isfinite(v) else None
+
+    return {
+        "runs": n, "success": len(ok), "success_rate": len(ok) / n if n else 0.0,
+        "iterations_budget": budget, "iterations_median": float(np.median([r["iterations"] for r in runs])) if n
+        else None,
+        "time_median_s": float(np.median([r["time_s"] for r in ok])) if ok else None,
+        "time_to_success_median_s": q(0.5), "time_to_success_p90_s": q(0.9),
+        **{key: _mean(runs, key) for key in COUNTS},
+        "tip_error_m_mean": _mean(runs, "tip_error_m"),
+        "rejected_by_recheck": sum(1 for r in runs if r["planner_success"] and not r["success"]),
+        "success_at": {f"{t:g}": float(np.mean(tts <= t)) if n else 0.0 for t in budgets(time_limit)},
+    }
+
+
+def targets(result: dict[str, Any]) -> dict[str, Any]:
+    """WJRRT against the issue's targets (module doc of docs/benchmarks.md): met / missed, with where."""
+    out: dict[str, Any] = {}
+    for name, sc in result["scenes"].items():
+        w = sc["planners"].get("wjrrt", {}).get("summary")
+        if not w:
+            continue
+        if name in TARGET_SUCCESS:
+            out[f"{name}: WJRRT success >= {TARGET_SUCCESS[name]:.0%}"] = w["success_rate"] >= TARGET_SUCCESS[name]
+        med = w["time_median_s"]
+        out[f"{name}: WJRRT median time < {TARGET_MEDIAN_S} s"] = med is not None and med < TARGET_MEDIAN_S
+        for pl in OMPL:
+            o = sc["planners"].get(pl, {}).get("summary")
+            if not o:
+                continue
+            behind = [t for t, v in w["success_at"].items() if v < o["success_at"][t]]
+            key = f"{name}: WJRRT success >= {LABELS[pl]} at every budget"
+            out[key] = not behind
+            if behind:
+                out[key + " (behind at, s)"] = behind
+    return out
+
+
+def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str] = PLANNERS,
+        iterations: Optional[int] = None, res: Optional[float] = None,
+        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    """Every planner on every scene and seed (module doc) -> the JSON document of `armbridge bench wjrrt`.
+
+    scenes: fixed-scene names (default: all of FIXED) or Scene objects.
+    """
+    from armbridge.planning import ompl_bridge
+    from armbridge.planning.soft import ompl_planners
+    from armbridge.planning.soft.scene import FIXED, fixed_scene
+    from armbridge.planning.soft.space import EDGE_RES
+
+    names = tuple(scenes) or FIXED
+    for pl in planners:
+        if pl not in PLANNERS:
+            raise ArmbridgeError(f"--planners: {pl!r} unknown; use some of {', '.join(PLANNERS)}")
+    if size.seeds < 1 or not size.time_limit > 0:
+        raise ArmbridgeError(f"--seeds must be >= 1 and --time-limit > 0 s, got {size.seeds}, {size.time_limit}")
+    res = EDGE_RES if res is None else float(res)
+    loaded = [fixed_scene(n) if isinstance(n, str) else n for n in names]  # a bad name fails before any work
+    skipped = {pl: why for pl in planners if pl in OMPL and (why := ompl_planners.missing(pl))}
+    active = [pl for pl in planners if pl not in skipped]
+    if any(pl in OMPL for pl in active):
+        ompl_bridge.seed_once(0)
+    result: dict[str, Any] = {
+        "benchmark": "wjrrt (Table 1 of the WJRRT paper, with OMPL)", "size": asdict(size), "res_m": res,
+        "iterations_override": iterations, "planners": list(planners), "not_run": skipped,
+        "budgets_s": budgets(size.time_limit),
+        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+        "paper_table1": {k: {pl: dict(zip(PAPER_COLUMNS, v)) for pl, v in rows.items()} for k, rows in PAPER.items()},
+        "scenes": {},
+    }
+    t0 = time.perf_counter()
+    for scene in loaded:
+        scene.find_goal_states()  # once, outside every planner's time (planners share the cache)
+        budget = iterations if iterations is not None else int(scene.params.get("iterations", 1000))
+        runs: dict[str, list[dict]] = {pl: [] for pl in active}
+        ts = time.perf_counter()
+        for seed in range(size.seeds):
+            for pl in active:
+                runs[pl].append(one_run(scene, pl, seed, size.time_limit, iterations, res))
+            if (seed + 1) % 10 == 0 or seed + 1 == size.seeds:
+                done = ", ".join(f"{LABELS[p]} {sum(r['success'] for r in runs[p])}" for p in active)
+                progress(f"{scene.name}: {seed + 1}/{size.seeds} seeds ({time.perf_counter() - ts:.0f} s): {done}")
+        result["scenes"][scene.name] = {
+            "robot": scene.robot.name, "links": scene.robot.n, "goal_tol_m": scene.goal_tol,
+            "goal_states": int(scene.find_goal_states().shape[0]), "iterations_budget": budget,
+            "planners": {pl: {"summary": summarise(runs[pl], size.time_limit, budget if pl in OURS else None),
+                              "runs": runs[pl]} for pl in active},
+        }
+    result["targets"] = targets(result)
+    result["wall_s"] = time.perf_counter() - t0
+    return result
+
+
+def _cell(v: Any, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def table_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
+    """Table 1's rows (scene, planner, then COLUMNS as text), paper rows beside ours."""
+    rows: list[tuple[str, ...]] = []
+    for name, sc in result["scenes"].items():
+        for pl, d in sc["planners"].items():
+            s = d["summary"]
+            it = f"{s['iterations_budget']} ({s['iterations_median']:.0f})" if s["iterations_budget"] else \
+                f"- ({s['iterations_median']:.0f})"
+            rows.append((name, LABELS[pl], f"{s['success']}/{s['runs']}", it, _cell(s["time_median_s"], ".3f"),
+                         _cell(s["nodes"], ".0f"), _cell(s["track_nodes"], ".0f"), _cell(s["goal_nodes"], ".0f"),
+                         _cell(s["random_nodes"], ".0f"), _cell(s["obstacle_checks"], ".0f"),
+                         _cell(s["final_H"], ".3g")))
+    return rows
+
+
+def print_result(result: dict[str, Any], console: Any) -> None:
+    from rich.table import Table
+
+    T = result["size"]["time_limit"]
+    t = Table(title=f"armbridge bench wjrrt: Table 1 columns, {result['size']['seeds']} seeds per scene, "
+                    f"budget {T:g} s per run (counts: means over successful runs)")
+    for col in ("scene", "planner", "success", "iter. budget (median)", "time (s, median)", "nodes", "track",
+                "goal", "random", "obstacle checks", "H"):
+        t.add_column(col, justify="left" if col in ("scene", "planner") else "right")
+    for row in table_rows(result):
+        t.add_row(*row)
+    console.print(t)
+    e = Table(title="equal time: success (%) at a budget of t s, time to success median / p90 (s)")
+    e.add_column("scene")
+    e.add_column("planner")
+    shown = [b for b in result["budgets_s"] if b >= 0.05 or b == result["budgets_s"][-1]]
+    for b in shown:
+        e.add_column(f"{b:g}", justify="right")
+    e.add_column("median / p90", justify="right")
+    for name, sc in result["scenes"].items():
+        for pl, d in sc["planners"].items():
+            s = d["summary"]
+            e.add_row(name, LABELS[pl], *[f"{100 * s['success_at'][f'{b:g}']:.0f}" for b in shown],
+                      f"{_cell(s['time_to_success_median_s'], '.3f')} / {_cell(s['time_to_success_p90_s'], '.3f')}")
+    console.print(e)
+    for pl, why in result["not_run"].items():
+        console.print(f"not run: {LABELS[pl]}: {why}")
+    console.print("targets: " + "; ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()
+                                          if isinstance(v, bool)))

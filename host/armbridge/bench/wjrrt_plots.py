@@ -1,0 +1,177 @@
+"""Figures of `armbridge bench wjrrt`: success against the time budget, and the time per plan.
+
+* success_figure: one panel per scene, the share of runs that reached the
+  goal within a budget of t seconds (the equal-time curve of bench/wjrrt.py:
+  the empirical distribution of the time to success), t on a log axis.
+* time_figure: per scene a group of boxes, one per planner, of the time of
+  the successful runs (log axis), the success count under each box.
+
+Every planner keeps one colour, marker and line style in every panel and
+both figures. Colours are Okabe-Ito (colour-blind safe) in two families: our
+planners in the cool colours (WJRRT blue, JT-RRT sky blue, Bi-RRT green),
+OMPL's in the warm ones (RRTConnect vermillion, KPIECE1 orange, STRIDE
+reddish purple); ours are solid, OMPL's dashed with hollow markers. Curves
+that coincide stay visible: ours are drawn first and wider (a curve on top
+of another leaves its neighbour's edges showing) and each curve's markers
+sit at budgets shifted a little per planner. Log axes carry plain 1-2-5
+tick labels in seconds (0.01, 0.02, 0.05, ...), the legend sits below the
+panels, never on the data.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from armbridge.bench.wjrrt import LABELS, OURS, PLANNERS, TARGET_MEDIAN_S, time_to_success
+from armbridge.planning.figure import OKABE_ITO, pyplot
+
+STYLE: dict[str, dict[str, Any]] = {
+    "wjrrt": {"color": OKABE_ITO["blue"], "marker": "o", "lw": 2.8},
+    "jt-rrt": {"color": OKABE_ITO["sky"], "marker": "s", "lw": 2.2},
+    "birrt": {"color": OKABE_ITO["green"], "marker": "^", "lw": 1.7},
+    "RRTConnect": {"color": OKABE_ITO["vermillion"], "marker": "D", "lw": 1.5},
+    "KPIECE1": {"color": OKABE_ITO["orange"], "marker": "v", "lw": 1.5},
+    "STRIDE": {"color": OKABE_ITO["purple"], "marker": "P", "lw": 1.5},
+}
+
+
+def line_style(planner: str) -> dict[str, Any]:
+    s = STYLE[planner]
+    ours = planner in OURS
+    return {"color": s["color"], "marker": s["marker"], "lw": s["lw"], "ls": "-" if ours else (0, (4, 2)),
+            "mfc": s["color"] if ours else "white", "mec": s["color"], "mew": 1.3, "ms": 5.5,
+            "label": LABELS[planner], "gid": planner}
+
+
+def log_seconds_axis(ax: Any, lo: float, hi: float, axis: str = "x") -> None:
+    """A log axis from lo to hi s with ticks at 1-2-5 steps written plainly (0.01, 0.02, 0.05, 0.1, ...)."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    ticks = [m * 10.0 ** e for e in range(-5, 4) for m in (1, 2, 5) if lo * 0.999 <= m * 10.0 ** e <= hi * 1.001]
+    a = ax.xaxis if axis == "x" else ax.yaxis
+    (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
+    (ax.set_xlim if axis == "x" else ax.set_ylim)(lo, hi)
+    a.set_major_locator(FixedLocator(ticks))
+    a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    a.set_minor_locator(NullLocator())
+    ax.tick_params(axis=axis, labelsize=8)
+    ax.grid(True, axis=axis, which="major", lw=0.3, color="0.85")
+
+
+def _floor(result: dict[str, Any]) -> float:
+    """The left end of the time axes: the decade below the fastest successful run (at most 10 ms)."""
+    ts = [r["time_s"] for sc in result["scenes"].values() for d in sc["planners"].values() for r in d["runs"]
+          if r["success"] and r["time_s"] > 0]
+    fastest = min(ts) if ts else 0.01
+    return float(10.0 ** np.floor(np.log10(min(fastest, 0.01))))
+
+
+def _order(result: dict[str, Any]) -> list[str]:
+    present = {pl for sc in result["scenes"].values() for pl in sc["planners"]}
+    return [pl for pl in PLANNERS if pl in present]
+
+
+def _legend(fig: Any, planners: Sequence[str], note: str = "") -> None:
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], **line_style(pl)) for pl in planners]
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(planners), fontsize=8, frameon=False,
+               title=note or None, title_fontsize=8)
+
+
+def success_figure(result: dict[str, Any]) -> Any:
+    """Success (%) against the time budget t, one panel per scene (module doc); returns the unsaved figure."""
+    plt = pyplot()
+    scenes = list(result["scenes"])
+    T = float(result["size"]["time_limit"])
+    lo = _floor(result)
+    planners = _order(result)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(3.3 * len(scenes) + 0.6, 3.9), layout="constrained",
+                             squeeze=False, sharey=True)
+    grid = np.logspace(np.log10(lo), np.log10(T), 400)
+    for ax, name in zip(axes[0], scenes):
+        sc = result["scenes"][name]
+        for k, pl in enumerate(planners):
+            if pl not in sc["planners"]:
+                continue
+            tts = time_to_success(sc["planners"][pl]["runs"])
+            y = 100.0 * np.mean(tts[None, :] <= grid[:, None], axis=1)
+            marks = [int(np.searchsorted(grid, m * 10 ** (0.045 * (k - 2.5)))) for m in
+                     np.logspace(np.log10(lo), np.log10(T), 7)[1:-1]]
+            style = line_style(pl)
+            ax.plot(grid, y, drawstyle="steps-post", markevery=[m for m in marks if 0 <= m < grid.size],
+                    zorder=3 if pl in OURS else 4, **style)
+        log_seconds_axis(ax, lo, T)
+        ax.set_ylim(-3, 103)
+        ax.set_xlabel("time budget per query t (s)")
+        ax.set_title(f"{name} ({sc['links']} links, {len(next(iter(sc['planners'].values()))['runs'])} seeds)",
+                     fontsize=9)
+    axes[0][0].set_ylabel("queries solved within t (%)")
+    _legend(fig, planners, "ours solid, OMPL dashed; the same runs read at every budget (budget = T "
+                           f"{T:g} s per run)")
+    return fig
+
+
+def time_figure(result: dict[str, Any]) -> Any:
+    """Box plots of the successful runs' time, per scene (groups) and planner (boxes); log y axis."""
+    plt = pyplot()
+    scenes = list(result["scenes"])
+    planners = _order(result)
+    T = float(result["size"]["time_limit"])
+    lo = _floor(result)
+    fig, ax = plt.subplots(figsize=(1.0 + 0.42 * len(planners) * len(scenes) + 0.5 * len(scenes), 4.3),
+                           layout="constrained")
+    width, gap = 0.8, 1.0
+    centres = []
+    for g, name in enumerate(scenes):
+        sc = result["scenes"][name]
+        x0 = g * (len(planners) + gap)
+        centres.append(x0 + (len(planners) - 1) / 2)
+        for k, pl in enumerate(planners):
+            if pl not in sc["planners"]:
+                continue
+            runs = sc["planners"][pl]["runs"]
+            ts = np.array([r["time_s"] for r in runs if r["success"]])
+            x = x0 + k
+            s = STYLE[pl]
+            if ts.size:
+                ax.boxplot([ts], positions=[x], widths=width * 0.8, whis=(5, 95), patch_artist=True,
+                           showfliers=True, manage_ticks=False,
+                           boxprops={"facecolor": s["color"] + "55", "edgecolor": s["color"], "linewidth": 1.3,
+                                     "linestyle": "-" if pl in OURS else "--"},
+                           medianprops={"color": "black", "linewidth": 1.6},
+                           whiskerprops={"color": s["color"], "linewidth": 1.1},
+                           capprops={"color": s["color"], "linewidth": 1.1},
+                           flierprops={"marker": s["marker"], "ms": 3, "mec": s["color"], "mfc": "none"})
+            ax.text(x, lo * 1.15, f"{ts.size}", ha="center", va="bottom", fontsize=7, color="0.2")
+    log_seconds_axis(ax, lo, T * 1.6, axis="y")
+    ax.axhline(TARGET_MEDIAN_S, color="0.35", lw=0.8, ls=":", zorder=0)
+    ax.text(-0.6, TARGET_MEDIAN_S * 1.05, f"target median {TARGET_MEDIAN_S:g} s", ha="left", va="bottom",
+            fontsize=7, color="0.35")
+    ax.axhline(T, color="0.35", lw=0.8, ls="--", zorder=0)
+    ax.text(centres[-1] + len(planners) / 2, T * 1.05, f"budget T = {T:g} s", ha="right", va="bottom",
+            fontsize=7, color="0.35")
+    ax.set_xticks(centres, [f"{n} ({result['scenes'][n]['links']} links)" for n in scenes], fontsize=9)
+    ax.set_xlim(-0.8, (len(scenes) - 1) * (len(planners) + gap) + len(planners) - 0.2)
+    ax.set_ylabel("time per successful plan (s)")
+    ax.set_title("boxes: quartiles, whiskers 5th-95th percentile, black line the median; "
+                 "numbers: successful runs", fontsize=8)
+    _legend(fig, planners)
+    return fig
+
+
+def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
+    """Write wjrrt-success.png and wjrrt-time.png into png_dir."""
+    plt = pyplot()
+    png_dir.mkdir(parents=True, exist_ok=True)
+    out = []
+    for name, make in (("wjrrt-success.png", success_figure), ("wjrrt-time.png", time_figure)):
+        fig = make(result)
+        p = png_dir / name
+        fig.savefig(p, dpi=130)
+        plt.close(fig)
+        out.append(p)
+    return out

@@ -1,0 +1,100 @@
+"""OMPL's RRTConnect, KPIECE1 and STRIDE on a soft-arm scene, with our checker and goal (planning.ompl_bridge).
+
+    from armbridge.planning.soft import ompl_planners
+    r = ompl_planners.plan(fixed_scene("three-arm"), "KPIECE1", seed=0, time_limit=1.0)
+
+The problem is the scene's own (`scene.problem(res)`: the same ChainSpace
+box, ChainChecker and TipGoal, the same goal configurations from the
+scene's goal_q and the tip descent of ik.py) that our planners get, so
+the checks they count and the paths they return are comparable; OMPL's
+paths are checked again by that checker before they count (bench wjrrt).
+
+Projection planners (KPIECE1, STRIDE, and BKPIECE1 / LBKPIECE1) need a
+projection of a state to a few coordinates whose grid cells they explore.
+projection="tip" (default) projects onto the tip's (x, y), the quantity the
+goal is set in (as WJRRT's Jacobian step works in it); "random" leaves
+OMPL's default for a RealVectorStateSpace, the random linear projection to
+max(2, ceil(log n)) dimensions that OMPL's KinematicChain demo uses too.
+Cell sizes are OMPL's inferred ones (1/20 of the projected range).
+
+STRIDE: the PyPI `ompl` 2.0.1 wheel (the only one there) compiles STRIDE into
+libompl.so but binds no Python class for it, so it cannot be run from
+Python; `missing("STRIDE")` says so and the benchmark reports it as not
+run instead of standing another planner in for it. A later wheel that binds
+`ompl.geometric.STRIDE` is picked up without a change here.
+Table 1's goal / random node split and H do not exist for OMPL's planners
+(stats None).
+"""
+from __future__ import annotations
+
+from typing import Any, Optional
+
+from armbridge.errors import ArmbridgeError
+from armbridge.planning import ompl_bridge
+from armbridge.planning.base import PlanResult, Problem
+from armbridge.planning.soft.space import EDGE_RES
+
+#: The OMPL planners of the soft-arm benchmark (bench wjrrt).
+OMPL_PLANNERS = ("RRTConnect", "KPIECE1", "STRIDE")
+#: Planners that explore a projection's grid.
+PROJECTION = frozenset({"KPIECE1", "BKPIECE1", "LBKPIECE1", "STRIDE"})
+PROJECTIONS = ("tip", "random")
+
+
+def missing(planner: str) -> Optional[str]:
+    """None if `planner` can run here, else why not."""
+    why = ompl_bridge.available()
+    if why:
+        return f"OMPL is not available ({why})"
+    from ompl import geometric as og  # type: ignore[import-untyped]
+
+    if planner == "STRIDE" and not hasattr(og, "STRIDE"):
+        return "the PyPI ompl wheel binds no STRIDE (compiled into libompl.so, no Python class)"
+    if planner not in ompl_bridge.planner_names() and not hasattr(og, planner):
+        return f"unknown OMPL planner {planner!r}"
+    return None
+
+
+def _ensure(planner: str) -> None:
+    """Register planners the bridge's list lacks but this wheel binds (STRIDE in a later wheel)."""
+    from ompl import geometric as og
+
+    if planner not in ompl_bridge.planner_names() and hasattr(og, planner):
+        ompl_bridge.register_planner(planner, getattr(og, planner))
+
+
+def tip_projection(problem: Problem) -> tuple[Any, int, None]:
+    """(fn, 2, None): the tip position of q under the problem's checker; cells inferred by OMPL."""
+    checker = problem.checker
+
+    def tip(q: Any) -> Any:
+        return checker.tip(q)
+
+    return tip, 2, None
+
+
+def solve(problem: Problem, planner: str = "RRTConnect", *, time_limit: float = 1.0,
+          iterations: Optional[int] = None, seed: int = 0, range: Optional[float] = None,
+          projection: str = "tip") -> PlanResult:
+    """One OMPL planner on a soft Problem (module doc) -> PlanResult with Table 1's stats keys."""
+    why = missing(planner)
+    if why:
+        raise ArmbridgeError(f"OMPL {planner}: {why}")
+    if projection not in PROJECTIONS:
+        raise ArmbridgeError(f"projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
+    _ensure(planner)
+    proj = tip_projection(problem) if planner in PROJECTION and projection == "tip" else None
+    result = ompl_bridge.solve(problem, planner, time_limit=time_limit, iterations=iterations, range=range,
+                               projection=proj, seed=seed)
+    result.settings["projection"] = (projection if planner in PROJECTION else None)
+    return result
+
+
+def plan(scene: Any, planner: str = "RRTConnect", *, seed: int = 0, time_limit: float = 1.0,
+         iterations: Optional[int] = None, res: float = EDGE_RES, range: Optional[float] = None,
+         projection: str = "tip") -> PlanResult:
+    """solve() on scene.problem(res), as planners.plan does for ours."""
+    result = solve(scene.problem(res), planner, time_limit=time_limit, iterations=iterations, seed=seed,
+                   range=range, projection=projection)
+    result.settings["scene"] = scene.name
+    return result

@@ -1,0 +1,123 @@
+"""armbridge bench wjrrt at its smallest (2 seeds, 2 scenes) and the OMPL glue under it (real OMPL, real checker)."""
+import json
+
+import numpy as np
+import pytest
+
+from armbridge.errors import ArmbridgeError
+from armbridge.planning import ompl_bridge
+from tests.require import missing
+
+if ompl_bridge.available():
+    missing(f"the ompl Python wheel is needed: {ompl_bridge.available()}")
+
+from armbridge.bench import wjrrt  # noqa: E402
+from armbridge.planning.soft import ompl_planners  # noqa: E402
+from armbridge.planning.soft.scene import FORMAT, VERSION, horn_scene, scene_from_dict  # noqa: E402
+
+STAT_KEYS = ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H", "tip_error_m")
+
+
+def small_scene():
+    """soft2 reaching over a block that the straight joint-space edge from start to goal.q runs through."""
+    doc = {"format": FORMAT, "version": VERSION, "name": "test-two", "robot": "soft2", "link_width": 0.01,
+           "obstacles": [[[0.17, 0.09], [0.19, 0.09], [0.19, 0.11], [0.17, 0.11]]],
+           "start": [0.0, 0.0], "goal": {"point": [0.0, 0.0], "tol": 0.004, "q": [0.5, 0.9]},
+           "params": {"iterations": 300}}
+    from armbridge.robots.catalog import get_robot
+
+    doc["goal"]["point"] = get_robot("soft2").ee_point(np.array([0.5, 0.9])).tolist()
+    return scene_from_dict(doc, "test")
+
+
+@pytest.fixture(scope="module")
+def result():
+    return wjrrt.run(wjrrt.WjrrtBenchSize(seeds=2, time_limit=3.0), [small_scene(), horn_scene(5)])
+
+
+def test_every_planner_every_column(result):
+    doc = json.loads(json.dumps(result))  # what --json writes
+    assert set(doc["scenes"]) == {"test-two", "horn-5"}
+    ran = set(wjrrt.PLANNERS) - set(doc["not_run"])
+    assert {"wjrrt", "jt-rrt", "birrt", "RRTConnect", "KPIECE1"} <= ran
+    for why in doc["not_run"].values():
+        assert "STRIDE" in why
+    for sc in doc["scenes"].values():
+        assert set(sc["planners"]) == ran
+        for pl, d in sc["planners"].items():
+            s = d["summary"]
+            for col in wjrrt.COLUMNS:
+                assert col in s
+            assert s["runs"] == 2 and 0 <= s["success"] <= 2
+            assert list(s["success_at"]) == [f"{t:g}" for t in doc["budgets_s"]]
+            assert all(a <= b for a, b in zip(list(s["success_at"].values()), list(s["success_at"].values())[1:]))
+            assert s["success_at"][f"{doc['budgets_s'][-1]:g}"] == s["success_rate"]
+            for r in d["runs"]:
+                for key in STAT_KEYS:
+                    assert key in r
+                assert r["obstacle_checks"] > 0
+                if pl in wjrrt.OMPL:
+                    assert r["goal_nodes"] is None and r["final_H"] is None
+                    assert s["iterations_budget"] is None
+    assert doc["scenes"]["horn-5"]["planners"]["wjrrt"]["summary"]["iterations_budget"] == 1000
+    assert isinstance(doc["targets"], dict)
+
+
+def test_ompl_paths_pass_our_checker(result):
+    """Every OMPL path the planner called a solution is accepted again by our checker and ends in the goal."""
+    solved = 0
+    for sc in result["scenes"].values():
+        for pl in ("RRTConnect", "KPIECE1"):
+            for r in sc["planners"][pl]["runs"]:
+                if r["planner_success"]:
+                    solved += 1
+                    assert r["recheck"] is None and r["success"]
+                    assert r["track_nodes"] >= 1 and r["nodes"] >= r["track_nodes"]
+    assert solved >= 1  # horn-5 is easy for RRTConnect (a few tenths of a second)
+
+
+def test_bridge_counts_the_same_checker_and_returns_a_valid_path():
+    scene = horn_scene(5)
+    problem = scene.problem()
+    before = problem.checker.checks
+    r = ompl_planners.solve(problem, "RRTConnect", time_limit=10.0)
+    assert r.success and r.stats["obstacle_checks"] == problem.checker.checks - before > 0
+    assert np.allclose(r.path[0], scene.start)
+    assert problem.goal.is_satisfied(r.path[-1])
+    assert np.all(r.path >= problem.space.lower) and np.all(r.path <= problem.space.upper)
+    assert scene.checker().path_problem(r.path) is None
+    assert r.stats["track_nodes"] == r.path.shape[0] - 1
+    capped = ompl_planners.solve(scene.problem(), "KPIECE1", time_limit=10.0, iterations=3)
+    assert capped.iterations <= 3
+
+
+def test_projection_is_the_tip():
+    problem = horn_scene(5).problem()
+    fn, dim, cells = ompl_planners.tip_projection(problem)
+    assert dim == 2 and cells is None
+    assert np.allclose(fn(problem.start), problem.checker.tip(problem.start))
+    r = ompl_planners.solve(problem, "KPIECE1", time_limit=0.05, projection="random")
+    assert r.settings["projection"] == "random"
+
+
+def test_bad_input_is_one_clear_error():
+    with pytest.raises(ArmbridgeError, match="--planners"):
+        wjrrt.run(wjrrt.QUICK, [horn_scene(3)], ("wjrrt", "RRT-Connect"))
+    with pytest.raises(ArmbridgeError, match="OMPL planner"):
+        ompl_bridge.solve(horn_scene(3).problem(), "NoSuchPlanner", time_limit=0.1)
+    with pytest.raises(ArmbridgeError, match="projection"):
+        ompl_planners.solve(horn_scene(3).problem(), "KPIECE1", projection="elbow")
+
+
+def test_figures(result, tmp_path):
+    from armbridge.bench.wjrrt_plots import plots, success_figure
+
+    fig = success_figure(result)
+    for ax in fig.axes:
+        gids = {line.get_gid() for line in ax.get_lines()}
+        assert {"wjrrt", "RRTConnect", "KPIECE1"} <= gids
+        styles = {line.get_gid(): line.get_linestyle() for line in ax.get_lines()}
+        assert styles["wjrrt"] == "-" and styles["RRTConnect"] != "-"
+    paths = plots(result, tmp_path)
+    assert [p.name for p in paths] == ["wjrrt-success.png", "wjrrt-time.png"]
+    assert all(p.stat().st_size > 10_000 for p in paths)
