@@ -25,7 +25,9 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import read_json
 from armbridge.ik import masr_dls
+from armbridge.planning.base import Problem
 from armbridge.planning.masr.collision import SWEEP_RES, CollisionChecker
+from armbridge.planning.masr.space import MasrChecker, MasrGoal, MasrSpace
 from armbridge.robots.catalog import get_masr, is_registered
 from armbridge.robots.masr import MasrArm
 from armbridge.geometry import wrap_angle
@@ -78,6 +80,19 @@ class Environment:
         if key not in self._checkers:
             self._checkers[key] = CollisionChecker.create(self.arm, self.obstacles, margin=margin, sweep_res=key[0])
         return self._checkers[key]
+
+    def problem(self, *, sweep_res: Optional[float] = None, steer: str = "linear",
+                goal_rect_width: Optional[float] = None, checker: Any = None) -> Problem:
+        """This environment as a planning problem (planning.base): MasrSpace (with `steer`), MasrChecker
+        (this environment's checker at `sweep_res`, or the given CollisionChecker / MasrChecker), the
+        start, MasrGoal (OnGoal's rectangle `goal_rect_width`, default e_p) and goal_q as goal_states."""
+        chk = checker if checker is not None else self.checker(sweep_res=sweep_res)
+        if isinstance(chk, CollisionChecker):
+            chk = MasrChecker(chk)
+        n = self.arm.n
+        states = np.zeros((0, n + 1)) if self.goal_q is None else np.asarray(self.goal_q, dtype=float).reshape(1, n + 1)
+        return Problem(MasrSpace(self.arm, steer), chk, np.asarray(self.start, dtype=float),
+                       MasrGoal(self.arm, self.goal_pose, self.e_p, self.e_phi, goal_rect_width), states, self.name)
 
     def pose_errors(self, q: Any) -> tuple[np.ndarray, np.ndarray]:
         """(dp in m, |dphi| in rad) of the MA pose f(q) against the goal pose."""

@@ -5,10 +5,13 @@
 * `on_goal`: OnGoal with GoalFix's MA position, the goal check over the joint margin (MasrGoal);
 * `extend`: Alg. 1 lines 11-19 for one q_new: CollisionFree, Near, Connect (Alg. 2), OnGoal /
   GoalFix, RewireTree;
-* `best_goal`: Best_path's node; `sample_free`: SampleFree's map of uniform numbers to C_f.
+* `best_goal`: Best_path's node.
 
-rrt_star.plan drives them (module doc there); they take plain arrays (the
-space's, the checker's and the goal's) so that the loop stays in numba.
+rrt_star.plan drives them (module doc there). They take plain arrays, so
+that the loop stays in numba: the tree's (planning.tree.Tree) and, as
+tuples, the space's, the checker's and the goal's (space.py: MasrSpace.cost_args,
+MasrChecker.kernel_args, MasrGoal.kernel_args), which are the arrays those
+objects' own methods hand to the same kernels.
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from armbridge.planning.masr.collision import config_hit, edge_hit, rotation_order
+from armbridge.planning.masr.collision import edge_hit, rotation_order
 from armbridge.planning.tree import link, shift_subtree, unlink
 from armbridge.robots.masr import POS_TOL
 from armbridge.robots.masr_kernels import action_cost, margin_range, wrap
@@ -78,24 +81,27 @@ def steer_convention(qa, qb, rj, inv_ms, inv_js, delta, out):
 
 
 @njit(cache=True)
-def nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, delta, mode, out):
-    """Nearest by eq. (8); writes Steer(v_nearest, q_rand) into out; returns the nearest index."""
+def nearest_steer(Q, count, q_rand, C, delta, mode, out):
+    """Nearest by eq. (8); writes Steer(v_nearest, q_rand) into out; returns the nearest index.
+
+    C: MasrSpace.cost_args (rj, 1 / d-dot, 1 / theta-dot); mode: MasrSpace.steer_mode.
+    """
     best = np.inf
     bi = 0
     for i in range(count):
-        c = action_cost(Q[i], q_rand, rj, inv_ms, inv_js)
+        c = action_cost(Q[i], q_rand, *C)
         if c < best:
             best = c
             bi = i
     if mode == 0:
-        steer_linear(Q[bi], q_rand, inv_ms, inv_js, delta, out)
+        steer_linear(Q[bi], q_rand, C[1], C[2], delta, out)
     else:
-        steer_convention(Q[bi], q_rand, rj, inv_ms, inv_js, delta, out)
+        steer_convention(Q[bi], q_rand, *C, delta, out)
     return bi
 
 
 @njit(cache=True)
-def on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link):
+def on_goal(q, G, cand_d, cand_link):
     """OnGoal: links whose rectangle holds the goal point and whose heading is within e_phi, and
     where the goal check holds over the joint margin.
 
@@ -105,8 +111,10 @@ def on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_li
     e_p of the MA for every d within dm of it: on one link the heading is
     constant and the point moves linearly, so the two ends of [d - dm, d + dm]
     (clipped to the arm) decide, exactly. Writes each such d and link into
-    cand_d / cand_link; returns how many.
+    cand_d / cand_link; returns how many. G: MasrGoal.kernel_args (lengths,
+    rj, total, goal pose, half the rectangle width, e_p, e_phi, d_margin).
     """
+    lengths, rj, total, goal, half_w, e_p, e_phi, dm = G
     n = lengths.size
     th = 0.0
     x = 0.0
@@ -140,24 +148,23 @@ def on_goal(q, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_li
 
 
 @njit(cache=True)
-def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack,
-            q_new, i_near, n_near,
-            lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, sweep_res,
-            inv_ms, inv_js, goal, half_w, e_p, e_phi, dm):
+def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack, q_new, i_near, n_near, E, C, G):
     """Alg. 1 lines 11-19 for one candidate q_new from v_nearest = i_near.
 
     The tree is planning.tree.Tree's arrays (tau is its cost, eq. 7; kind[v]
     is GOAL for the nodes of G, ORDINARY otherwise); counts = [tree size, |G|,
-    collision checks]. Returns 0 (edge not free, nothing added), 1 (added) or
-    2 (added to G).
+    collision checks]. E, C, G: the checker's, the space's and the goal's
+    arrays (MasrChecker.kernel_args for collision.edge_hit, MasrSpace.cost_args
+    for eq. 8, MasrGoal.kernel_args for on_goal). Returns 0 (edge not free,
+    nothing added), 1 (added) or 2 (added to G).
     """
     N = counts[0]
-    n = lengths.size
+    rj = C[0]
+    n = rj.size
     counts[2] += 1
-    if edge_hit(Q[i_near], q_new, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                sweep_res, False) != -1:
+    if edge_hit(Q[i_near], q_new, *E, False) != -1:
         return 0
-    tau_min = tau[i_near] + action_cost(Q[i_near], q_new, rj, inv_ms, inv_js)
+    tau_min = tau[i_near] + action_cost(Q[i_near], q_new, *C)
     par = i_near
 
     # Near: the n_near nodes not in G with least c(u -> q_new), kept sorted
@@ -167,7 +174,7 @@ def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack
     for i in range(N):
         if kind[i] == GOAL:
             continue
-        c = action_cost(Q[i], q_new, rj, inv_ms, inv_js)
+        c = action_cost(Q[i], q_new, *C)
         if k_near < n_near or c < near_c[k_near - 1]:
             pos = k_near if k_near < n_near else n_near - 1
             while pos > 0 and near_c[pos - 1] > c:
@@ -191,8 +198,7 @@ def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack
         if u == i_near:
             continue
         counts[2] += 1
-        if edge_hit(Q[u], q_new, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                    sweep_res, False) == -1:
+        if edge_hit(Q[u], q_new, *E, False) == -1:
             par = u
             tau_min = cand_tau[idx[a]]
             break
@@ -212,7 +218,7 @@ def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack
     # OnGoal / GoalFix
     cand_d = np.empty(n)
     cand_link = np.empty(n, dtype=np.int64)
-    m = on_goal(q_new, lengths, rj, total, goal, half_w, e_p, e_phi, dm, cand_d, cand_link)
+    m = on_goal(q_new, G, cand_d, cand_link)
     if m > 0:
         fixes = np.empty((2 * m, n + 1))
         fcost = np.empty(2 * m)
@@ -226,13 +232,12 @@ def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack
                     for j in range(n):
                         if rj[j] > cand_d[a]:
                             fixes[f, j] = Q[par, j]
-                fcost[f] = action_cost(Q[par], fixes[f], rj, inv_ms, inv_js)
+                fcost[f] = action_cost(Q[par], fixes[f], *C)
         order = np.argsort(fcost)
         for a in range(2 * m):
             f = order[a]
             counts[2] += 1
-            if edge_hit(Q[par], fixes[f], lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                        sweep_res, False) == -1:
+            if edge_hit(Q[par], fixes[f], *E, False) == -1:
                 for j in range(n + 1):
                     Q[v, j] = fixes[f, j]
                 tau[v] = tau[par] + fcost[f]
@@ -246,11 +251,10 @@ def extend(Q, parent, tau, first_child, next_sib, kind, goal_list, counts, stack
         u = near[a]
         if u == par:
             continue
-        c = action_cost(Q[v], Q[u], rj, inv_ms, inv_js)
+        c = action_cost(Q[v], Q[u], *C)
         if tau[v] + c < tau[u] - EPS:
             counts[2] += 1
-            if edge_hit(Q[v], Q[u], lengths, rj, reach, theta_b, total, verts, starts, bbox, r2,
-                        sweep_res, False) == -1:
+            if edge_hit(Q[v], Q[u], *E, False) == -1:
                 unlink(first_child, next_sib, parent[u], u)
                 parent[u] = v
                 link(first_child, next_sib, v, u)
@@ -268,19 +272,3 @@ def best_goal(tau, goal_list, n_goal):
             best = tau[g]
             bi = g
     return bi
-
-
-@njit(cache=True)
-def sample_free(U, lengths, theta_b, total, verts, starts, bbox, r2):
-    """Map uniform numbers U (B, n+1) in [0, 1) to C_f and flag the collision-free rows."""
-    n = lengths.size
-    B = U.shape[0]
-    Q = np.empty((B, n + 1))
-    ok = np.empty(B, dtype=np.bool_)
-    pts = np.empty((n + 1, 2))
-    for b in range(B):
-        for j in range(n):
-            Q[b, j] = (2.0 * U[b, j] - 1.0) * theta_b[j]
-        Q[b, n] = U[b, n] * total
-        ok[b] = config_hit(Q[b], lengths, verts, starts, bbox, r2, pts) < 0
-    return Q, ok

@@ -51,14 +51,15 @@ from typing import Any, Callable, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.masr.kernels import GOAL, best_goal, extend, nearest_steer, sample_free
+from armbridge.planning import base
+from armbridge.planning.masr.kernels import GOAL, best_goal, extend, nearest_steer
+from armbridge.planning.masr.space import STEERS, MasrChecker, MasrSpace  # noqa: F401 - STEERS: plan's choices
 from armbridge.planning.tree import Tree
-from armbridge.robots.masr_kernels import action_cost  # noqa: F401 - eq. (8), the planner's cost
+from armbridge.robots.masr_kernels import action_cost  # noqa: F401 - eq. (8), the planner's cost (MasrSpace.cost)
 
 GoalIK = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 PLANNERS = ("masr-rrt*", "rrt*")
-STEERS = ("linear", "convention")
 #: Default Steer step delta in s (see module doc).
 STEP = 16.0
 #: Default number of neighbours N_n (section V-C).
@@ -66,19 +67,19 @@ N_NEAR = 7
 #: Default p_c for MASR-RRT* and goal bias for RRT* (section V-C).
 P_C = 0.6
 GOAL_BIAS = 0.1
+#: SampleFree's batch: uniform draws mapped onto C_f and checked together.
+SAMPLE_BATCH = 1024
 
 _WARM = False  # kernels loaded in this process (see plan)
 
 
-# --------------------------------------------------------------------- Python
-def _draw_free(rng: np.random.Generator, count: int, lengths, theta_b, total, verts, starts, bbox, r2) -> np.ndarray:
+def sample_free(space: MasrSpace, checker: MasrChecker, rng: np.random.Generator, count: int) -> np.ndarray:
     """SampleFree: count configurations uniform in C_f and collision-free (rejection in batches)."""
-    n = lengths.size
     got: list[np.ndarray] = []
     have = 0
-    for _ in range(10 * (count // 1024 + 1) + 100):
-        Qs, ok = sample_free(rng.random((1024, n + 1)), lengths, theta_b, total,
-                              verts, starts, bbox, r2)
+    for _ in range(10 * (count // SAMPLE_BATCH + 1) + 100):
+        Qs = space.sample(rng, SAMPLE_BATCH)
+        ok = checker.valid_rows(Qs)
         got.append(Qs[ok])
         have += int(ok.sum())
         if have >= count:
@@ -87,30 +88,18 @@ def _draw_free(rng: np.random.Generator, count: int, lengths, theta_b, total, ve
 
 
 @dataclass
-class PlanResult:
-    """What a planner run gives back.
+class PlanResult(base.PlanResult):
+    """A MASR-RRT* / RRT* run: base.PlanResult plus the planner's own series and counters.
 
     path: (K, n+1) configurations from the start to a goal node, or None.
     cost: tau of the path (eq. 7, s; inf without a path). best_costs:
-    (iterations,) the best tau in G after each iteration (inf before the first).
+    (iterations,) the best tau in G after each iteration (inf before the
+    first). goal_nodes: |G|; ik_calls: goal IK calls (Alg. 1 line 7).
     """
 
-    planner: str
-    path: Optional[np.ndarray]
-    cost: float
-    best_costs: np.ndarray
-    iterations: int
-    time_s: float
-    tree_size: int
-    goal_nodes: int
-    ik_calls: int
-    collision_checks: int
-    seed: Optional[int]
-    settings: dict = field(default_factory=dict)
-
-    @property
-    def success(self) -> bool:
-        return self.path is not None
+    best_costs: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    goal_nodes: int = 0
+    ik_calls: int = 0
 
     @property
     def first_solution_iteration(self) -> Optional[int]:
@@ -132,6 +121,7 @@ class PlanResult:
             "ik_calls": self.ik_calls,
             "collision_checks": self.collision_checks,
             "seed": self.seed,
+            **self.stats,
             **self.settings,
         }
 
@@ -141,19 +131,22 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
          step: float = STEP, steer: str = "linear", sweep_res: Optional[float] = None,
          goal_rect_width: Optional[float] = None,
          seed: Optional[int] = 0, checker: Any = None) -> PlanResult:
-    """Run MASR-RRT* or RRT* on an Environment (planning.masr.environment) for `iterations` iterations.
+    """Run MASR-RRT* or RRT* for `iterations` iterations on an Environment (planning.masr.environment)
+    or on a MASR base.Problem (Environment.problem: MasrSpace, MasrChecker, MasrGoal).
 
     goal_ik(x_goal (3,), q_c (n+1,)) -> q (n+1,) is the IK of Alg. 1 line 7
     (the IK-NN, MasrIK.solve); needed when p_c > 0. p_c defaults to 0.6 for
-    masr-rrt* and 0 for rrt*; goal_bias to 0 and 0.1. The baseline needs the
-    environment's goal configuration (env.goal_q).
+    masr-rrt* and 0 for rrt*; goal_bias to 0 and 0.1. The baseline needs a
+    goal configuration (the environment's goal_q: the problem's goal_states[0]).
 
-    n_near: N_n. step: Steer's delta in s (module doc). steer: "linear" (the
-    paper) or "convention" (stop the convention's motion after delta s).
-    sweep_res: the checker's sweep resolution in m (None: 0.01, 0: the paper's
-    check after each rotation only). goal_rect_width: OnGoal's rectangle
-    width (None: e_p). seed: all random streams (SampleFree, p_c and goal-bias
-    draws) derive from it. checker: a prepared CollisionChecker to reuse.
+    n_near: N_n. step: Steer's delta in s (module doc). With an Environment:
+    steer: "linear" (the paper) or "convention" (stop the convention's
+    motion after delta s); sweep_res: the checker's sweep resolution in m
+    (None: 0.01, 0: the paper's check after each rotation only);
+    goal_rect_width: OnGoal's rectangle width (None: e_p); checker: a
+    prepared CollisionChecker (or MasrChecker) to reuse. A Problem brings
+    them in its space, checker and goal. seed: all random streams
+    (SampleFree, p_c and goal-bias draws) derive from it.
     """
     if planner not in PLANNERS:
         raise ArmbridgeError(f"unknown planner {planner!r} (known: {', '.join(PLANNERS)})")
@@ -171,44 +164,39 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
         raise ArmbridgeError(f"step must be > 0 s, got {step}")
     if steer not in STEERS:
         raise ArmbridgeError(f"unknown steer {steer!r} (known: {', '.join(STEERS)})")
-    mode = STEERS.index(steer)
     if p_c > 0 and goal_ik is None:
         raise ArmbridgeError(f"{planner} with p_c = {p_c} needs a goal IK (goal_ik), e.g. MasrIK.load(card).solve")
+    problem = env if isinstance(env, base.Problem) else env.problem(
+        sweep_res=sweep_res, steer=steer, goal_rect_width=goal_rect_width, checker=checker)
+    space, chk, goal = problem.space, problem.checker, problem.goal
     q_goal = None
     if goal_bias > 0:
-        q_goal = env.goal_q
-        if q_goal is None:
+        if np.size(problem.goal_states) == 0:
             raise ArmbridgeError("goal biasing needs a goal configuration: the environment has no goal q")
-        q_goal = np.ascontiguousarray(q_goal, dtype=float)
+        q_goal = np.ascontiguousarray(np.asarray(problem.goal_states, dtype=float).reshape(-1, space.dim)[0])
 
-    arm = env.arm
-    chk = checker if checker is not None else env.checker(sweep_res=sweep_res)
-    n = arm.n
-    lengths, rj, reach, theta_b = chk.lengths, chk.rj, chk.reach, chk.theta_b
-    total = float(arm.total_length)
-    verts, starts, bbox, r2, sres = chk.verts, chk.starts, chk.bbox, chk.r2, chk.sweep_res
-    inv_ms, inv_js = 1.0 / arm.ma_speed, 1.0 / arm.joint_speed
-    goal = np.ascontiguousarray(env.goal_pose, dtype=float)
-    half_w = 0.5 * (env.e_p if goal_rect_width is None else float(goal_rect_width))
-    e_p, e_phi = float(env.e_p), float(env.e_phi)
-    dm = float(arm.d_margin)
+    n = space.dim - 1
+    mode = space.steer_mode
+    theta_b, total = space.theta_b, space.total
+    C, E, G = space.cost_args, chk.kernel_args, goal.kernel_args
 
     global _WARM
     if not _WARM:  # load the numba kernels (compiled or cached) outside the timed loop, once per process
         _WARM = True
-        plan(env, planner="rrt*", iterations=2, goal_bias=0.0, n_near=n_near, step=step, steer=steer,
-             checker=chk, seed=0)
+        checks = chk.checks
+        plan(problem, planner="rrt*", iterations=2, goal_bias=0.0, n_near=n_near, step=step, seed=0)
         best_goal(np.zeros(1), np.zeros(1, dtype=np.int64), 1)
+        chk.checks = checks
 
     t0 = time.perf_counter()
     ss = np.random.SeedSequence(seed)
     rng_q, rng_ik, rng_gb = (np.random.default_rng(s) for s in ss.spawn(3))
     u_ik = rng_ik.random(iterations)
     u_gb = rng_gb.random(iterations)
-    samples = _draw_free(rng_q, iterations, lengths, theta_b, total, verts, starts, bbox, r2)
+    samples = sample_free(space, chk, rng_q, iterations)
 
     cap = iterations + 1
-    tree = Tree(env.start, capacity=cap)  # one node per iteration at most; the kernels never grow it
+    tree = Tree(problem.start, capacity=cap)  # one node per iteration at most; the kernels never grow it
     Q, parent, tau, kind = tree.Q, tree.parent, tree.cost, tree.kind
     checked = np.zeros(cap, dtype=np.bool_)
     goal_list = np.zeros(cap, dtype=np.int64)
@@ -217,21 +205,21 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
     counts[0] = tree.count
     best_costs = np.full(iterations, np.inf)
     best = np.inf
-    if bool(env.in_goal(env.start)):  # already there: the empty path, tau = 0
+    if goal.is_satisfied(problem.start):  # already there: the empty path, tau = 0
         kind[0] = GOAL
         goal_list[0] = 0
         counts[1] = 1
         best = 0.0
     ik_calls = 0
     q_new = np.empty(n + 1)
-    x_goal = goal.copy()
+    x_goal = goal.pose.copy()
 
     for it in range(iterations):
         q_rand = samples[it]
         if goal_bias > 0 and u_gb[it] < goal_bias:
             q_rand = q_goal
         count = int(counts[0])
-        i_near = nearest_steer(Q, count, q_rand, rj, inv_ms, inv_js, step, mode, q_new)
+        i_near = nearest_steer(Q, count, q_rand, C, step, mode, q_new)
         if u_ik[it] < p_c and kind[i_near] != GOAL and not checked[i_near]:
             checked[i_near] = True
             ik_calls += 1
@@ -242,29 +230,29 @@ def plan(env: Any, *, planner: str = "masr-rrt*", iterations: int = 1000, goal_i
             q_new[:n] = np.clip(q_ik[:n], -theta_b, theta_b)
             q_new[n] = min(max(q_ik[n], 0.0), total)
         status = extend(Q, parent, tau, tree.first_child, tree.next_sib, kind, goal_list, counts, stack,
-                         q_new, i_near, int(n_near), lengths, rj, reach, theta_b, total, verts, starts, bbox,
-                         r2, sres, inv_ms, inv_js, goal, half_w, e_p, e_phi, dm)
+                        q_new, i_near, int(n_near), E, C, G)
         if status > 0 and counts[1] > 0:
             # a new goal node, or a rewire that lowered some goal node's tau
             g = best_goal(tau, goal_list, int(counts[1]))
             best = tau[g]
         best_costs[it] = best
     elapsed = time.perf_counter() - t0
+    tree.count = int(counts[0])
+    chk.checks += int(counts[2])
 
     path = None
     cost = math.inf
-    tree.count = int(counts[0])
     if counts[1] > 0:
         g = best_goal(tau, goal_list, int(counts[1]))
         path = Q[tree.path_to(int(g))].copy()
-        cost = float(arm.path_time(path)) if path.shape[0] > 1 else 0.0
+        cost = space.path_cost(path)
     return PlanResult(
         planner=planner, path=path, cost=cost, best_costs=best_costs, iterations=iterations, time_s=elapsed,
         tree_size=int(counts[0]), goal_nodes=int(counts[1]), ik_calls=ik_calls,
         collision_checks=int(counts[2]), seed=seed,
-        settings={"p_c": p_c, "goal_bias": goal_bias, "n_near": int(n_near), "step_s": step, "steer": steer,
-                  "sweep_res_m": sres, "margin_m": chk.margin, "goal_rect_width_m": 2 * half_w,
-                  "d_margin_m": dm},
+        settings={"p_c": p_c, "goal_bias": goal_bias, "n_near": int(n_near), "step_s": step, "steer": space.steer,
+                  "sweep_res_m": chk.sweep_res, "margin_m": chk.margin, "goal_rect_width_m": 2 * G[4],
+                  "d_margin_m": G[7]},
     )
 
 
