@@ -278,17 +278,24 @@ def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> 
 
 def _recording(rrd: Path, robot, plan: Plan, masr, kind: str):
     """The run's recording; the views of the board kind's own columns (the MA's series, the
-    pump's syringe positions) beside the arm, and a MASR plan's obstacles in the arm view."""
+    pump's syringe positions) beside the arm, and a MASR plan's obstacles or a soft plan's scene
+    (obstacles, planned tip path, poses) in the arm view."""
     from armbridge.telemetry.layout import board_views, run_layout
     from armbridge.telemetry.recording import Recording
 
+    from armbridge.planning.soft.plan_file import recording_layers
+
     views = board_views(kind)
-    if masr is None and (not views or plan.pen is not None):
+    layers = recording_layers(plan) if masr is None else None  # a soft plan's scene (its provenance)
+    if masr is None and layers is None and (not views or plan.pen is not None):
         return Recording(rrd, robot, plan)
-    layout = run_layout(robot, spatial=["world/obstacles"] if masr is not None else [], views=views)
+    spatial = ["world/obstacles"] if masr is not None else list(layers or ())
+    layout = run_layout(robot, spatial=spatial, views=views)
     rec = Recording(rrd, robot, plan, layout=layout)
     if masr is not None and masr.env is not None:
         rec.obstacles(masr.env.obstacles)
+    if layers:
+        rec.layers(layers)
     return rec
 
 

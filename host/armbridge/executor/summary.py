@@ -194,12 +194,13 @@ def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_st
     return np.array(rows).reshape(-1, plan.n)
 
 
-def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[int, float],
-                 band: np.ndarray, end_t: float) -> list[JointSettle]:
-    """Per joint, how long after each waypoint's DONE the measured angle took to stay
-    within `band` of the waypoint's value (the board's dead band and a sensor count,
-    executor/settle.py: the P controller of the soft-arm paper, eq. 24, drives nothing
-    inside the dead band, so that is where a joint rests).
+def settle_table(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[int, float],
+                 band: np.ndarray, end_t: float) -> np.ndarray:
+    """(k, n): how long after waypoint i's DONE joint j's measured angle took to stay within
+    `band` of the waypoint's value (s); nan where waypoint i does not move joint j or its DONE
+    was not seen, inf where the joint never settled (the board's dead band and a sensor count,
+    executor/settle.py: the P controller of the soft-arm paper, eq. 24, drives nothing inside
+    the dead band, so that is where a joint rests).
 
     t, q: the telemetry (board time, measured q (m, n)); plan_q (k, n); done_t: plan
     index -> board time of its DONE; end_t: the run's last board time. Only waypoints
@@ -215,10 +216,9 @@ def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[
     q = np.asarray(q, float).reshape(len(t), -1)
     plan_q = np.asarray(plan_q, float)
     k, n = plan_q.shape
-    out = []
+    out = np.full((k, n), np.nan)
     for j in range(n):
         moves = [i for i in range(k) if i == 0 or abs(plan_q[i, j] - plan_q[i - 1, j]) >= 5e-4]
-        times, unsettled = [], 0
         for m, i in enumerate(moves):
             if i not in done_t:
                 continue
@@ -233,16 +233,29 @@ def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[
                     inside[before[-1]] = True
             idx = np.nonzero(inside)[0]
             if idx.size == 0:
-                unsettled += 1
+                out[i, j] = np.inf
                 continue
             ok = np.abs(q[idx, j] - plan_q[i, j]) <= band[j] + 1e-9
             if not ok[-1]:
-                unsettled += 1
+                out[i, j] = np.inf
                 continue
             bad = np.nonzero(~ok)[0]
-            times.append(0.0 if bad.size == 0 else max(0.0, float(t[idx[bad[-1] + 1]] - a)))
-        out.append(JointSettle(float(np.mean(times)) if times else math.nan,
-                               float(np.max(times)) if times else math.nan, len(times) + unsettled, unsettled))
+            out[i, j] = 0.0 if bad.size == 0 else max(0.0, float(t[idx[bad[-1] + 1]] - a))
+    return out
+
+
+def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[int, float],
+                 band: np.ndarray, end_t: float) -> list[JointSettle]:
+    """Per joint, the settle times of `settle_table` (same arguments): mean and max over the
+    waypoints that settled, how many waypoints moved the joint, how many never settled."""
+    table = settle_table(t, q, plan_q, done_t, band, end_t)
+    out = []
+    for col in table.T:
+        times = col[np.isfinite(col)]
+        unsettled = int(np.sum(np.isinf(col)))
+        out.append(JointSettle(float(np.mean(times)) if times.size else math.nan,
+                               float(np.max(times)) if times.size else math.nan, int(times.size) + unsettled,
+                               unsettled))
     return out
 
 

@@ -13,6 +13,10 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
     plan/path                 planned end-effector path        LineStrips2D (3D), static
     plan/waypoints            planned end effector per waypoint Points2D (3D), static
     trace/tip                 the whole measured tip trace     LineStrips2D (3D), static, at close
+    world/obstacles           a plan's obstacles (MASR, soft)  LineStrips2D, static
+    plan/planned_tip          a soft plan's whole planned tip  LineStrips2D, static (Recording.layers,
+                              path (the planner's nodes)        planning/soft/plan_file.py)
+    plan/shapes               the planned arm at each pose     LineStrips2D, static (the same)
     drawing/target            a drawing plan's pen-down strokes LineStrips2D, static (plans with `pen`)
     drawing/trace             the measured tip while the pen is LineStrips2D, the trace so far at each
                               down (the active segment's flag)  flush (plans with `pen`)
@@ -67,6 +71,13 @@ def default_rrd_path(plan_stem: str, runs_dir: Path | str = "runs", now: datetim
     """runs/<YYYYmmdd-HHMMSS>-<plan-stem>.rrd"""
     stamp = (now or datetime.now()).strftime("%Y%m%d-%H%M%S")
     return Path(runs_dir) / f"{stamp}-{plan_stem}.rrd"
+
+
+def _short(value: Any, limit: int = 300) -> str:
+    """A provenance value as one line of the plan's text, cut at `limit` characters (a soft plan
+    carries its whole planned path there)."""
+    text = str(value)
+    return text if len(text) <= limit else text[:limit] + f"... ({len(text)} characters)"
 
 
 class Recording:
@@ -124,7 +135,7 @@ class Recording:
             prov = self.plan.provenance or {}
             text = [f"plan: {self.plan.source or '(in memory)'}", f"robot: {self.robot.name}",
                     f"waypoints: {self.plan.k}, planned duration {self.plan.total_duration:.3f} s"]
-            text += [f"provenance.{k}: {v}" for k, v in prov.items()]
+            text += [f"provenance.{k}: {_short(v)}" for k, v in prov.items()]
             rec.log("plan/info", rr.TextDocument("\n".join(text)), static=True)
         if self._pen is not None:
             from armbridge.draw.error import pen_strips
@@ -152,6 +163,15 @@ class Recording:
         rings = [np.vstack([np.asarray(p, float), np.asarray(p, float)[:1]]) for p in polygons]
         if rings and self._dim == 2:
             self.rec.log("world/obstacles", rr.LineStrips2D(rings, colors=[(200, 60, 60)], radii=0.001), static=True)
+
+    def layers(self, layers: dict) -> None:
+        """Static line strips in the arm's space, entity path -> (strips, colour): what a plan brings
+        to draw beside the arm (a soft plan's obstacles, planned tip path and poses, in the arm's base
+        frame: planning/soft/plan_file.py recording_layers)."""
+        for path, (strips, color) in layers.items():
+            strips = [np.asarray(s, float)[:, : self._dim] for s in strips]
+            if strips:
+                self.rec.log(path, self._strips(strips, colors=[color], radii=0.001), static=True)
 
     def series(self, t: float, values: dict[str, float]) -> None:
         """A board's own scalar columns at board time t (the MA's speed, link, d_link),
