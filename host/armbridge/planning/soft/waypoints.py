@@ -33,7 +33,8 @@ the waypoints by a stated criterion instead of by hand:
     goal keeps its planned value (its last move is merged back until it is at least
     the band, or it is the only move). Each snapped segment is checked for collision
     again; one that collides gets its waypoint's planned values back.
-(d) Timing, from the inflation/deflation asymmetry (`PumpTiming`, `durations`).
+(d) Timing, from the inflation/deflation asymmetry (planning/soft/pump_timing.py: `PumpTiming`,
+    `durations`).
 
 The path's own nodes are untouched: `PumpWaypoints` holds the chosen node indices,
 the (snapped) waypoint poses, each move's duration and the hold after it, and each
@@ -51,13 +52,13 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.polygons import chain_points
+from armbridge.planning.soft.pump_timing import MOVE_MIN_S, RATE_FRACTION, PumpTiming, durations, pump_timing
+
+__all__ = ["MOVE_MIN_S", "RATE_FRACTION", "TOLERANCE_M", "PumpTiming", "PumpWaypoints", "durations", "pump_timing",
+           "reach_of", "select_nodes", "shape_distance", "snap", "subsample", "tracking_error"]
 
 #: Default tracking tolerance of (a), m.
 TOLERANCE_M = 0.01
-#: The set point's speed as a fraction of the fastest the joint can follow at the controller's ceiling.
-RATE_FRACTION = 0.5
-#: Shortest move duration, s (two control periods of the board).
-MOVE_MIN_S = 0.02
 
 
 # ---------------------------------------------------------------- (a) the tracking error
@@ -255,134 +256,6 @@ def snap(q: Any, band: Any, edge_ok: Callable[[np.ndarray, np.ndarray], bool]) -
         if bad <= 0:
             raise ArmbridgeError("the waypoints collide even with their planned values")
         frozen[bad] = True
-
-
-# ---------------------------------------------------------------- (d) timing
-
-@dataclass(frozen=True)
-class PumpTiming:
-    """How fast the pump board moves each joint (rad, s), from the plant and the firmware's constants.
-
-    The model (`pump_timing` builds it):
-
-    * r_full: the joint's bend rate at full duty, at the slowest point of its open branch (the plunger
-      speed over the plunger travel per radian of bend; the pneumatic plant's quasi-static
-      dx/dtheta, largest at the low-pressure end).
-    * rate_in / rate_de: the set point's speed while the joint inflates / deflates: RATE_FRACTION of
-      r_full at the controller's ceiling for that direction (inflation 700 per-mille, deflation 1000:
-      the asymmetry), at most the robot's v_max. Half the ceiling keeps the following error inside
-      the controller's proportional range, so the joint trails the set point at a steady lag.
-    * open_s: a straight (closed) joint does not bend until its pressure reaches the opening
-      threshold; the set point ramps meanwhile and the P duty grows with the lag, so the extra time
-      is when the volume pushed by duty(g rate_in t) reaches the opening volume.
-    * settle_in_s / settle_de_s: the hold after a waypoint the joint reached inflating / deflating:
-      the steady lag (the error whose duty moves the joint at the ramp's speed, plus the bend's own
-      time constant times the speed) decays through the proportional range to the dead band,
-      integrated in closed form, plus one time constant of the bend.
-    * snap_rad: the bend a closed joint snaps to when it opens (the open branch's equilibrium with the
-      air at the opening volume, less what the bend itself takes in): a target below it is overshot
-      on opening and reached deflating (the hold is settle_de_s then).
-
-    move_s = max over moving joints of |dq| / rate (+ open_s for a joint that inflates from straight);
-    hold_s = max over moving joints of the settle of their direction.
-    """
-
-    band: np.ndarray
-    rate_in: np.ndarray
-    rate_de: np.ndarray
-    open_s: np.ndarray
-    settle_in_s: np.ndarray
-    settle_de_s: np.ndarray
-    snap_rad: np.ndarray
-    rest: np.ndarray  # the arm's pose before the first waypoint (straight: the board at power on)
-
-    def to_dict(self) -> dict[str, list[float]]:
-        return {k: [round(float(x), 6) for x in getattr(self, k)] for k in
-                ("band", "rate_in", "rate_de", "open_s", "settle_in_s", "settle_de_s", "snap_rad", "rest")}
-
-
-def _approach_s(e0: np.ndarray, band: float, g: float, cap: float, dead: float, floor: float, r_full: np.ndarray,
-                tau: float) -> np.ndarray:
-    """Time for the P controller's error to fall from e0 to band (rad): de/dt = -r_full (u - dead)/(1 - dead),
-    u = clip(g e, floor, cap); closed form over the saturated and the proportional pieces; plus tau."""
-    lo = max(band, floor / g)
-    sat = np.maximum(e0 - cap / g, 0.0) * (1.0 - dead) / (r_full * (cap - dead))
-    top = np.clip(e0, lo, cap / g)
-    prop = (1.0 - dead) / (r_full * g) * np.log((g * top - dead) / (g * lo - dead))
-    return sat + prop + tau
-
-
-def pump_timing(params: Any, cfg: Any, q_max: Any, v_max: Any, q_rest: Any | None = None,
-                rate_fraction: float = RATE_FRACTION) -> PumpTiming:
-    """The PumpTiming of a pump board (its firmware constants `cfg`: DBAND_DEFAULT_MRAD, KP_DEFAULT,
-    KP_INFLATE_PERMILLE, DUTY_MAX_INFLATE, DUTY_MAX_DEFLATE, DUTY_MIN) driving the pneumatic plant
-    `params` (emulator.pump_plant.PumpParams) with joint ranges q_max (rad); see PumpTiming."""
-    p = params
-    rng = np.asarray(q_max, float)
-    area = p.area_mm2 / 1000.0                                # mL per mm of plunger
-    dx_dth = (p.p0_kpa * p.v_rest_ml * (p.p_full_kpa - p.p_hold_kpa) / (rng * (p.p_hold_kpa + p.p0_kpa) ** 2)
-              + p.k_vol_ml) / area                            # mm per rad, largest at p_hold
-    r_full = p.v_motor / dx_dth
-    dead = p.dead_duty
-    g_de = cfg.KP_DEFAULT / 1000.0                            # duty (fraction) per rad: per-mille per mrad
-    g_in = g_de * cfg.KP_INFLATE_PERMILLE / 1000.0
-    cap_in, cap_de, floor = cfg.DUTY_MAX_INFLATE / 1000.0, cfg.DUTY_MAX_DEFLATE / 1000.0, cfg.DUTY_MIN / 1000.0
-    band = cfg.DBAND_DEFAULT_MRAD / 1000.0
-    vmax = np.asarray(v_max, float)
-    rate_in = np.minimum(rate_fraction * r_full * (cap_in - dead) / (1 - dead), vmax)
-    rate_de = np.minimum(rate_fraction * r_full * (cap_de - dead) / (1 - dead), vmax)
-
-    def lag(rate: np.ndarray, g: float, tau: float) -> np.ndarray:
-        duty = dead + rate / r_full * (1 - dead)              # the duty that moves the joint at `rate`
-        return np.maximum(duty, floor) / g + tau * rate
-
-    settle_in = _approach_s(lag(rate_in, g_in, p.tau_inflate), band, g_in, cap_in, dead, floor, r_full,
-                            p.tau_inflate)
-    settle_de = _approach_s(lag(rate_de, g_de, p.tau_deflate), band, g_de, cap_de, dead, floor, r_full,
-                            p.tau_deflate)
-    # Opening: volume from atmospheric pressure to p_open; pushed at v_motor (u - dead)/(1 - dead) with
-    # u = g_in rate_in t (capped): solve (v_motor/(1-dead)) (g r t^2 / 2 - dead t) = V_open for t.
-    v_open = p.v_rest_ml * (1.0 - p.p0_kpa / (p.p0_kpa + p.p_open_kpa)) / area   # mm
-    a = p.v_motor / (1 - dead) * g_in * rate_in / 2.0
-    b = p.v_motor / (1 - dead) * dead
-    open_s = (b + np.sqrt(b * b + 4 * a * v_open)) / (2 * a)
-    t_cap = cap_in / (g_in * rate_in)                        # past it the duty is at its ceiling
-    pushed_cap = a * t_cap ** 2 - b * t_cap
-    over = pushed_cap < v_open
-    open_s = np.where(over, t_cap + (v_open - pushed_cap) / (p.v_motor * (cap_in - dead) / (1 - dead)), open_s)
-    # The bend it snaps to: the open branch's equilibrium with the air at the opening volume, the bend
-    # itself taking k_vol per rad (theta = R frac(p(theta)), decreasing in theta: bisection).
-    v_at_open = p.v_rest_ml * p.p0_kpa / (p.p0_kpa + p.p_open_kpa)
-    lo_b, hi_b = np.zeros(len(rng)), rng.copy()
-    for _ in range(60):
-        mid = 0.5 * (lo_b + hi_b)
-        pk = p.p0_kpa * (p.v_rest_ml / (v_at_open + p.k_vol_ml * mid) - 1.0)
-        above = rng * np.clip((pk - p.p_hold_kpa) / (p.p_full_kpa - p.p_hold_kpa), 0, 1) > mid
-        lo_b, hi_b = np.where(above, mid, lo_b), np.where(above, hi_b, mid)
-    snap_rad = 0.5 * (lo_b + hi_b)
-    rest = np.zeros(len(rng)) if q_rest is None else np.asarray(q_rest, float)
-    return PumpTiming(np.full(len(rng), band), rate_in, rate_de, open_s, settle_in, settle_de, snap_rad, rest)
-
-
-def durations(q: Any, timing: PumpTiming) -> tuple[np.ndarray, np.ndarray]:
-    """(move_s, hold_s), each (m,), for waypoints q (m, n) reached one after the other, the first from
-    timing.rest (PumpTiming's model)."""
-    Q = np.asarray(q, dtype=float)
-    prev = np.vstack([timing.rest[None, :], Q[:-1]])
-    move = np.zeros(len(Q))
-    hold = np.zeros(len(Q))
-    for i, (a, b) in enumerate(zip(prev, Q)):
-        d = b - a
-        up, down = d > 0, d < 0
-        t = np.where(up, d / timing.rate_in, np.where(down, -d / timing.rate_de, 0.0))
-        closed = up & (a <= timing.rest + 1e-9)
-        t = t + np.where(closed, timing.open_s, 0.0)
-        settle = np.where(up, timing.settle_in_s, np.where(down, timing.settle_de_s, 0.0))
-        overshoot = closed & (b < timing.snap_rad)
-        settle = np.where(overshoot, np.maximum(settle, timing.settle_de_s), settle)
-        move[i] = max(MOVE_MIN_S, float(t.max()))
-        hold[i] = float(settle.max())
-    return move, hold
 
 
 # ---------------------------------------------------------------- all of it
