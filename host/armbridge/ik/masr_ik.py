@@ -5,11 +5,13 @@ optionally refined by damped least squares, plus the evaluation protocol.
     q = ik.solve(x_goal, q_c)               # NN alone, (..., 3) + (..., n+1) -> (..., n+1)
     q = ik.solve(x_goal, q_c, refine=True)  # NN + a few DLS steps
 
-Refinement keeps the link the NN put the MA on (j_d) and moves only what can
-move the MA on that link: the joints theta_1..theta_{j_d} and the MA position
-d within the link (d_link in [0, l_{j_d}]). Each step solves the 3-row
-damped least-squares system on the error measured in goal-tolerance units (dp / e_p, dphi / e_phi), then clips to
-the joint limits; the best iterate per query is kept, so refinement never
+Refinement (armbridge.ik.masr_dls.refine, on the damped least-squares step
+the numeric IK uses too) keeps the link the NN put the MA on (j_d) and
+moves only what can move the MA on that link: the joints
+theta_1..theta_{j_d} and the MA position d within the link (d_link in
+[0, l_{j_d}]). Each step solves the 3-row damped least-squares system on the
+error measured in goal-tolerance units (dp / e_p, dphi / e_phi), then clips
+to the joint limits; the best iterate per query is kept, so refinement never
 returns a worse pose than the NN's. Then the joints past the MA's link go
 back to their current values q_c (they do not move the MA; the action time
 can only drop), and joints whose turn the others can make up are turned back
@@ -28,21 +30,19 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
 
 from armbridge.errors import ArmbridgeError
-from armbridge.robots.masr import ANGLE_TOL, MasrArm
-from armbridge.robots.masr_kernels import action_cost, ma_pose, margin_range, span_score, wrap
+from armbridge.ik.masr_dls import E_P, E_PHI, SNAP_MARGIN, refine, span_scores
+from armbridge.robots.masr import MasrArm
 from armbridge.geometry import wrap_angle
 
-E_P = 0.008  # m, eq. (9) bound of section V-A
-E_PHI = math.radians(4.0)  # rad
+__all__ = ["E_P", "E_PHI", "SNAP_MARGIN", "MasrIK", "evaluate", "fallback", "pose_errors", "random_configs",
+           "random_trials", "refine", "span_scores"]
 
 
 # ------------------------------------------------------------ evaluation protocol
@@ -104,232 +104,11 @@ def evaluate(arm: MasrArm, x_goal: np.ndarray, q0: np.ndarray, q: np.ndarray,
     }
 
 
-# ------------------------------------------------------------------- refinement
-
-CONVERGED = 0.01  # score at which DLS stops early: 0.08 mm and 0.04 deg for e_p = 8 mm, e_phi = 4 deg
-SNAP_MARGIN = 0.9  # a sparser answer's span score (goal check over the joint margin) stays within this
-_SNAP_ROUNDS = 2
-_SNAP_ITERS = 3
-
-
-@njit(cache=True)
-def _solve_damped(J, lam2, e0, e1, e2):
-    """(J J^T + lam2 I)^-1 e for a 3-row J, by cofactors (no allocation: the hot loop)."""
-    a = b = c = d = f = g = 0.0  # the symmetric matrix [[a, b, c], [b, d, f], [c, f, g]]
-    for k in range(J.shape[1]):
-        a += J[0, k] * J[0, k]
-        b += J[0, k] * J[1, k]
-        c += J[0, k] * J[2, k]
-        d += J[1, k] * J[1, k]
-        f += J[1, k] * J[2, k]
-        g += J[2, k] * J[2, k]
-    a += lam2
-    d += lam2
-    g += lam2
-    c00 = d * g - f * f
-    c01 = c * f - b * g
-    c02 = b * f - c * d
-    det = a * c00 + b * c01 + c * c02
-    c11 = a * g - c * c
-    c12 = b * c - a * f
-    c22 = a * d - b * b
-    return ((c00 * e0 + c01 * e1 + c02 * e2) / det, (c01 * e0 + c11 * e1 + c12 * e2) / det,
-            (c02 * e0 + c12 * e1 + c22 * e2) / det)
-
-
-@njit(cache=True)
-def _dls(xg, q0, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, out):
-    """DLS on the MA's link: theta_k for k <= link (not frozen) and d within that link.
-
-    d stays in the link's margin_range: at least dm from the joints at its ends
-    (a joint crossing would make phi jump, and a real MA only knows d to dm).
-    Each step solves the 3-row damped system on the error at d in
-    goal-tolerance units, then clips to the limits; iterates are ranked by
-    span_score (the goal check over [d - dm, d + dm]), and the best goes into
-    out; returns its score. Stops early once the error at d is CONVERGED.
-    """
-    n = lengths.size
-    jp = np.empty((n + 1, 2))
-    J = np.zeros((3, n + 1))
-    q = q0.copy()
-    link = ma_pose(q, lengths, rj, total, jp)[3]
-    d_lo, d_hi = margin_range(link, lengths, rj, total, dm)
-    q[n] = min(max(q[n], d_lo), d_hi)
-    best = np.inf
-    for it in range(iters + 1):
-        px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
-        ex = (xg[0] - px) / e_p
-        ey = (xg[1] - py) / e_p
-        ea = wrap(xg[2] - phi) / e_phi
-        score = span_score(xg, px, py, phi, q[n], total, dm, e_p, e_phi)
-        if score < best:
-            best = score
-            out[:] = q
-        if it == iters or max(math.hypot(ex, ey), abs(ea)) <= CONVERGED:
-            break
-        for k in range(n):
-            on = k <= link and not frozen[k]
-            J[0, k] = -(py - jp[k, 1]) / e_p if on else 0.0
-            J[1, k] = (px - jp[k, 0]) / e_p if on else 0.0
-            J[2, k] = 1.0 / e_phi if on else 0.0
-        J[0, n] = math.cos(phi) / e_p
-        J[1, n] = math.sin(phi) / e_p
-        y0, y1, y2 = _solve_damped(J, lam * lam, ex, ey, ea)
-        for k in range(n + 1):
-            step = J[0, k] * y0 + J[1, k] * y1 + J[2, k] * y2  # J^T (J J^T + lam^2 I)^-1 e
-            if k < n:
-                q[k] = min(max(q[k] + step, -theta_b[k]), theta_b[k])
-            else:
-                q[n] = min(max(q[n] + step, d_lo), d_hi)
-    return best
-
-
-@njit(cache=True)
-def _refine_one(xg, q_in, qc, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
-                iters, lam, neighbours, snap, out):
-    n = lengths.size
-    jp = np.empty((n + 1, 2))
-    q = q_in.copy()
-    for k in range(n):
-        q[k] = min(max(q[k], -theta_b[k]), theta_b[k])
-    q[n] = min(max(q[n], 0.0), total)
-    frozen = np.zeros(n, np.bool_)
-    s = _dls(xg, q, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, out)
-    cand = np.empty(n + 1)
-    if neighbours and iters > 0:
-        # the NN often ends at a link's end when the answer is just past it (or within dm of it)
-        for side in (1, -1):
-            if s <= 1.0:
-                break
-            j = ma_pose(out, lengths, rj, total, jp)[3]
-            far = (out[n] - rj[j] > 0.5 * lengths[j]) == (side == 1)
-            k = j + side
-            if not far or k < 0 or k >= n:
-                continue
-            alt = out.copy()
-            lo, hi = margin_range(k, lengths, rj, total, dm)
-            alt[n] = lo if side == 1 else hi
-            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, iters, lam, cand)
-            if cs < s:
-                out[:] = cand
-                s = cs
-    if not has_qc:
-        return s
-    link = ma_pose(out, lengths, rj, total, jp)[3]
-    for k in range(link + 1, n):
-        out[k] = qc[k]  # they do not move the MA: same pose, less action time
-    if snap <= 0.0 or iters == 0:
-        return s
-    # Sparsify: every joint left where it is saves its turn and maybe MA travel.
-    # Greedily turn joints back to q_c, smallest turn first, while the others
-    # can make up (span score within snap) and c(a) drops.
-    cost = action_cost(qc, out, rj, inv_ms, inv_js)
-    for k in range(n):
-        frozen[k] = abs(out[k] - qc[k]) <= ANGLE_TOL
-    for _ in range(_SNAP_ROUNDS):
-        changed = False
-        for i in np.argsort(np.abs(out[:n] - qc[:n])):
-            if frozen[i]:
-                continue
-            alt = out.copy()
-            alt[i] = qc[i]
-            frozen[i] = True
-            cs = _dls(xg, alt, frozen, lengths, rj, theta_b, total, e_p, e_phi, dm, min(iters, _SNAP_ITERS), lam,
-                      cand)
-            cc = action_cost(qc, cand, rj, inv_ms, inv_js)
-            if cs <= snap and cc < cost:
-                out[:] = cand
-                cost = cc
-                s = cs
-                changed = True
-            else:
-                frozen[i] = False
-        if not changed:
-            break
-    return s
-
-
-@njit(cache=True)
-def _refine_serial(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
-                   iters, lam, neighbours, snap):
-    out = np.empty_like(Q)
-    score = np.empty(Q.shape[0])
-    for b in range(Q.shape[0]):
-        score[b] = _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                               dm, iters, lam, neighbours, snap, out[b])
-    return out, score
-
-
-@njit(cache=True, parallel=True)
-def _refine_parallel(X, Q, QC, has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi, dm,
-                     iters, lam, neighbours, snap):
-    out = np.empty_like(Q)
-    score = np.empty(Q.shape[0])
-    for b in prange(Q.shape[0]):
-        score[b] = _refine_one(X[b], Q[b], QC[b], has_qc, lengths, rj, theta_b, total, inv_ms, inv_js, e_p, e_phi,
-                               dm, iters, lam, neighbours, snap, out[b])
-    return out, score
-
-
-# Below this batch size the refinement runs on the calling thread: waking the
-# thread pool costs more than it saves, and far more on a busy machine (the
-# planner calls it with one query per iteration).
-PARALLEL_FROM = 256
-
-
-def refine(arm: MasrArm, x_goal: Any, q: Any, iters: int = 8, damping: float = 0.05,
-           e_p: float = E_P, e_phi: float = E_PHI, q_c: Any = None, neighbours: bool = True,
-           snap_margin: float = SNAP_MARGIN, margin: Any = None, with_score: bool = False) -> Any:
-    """A few damped least-squares steps on theta_1..theta_{j_d} and d (within link j_d).
-
-    x_goal (..., 3), q (..., n+1) -> refined q (..., n+1), within C_f and
-    holding the joint margin (margin, default arm.d_margin: d at least that far
-    from every joint r_2..r_n; the start's d is first moved into its link's
-    margin_range). Per query the best iterate by the span score (max(dp/e_p,
-    dphi/e_phi) over every d' within the margin, MasrArm.span_pose_errors) is
-    kept, so the DLS never returns a worse answer than q with its d so
-    moved. With `neighbours`, a query still off the goal is tried again with
-    the MA moved across the nearer joint onto the adjacent link. With q_c
-    given, the joints past the MA's link go back to their q_c values (they do
-    not move the MA; as the paper's GoalFix, section IV-B), then, if
-    snap_margin > 0, joints are turned back to q_c one at a time while the
-    rest still reach the goal with a span score within snap_margin and c(a)
-    (eq. 8) drops: on a MASR every joint not turned saves its rotation and
-    often the MA's drive to it. Runs in numba, in parallel over large batches.
-    with_score=True returns (q, span score (...)): the answer's score, <= 1
-    where it passes the goal check (as span_scores, without recomputing it).
-    """
-    x_goal = np.asarray(x_goal, dtype=float)
-    q = np.asarray(q, dtype=float)
-    shape = q.shape
-    n = arm.n
-    dm = arm.d_margin if margin is None else float(margin)
-    X = np.ascontiguousarray(np.broadcast_to(x_goal, (*shape[:-1], 3)).reshape(-1, 3))
-    Q = np.ascontiguousarray(q.reshape(-1, n + 1))
-    has_qc = q_c is not None
-    QC = np.ascontiguousarray(np.broadcast_to(np.asarray(q_c, dtype=float), shape).reshape(-1, n + 1)) if has_qc else Q
-    kernel = _refine_parallel if Q.shape[0] >= PARALLEL_FROM else _refine_serial
-    out, score = kernel(X, Q, QC, has_qc, np.ascontiguousarray(arm.link_lengths, float),
-                 np.ascontiguousarray(arm.r, float), np.ascontiguousarray(arm.theta_b, float),
-                 float(arm.total_length), 1.0 / arm.ma_speed, 1.0 / arm.joint_speed, float(e_p),
-                 float(e_phi), dm, int(iters), float(damping), bool(neighbours), float(snap_margin))
-    if with_score:
-        return out.reshape(shape), score.reshape(shape[:-1])
-    return out.reshape(shape)
-
-
 _refine = refine  # solve() has a parameter called refine
 
 #: Fallback (MasrIK.solve): random starts per link in its second round; DLS steps per start.
 FALLBACK_STARTS = 5
 FALLBACK_ITERS = 30
-
-
-def span_scores(arm: MasrArm, x_goal: Any, q: Any, e_p: float = E_P, e_phi: float = E_PHI) -> np.ndarray:
-    """max(dp / e_p, |dphi| / e_phi) over every d' within arm.d_margin of d; inf where q is within the
-    margin of a joint. <= 1 is the goal check (MasrArm.reaches)."""
-    dp, dphi = arm.span_pose_errors(q, x_goal)
-    return np.where(arm.holds_margin(np.asarray(q)[..., -1]), np.maximum(dp / e_p, dphi / e_phi), np.inf)
 
 
 def fallback(arm: MasrArm, x_goal: np.ndarray, q_nn: np.ndarray, q_c: np.ndarray, snap_margin: float,

@@ -25,6 +25,7 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import read_json
 from armbridge.ik import masr_dls
+from armbridge.ik.masr_dls import E_P, E_PHI  # the goal tolerances of section V-A
 from armbridge.planning.base import Problem
 from armbridge.planning.masr.collision import SWEEP_RES, CollisionChecker
 from armbridge.planning.masr.space import MasrChecker, MasrGoal, MasrSpace
@@ -34,8 +35,6 @@ from armbridge.geometry import wrap_angle
 
 FORMAT = "armbridge-masr-env"
 VERSION = 1
-E_P = 0.008  # m, section V-A
-E_PHI = math.radians(4.0)  # rad, section V-A
 ENV_DIR = Path(__file__).with_name("envs")
 FIXED = ("E1", "E2", "E3")
 

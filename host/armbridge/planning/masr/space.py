@@ -33,7 +33,7 @@ from typing import Any, Optional
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.ik.masr_ik import span_scores
+from armbridge.ik.masr_dls import span_scores
 from armbridge.planning.masr.collision import CollisionChecker, arm_points, batch_hit, config_hit, edge_hit, feasible
 from armbridge.planning.masr.kernels import steer_convention, steer_linear
 from armbridge.planning.polygons import points_clearance
