@@ -110,7 +110,7 @@ def test_goal_is_the_goal_check_over_the_margin():
     clear = np.abs(score - 1.0) > 1e-9
     np.testing.assert_array_equal(sat[clear], score[clear] <= 1.0)
     for q, s in zip(near[~sat][:20], score[~sat][:20]):
-        assert goal.distance(q) == s > 1.0
+        assert goal.distance(q) == pytest.approx(s, rel=1e-12) and s > 1.0  # the kernel and MasrArm agree
     with pytest.raises(ArmbridgeError, match="rectangle width"):
         MasrGoal(ARM, env.goal_pose, env.e_p, env.e_phi, rect_width=0.0)
 

@@ -5,7 +5,7 @@
 * `on_goal`: OnGoal with GoalFix's MA position, the goal check over the joint margin (MasrGoal);
 * `extend`: Alg. 1 lines 11-19 for one q_new: CollisionFree, Near, Connect (Alg. 2), OnGoal /
   GoalFix, RewireTree;
-* `best_goal`: Best_path's node.
+* `best_goal`: Best_path's node; `goal_score`: the goal check's score of one configuration.
 
 rrt_star.plan drives them (module doc there). They take plain arrays, so
 that the loop stays in numba: the tree's (planning.tree.Tree) and, as
@@ -22,8 +22,8 @@ from numba import njit
 
 from armbridge.planning.masr.collision import edge_hit, rotation_order
 from armbridge.planning.tree import link, shift_subtree, unlink
-from armbridge.robots.masr import POS_TOL
-from armbridge.robots.masr_kernels import action_cost, margin_range, wrap
+from armbridge.robots.masr import MARGIN_TOL, POS_TOL
+from armbridge.robots.masr_kernels import action_cost, ma_pose, margin_range, span_score, wrap
 
 EPS = 1e-9  # s: a rewire must save more than this
 #: Tree.kind of MASR-RRT*'s nodes: an ordinary node, a node of the goal set G (made by GoalFix).
@@ -145,6 +145,24 @@ def on_goal(q, G, cand_d, cand_link):
         x += lengths[i] * c
         y += lengths[i] * s
     return m
+
+
+@njit(cache=True)
+def goal_score(q, G, jp):
+    """The goal check's score of one configuration in tolerance units (MasrGoal.score; <= 1: in the goal).
+
+    inf where d is within d_margin (less MARGIN_TOL) of a joint r_2..r_n
+    (MasrArm.holds_margin), else span_score: max(dp / e_p, dphi / e_phi) over
+    every d' within d_margin of d. G: MasrGoal.kernel_args; jp: (n+1, 2) scratch.
+    """
+    lengths, rj, total, goal, _, e_p, e_phi, dm = G
+    n = lengths.size
+    d = q[n]
+    for j in range(1, n):
+        if abs(d - rj[j]) < dm - MARGIN_TOL:
+            return np.inf
+    px, py, phi, _ = ma_pose(q, lengths, rj, total, jp)
+    return span_score(goal, px, py, phi, min(max(d, 0.0), total), total, dm, e_p, e_phi)
 
 
 @njit(cache=True)

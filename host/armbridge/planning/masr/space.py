@@ -18,9 +18,10 @@
   OMPL's motion validators do; the convention turns the joints in an order
   that depends on the direction, so a -> b and b -> a are different checks);
   clearance (m); every answer counts in `checks`.
-* MasrGoal: the goal check of eq. (9) over the joint margin (MasrArm.reaches),
-  its score in tolerance units (max(dp / e_p, dphi / e_phi) over every d
-  within the margin; <= 1 inside) and OnGoal's rectangle width.
+* MasrGoal: the goal check of eq. (9) over the joint margin (MasrArm.reaches
+  in tolerance units: its score max(dp / e_p, dphi / e_phi) over every d
+  within the margin, <= 1 inside; kernels.goal_score for one configuration)
+  and OnGoal's rectangle width.
 
 MASR-RRT* (rrt_star.plan) runs its loop in numba: it takes these objects'
 arrays (`kernel_args`) and calls the same kernels their methods call.
@@ -35,7 +36,7 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.ik.masr_dls import span_scores
 from armbridge.planning.masr.collision import CollisionChecker, arm_points, batch_hit, config_hit, edge_hit, feasible
-from armbridge.planning.masr.kernels import steer_convention, steer_linear
+from armbridge.planning.masr.kernels import goal_score, steer_convention, steer_linear
 from armbridge.planning.polygons import points_clearance
 from armbridge.robots.masr import MasrArm
 from armbridge.robots.masr_kernels import action_cost
@@ -202,30 +203,36 @@ class MasrGoal:
     e_phi: float
     rect_width: Optional[float] = None
 
+    kernel_args: tuple = field(init=False, repr=False)
+    _jp: np.ndarray = field(init=False, repr=False)
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "pose", np.ascontiguousarray(self.pose, dtype=float).reshape(3))
         w = self.e_p if self.rect_width is None else float(self.rect_width)
         if not w > 0:
             raise ArmbridgeError(f"goal rectangle width must be > 0 m, got {w}")
         object.__setattr__(self, "rect_width", w)
-
-    @property
-    def kernel_args(self) -> tuple:
-        """(lengths, rj, total, pose, half width, e_p, e_phi, d_margin): kernels.on_goal's arrays."""
         arm = self.arm
-        assert self.rect_width is not None  # set in __post_init__
-        return (np.ascontiguousarray(arm.link_lengths, dtype=float), np.ascontiguousarray(arm.r, dtype=float),
-                float(arm.total_length), self.pose, 0.5 * self.rect_width, float(self.e_p), float(self.e_phi),
-                float(arm.d_margin))
+        #: (lengths, rj, total, pose, half width, e_p, e_phi, d_margin): kernels.on_goal's and goal_score's arrays
+        object.__setattr__(self, "kernel_args", (
+            np.ascontiguousarray(arm.link_lengths, dtype=float), np.ascontiguousarray(arm.r, dtype=float),
+            float(arm.total_length), self.pose, 0.5 * w, float(self.e_p), float(self.e_phi), float(arm.d_margin)))
+        object.__setattr__(self, "_jp", np.empty((arm.n + 1, 2)))
+
+    def _score1(self, q: Any) -> float:
+        return float(goal_score(np.ascontiguousarray(q, dtype=float).reshape(self.arm.n + 1), self.kernel_args,
+                                self._jp))
 
     def is_satisfied(self, q: Any) -> bool:
-        """The goal check (MasrArm.reaches): d holds the joint margin and eq. (9) holds for every d within it."""
-        return bool(self.arm.reaches(q, self.pose, self.e_p, self.e_phi))
+        """The goal check of one configuration: d holds the joint margin and eq. (9) holds for every d
+        within it (MasrArm.reaches, in tolerance units: score <= 1)."""
+        return self._score1(q) <= 1.0
 
     def score(self, q: Any) -> np.ndarray:
-        """max(dp / e_p, |dphi| / e_phi) over every d within the joint margin (inf within it of a joint)."""
+        """max(dp / e_p, |dphi| / e_phi) over every d within the joint margin (inf within it of a joint), (...)."""
         return span_scores(self.arm, self.pose, q, self.e_p, self.e_phi)
 
     def distance(self, q: Any) -> float:
-        """0 inside the goal, else the score (tolerance units: > 1)."""
-        return 0.0 if self.is_satisfied(q) else float(self.score(q))
+        """0 inside the goal, else the score of one configuration (tolerance units: > 1)."""
+        s = self._score1(q)
+        return 0.0 if s <= 1.0 else s
