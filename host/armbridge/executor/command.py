@@ -54,22 +54,24 @@ def run_cmd(
 
 
 def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
-                home=False) -> None:
-    """What `armbridge run` does with its options (also `armbridge draw --port`)."""
+                home=False) -> Summary:
+    """What `armbridge run` does with its options (also `armbridge draw --port`, the demos); the
+    Summary of a completed run (any other outcome exits with its code)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
     console = Console(stderr=json_out == "-")
     try:
         with stop_on_signals():
-            run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian, pen=pen,
-                           home=home)
+            return run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian,
+                                  pen=pen, home=home)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto", home=False) -> None:
+                   pen="auto", home=False) -> Summary:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
-    and the exit code (1: the run failed, 128 + n: stopped by signal n)."""
+    and the exit code (1: the run failed, 128 + n: stopped by signal n); returns the
+    Summary of a completed run."""
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
@@ -89,6 +91,7 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
             raise typer.Exit(128 + _signum(summary.stopped_by))
         if not summary.completed:
             raise typer.Exit(1)
+    return summary
 
 
 def write_summary(summary: Summary, target: str) -> None:
