@@ -3,8 +3,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import typer
+
+from armbridge.shards import cli as shard_options
 
 bench_app = typer.Typer(help="Measure the numbers in docs/benchmarks.md; each writes JSON.", no_args_is_help=True)
 
@@ -130,9 +133,17 @@ def masr_plan_cmd(
     card: Path = typer.Option(None, "--card", help="Goal IK model card [default: models/onnx/masr5-iknn-card.json]."),
     json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results."),
     png_dir: Path = typer.Option(None, "--png-dir", help="Also write Fig. 5 / Fig. 7 plots (PNG) here."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
 ) -> None:
     """Section V-C of the masr paper: Fig. 5 (random environments, p_c in {0, 0.2, 0.6, 1}),
-    Fig. 7 (E1-E3 cost percentiles), time per 1,000 iterations, and OMPL's RRT* beside ours."""
+    Fig. 7 (E1-E3 cost percentiles), time per 1,000 iterations, and OMPL's RRT* beside ours.
+
+    Fig. 5 (one shard per environment) and Fig. 7 (one per environment, planner and 10
+    trials) run as shards (--ray, --workers; docs/cluster.md) with the serial run's costs;
+    the timing and OMPL parts run here."""
     from dataclasses import replace
 
     from rich.console import Console
@@ -147,8 +158,9 @@ def masr_plan_cmd(
             size = replace(size, **{name: v})
     console = Console()
     chosen = tuple(p.strip() for p in parts.split(",") if p.strip())
-    result = mp.run(size, card=card or mp.CARD_12, parts=chosen,
-                    progress=lambda text: console.print(f"[dim]bench masr-plan: {text}[/]"))
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = mp.run(size, card=card or mp.CARD_12, parts=chosen,
+                        progress=lambda text: console.print(f"[dim]bench masr-plan: {text}[/]"), runner=runner)
     write_json(result, json_out)
 
     def fmt(v: object, spec: str = ".2f") -> str:
@@ -271,10 +283,18 @@ def smm_cmd(
     json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
     png: Path = typer.Option(None, "--png", help="Also plot Fig. 3 (error against K) to this PNG."),
     models: Path = typer.Option(None, "--models", help="Folder holding the learned models, smm-ROBOT each (default: models/onnx; the 7R's is not shipped, see docs/smm.md)."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
 ) -> None:
     """Table III of the SMM paper (time per location, FK error before/after
     correction, branch-count mismatch; ours, learned, realtime-smm), Fig. 3, and
-    the Figs. 15-16 locked-joint simulation."""
+    the Figs. 15-16 locked-joint simulation.
+
+    The nullspace ground truth of Table III runs in shards of 1,024 locations
+    (--ray, --workers; docs/cluster.md); its time per location is the sum of the
+    shards' seconds. Every other timing runs here."""
     from dataclasses import replace
 
     from rich.console import Console
@@ -290,8 +310,9 @@ def smm_cmd(
     for name in names:
         get_smm_arm(name)  # a clear error before any work
     console = Console()
-    result = smm.run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"),
-                     models=models or smm.MODELS)
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = smm.run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"),
+                         models=models or smm.MODELS, runner=runner)
     write_json(result, json_out)
 
     def num(v: float | None, fmt: str) -> str:

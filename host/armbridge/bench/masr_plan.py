@@ -27,11 +27,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from armbridge.bench.masr_ik import CARD_12
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
 
 P_CS = (0.0, 0.2, 0.6, 1.0)
 FIXED = ("E1", "E2", "E3")
@@ -78,27 +81,17 @@ def _run(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, ch
                          checker=checker)
 
 
-def fig5(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.masr.random_env import random_environment
-    from armbridge.robots import get_masr
+def fig5(size: MasrPlanBenchSize, card: Path, progress: Callable[[str], None],
+         runner: Runner | None = None) -> dict[str, Any]:
+    from armbridge.bench.masr_shards import sweep
 
-    arm = get_masr("masr5")
     its = size.fig5_iterations
-    costs = {p: np.full((size.environments, its), np.inf) for p in P_CS}
-    times = {p: np.zeros(size.environments) for p in P_CS}
-    t0 = time.perf_counter()
-    gen_s = 0.0
-    for e in range(size.environments):
-        tg = time.perf_counter()
-        env = random_environment(arm, seed=e)
-        gen_s += time.perf_counter() - tg
-        chk = env.checker()
-        for p in P_CS:
-            r = _run(env, p, its, e, goal_ik, chk)
-            costs[p][e] = r.best_costs
-            times[p][e] = r.time_s
-        if (e + 1) % 10 == 0 or e + 1 == size.environments:
-            progress(f"fig5: {e + 1}/{size.environments} environments ({time.perf_counter() - t0:.0f} s)")
+    # one shard per environment e: every planner at seed e (bench.masr_shards)
+    done = sweep("fig5", card, its, [(e, [(p, e) for p in P_CS]) for e in range(size.environments)], runner)
+    costs = {p: np.array([c[j] for c, _, _ in done]).reshape(-1, its) for j, p in enumerate(P_CS)}
+    times = {p: np.array([t[j] for _, t, _ in done]) for j, p in enumerate(P_CS)}
+    gen_s = sum(g for _, _, g in done)
+    progress(f"fig5: {size.environments} environments")
     cps = checkpoints(its)
     rows = []
     for k in cps:
@@ -119,22 +112,22 @@ def fig5(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], N
             "curves": {label(p): {"success_rate": np.isfinite(costs[p]).mean(0).tolist()} for p in P_CS}}
 
 
-def fig7(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
-    from armbridge.planning.masr.environment import fixed_environment
+def fig7(size: MasrPlanBenchSize, card: Path, progress: Callable[[str], None],
+         runner: Runner | None = None) -> dict[str, Any]:
+    from armbridge.bench.masr_shards import FIG7_CHUNK, sweep
     from armbridge.planning.masr.rrt_star import percentile_success
 
     its = size.fig7_iterations
     cps = checkpoints(its)
     out: dict[str, Any] = {"trials": size.trials, "iterations": its, "environments": {}}
+    # one shard per environment, planner and FIG7_CHUNK trial seeds (bench.masr_shards)
+    groups = [(name, p, range(s, min(s + FIG7_CHUNK, size.trials))) for name in FIXED for p in (0.0, 0.6)
+              for s in range(0, size.trials, FIG7_CHUNK)]
+    done = sweep("fig7", card, its, [(name, [(p, s) for s in seeds]) for name, p, seeds in groups], runner)
     for name in FIXED:
-        env = fixed_environment(name)
-        chk = env.checker()
-        costs = {}
-        times = {}
-        for p in (0.0, 0.6):
-            runs = [_run(env, p, its, s, goal_ik, chk) for s in range(size.trials)]
-            costs[label(p)] = np.array([r.best_costs for r in runs])
-            times[label(p)] = np.array([r.time_s for r in runs])
+        by = {label(p): [d for (env, q, _), d in zip(groups, done) if env == name and q == p] for p in (0.0, 0.6)}
+        costs = {pl: np.concatenate([c for c, _, _ in ds]) for pl, ds in by.items()}
+        times = {pl: np.concatenate([t for _, t, _ in ds]) for pl, ds in by.items()}
         rates = percentile_success(costs, LEVELS)
         seen = np.concatenate([c[np.isfinite(c)] for c in costs.values()])
         rows = []
@@ -216,26 +209,24 @@ def masr_not_worse(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = ("fig5", "fig7", "timing", "ompl"),
-        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    from armbridge.ik.masr_ik import MasrIK
-
-    ik = MasrIK.load(card)
-
-    def goal_ik(x_goal: np.ndarray, q_c: np.ndarray) -> np.ndarray:
-        return ik.solve(x_goal, q_c, refine=True, sparsify=False)  # as planning.command.resolve_goal_ik
+        progress: Callable[[str], None] = lambda s: None, runner: Runner | None = None) -> dict[str, Any]:
+    """The parts asked for; Fig. 5 and Fig. 7 run as shards where `runner` says (None: here, serially),
+    the timing and OMPL parts here (they measure this machine)."""
+    from armbridge.bench.masr_shards import goal_ik
 
     result: dict[str, Any] = {"benchmark": "masr-plan (section V-C)", "size": asdict(size), "goal_ik": card.name,
                               "machine": {"python": platform.python_version(),
-                                          "cpu": platform.processor() or platform.machine()}}
+                                          "cpu": platform.processor() or platform.machine()},
+                              "shards": runner.backend if runner is not None else "serial"}
     t0 = time.perf_counter()
     if "timing" in parts:
-        result["timing"] = timing(size, goal_ik, progress)
+        result["timing"] = timing(size, goal_ik(card), progress)
     if "ompl" in parts:
         result["ompl"] = ompl(size, progress)
     if "fig7" in parts:
-        result["fig7"] = fig7(size, goal_ik, progress)
+        result["fig7"] = fig7(size, card, progress, runner)
     if "fig5" in parts:
-        result["fig5"] = fig5(size, goal_ik, progress)
+        result["fig5"] = fig5(size, card, progress, runner)
     result["target_masr_not_worse"] = masr_not_worse(result)
     result["wall_s"] = time.perf_counter() - t0
     return result

@@ -9,7 +9,10 @@ in % (per location the mean over every point of its branches, then mean and
 std over locations), and the share of locations whose branch count differs
 from our nullspace method's. Methods:
 
-* nullspace (ours): armbridge.smm.nullspace.compute, the ground truth;
+* nullspace (ours): armbridge.smm.nullspace.compute, the ground truth, in
+  shards of GROUND_TRUTH_SHARD locations (smm.dataset.trace_smms: each shard
+  with IK seed 0; they may run on a Ray cluster, --ray), its batched time the
+  sum of the shards' nullspace seconds over the locations;
 * learned before / after correction: the shipped models (models/onnx/smm-*)
   through onnxruntime, with 0 and 3 eq. (18) iterations;
 * realtime-smm: the paper's own code (PyPI realtime-smm, its nullspace
@@ -30,17 +33,21 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from armbridge import resources
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
 
 MODELS = resources.models_dir()
 CORRECT_ITERS = 3  # the paper's "three inverse kinematics iterations"
 # Table III of the paper: (FK error % before, after correction, branch-count mismatch %).
 PAPER = {"planar3r": (0.29, 7.3e-5, 0.70), "spatial4r": (0.66, 0.0011, 2.16), "spatial7r": (2.07, 0.016, 6.02)}
 TARGET_BATCHED_MS = 0.5
+GROUND_TRUTH_SHARD = 1024  # locations per shard of the nullspace ground truth (nullspace.compute's chunk)
 PAPER_FIG16_LATENCY_S = 4.3
 
 
@@ -171,9 +178,11 @@ def bench_locations(arm: Any, count: int, model: Path) -> tuple[np.ndarray, str]
     return np.asarray(arm.task(q)), "(tips of random configurations, all reachable)"
 
 
-def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None], models: Path = MODELS) -> dict[str, Any]:
+def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None], models: Path = MODELS,
+           runner: Runner | None = None) -> dict[str, Any]:
     from armbridge.smm import nullspace
     from armbridge.smm.arms import get_smm_arm
+    from armbridge.smm.dataset import trace_smms
     from armbridge.smm.learned import LearnedSmm
 
     arm = get_smm_arm(arm_name)
@@ -181,7 +190,9 @@ def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None], m
     model = models / f"smm-{arm_name}"
     x, where = bench_locations(arm, count, model)
     progress(f"{arm_name}: nullspace on {count} locations {where}")
-    ours, ns_ms = _time_batched(lambda xx: nullspace.compute(arm, xx), x, 1)
+    took: list[float] = []  # the ground truth in shards (GROUND_TRUTH_SHARD locations each, seed 0 each)
+    ours = trace_smms(arm, x, 128, GROUND_TRUTH_SHARD, runner=runner, job=f"table3-{arm_name}", seconds=took)
+    ns_ms = sum(took) / count * 1e3
     rows = [_row("nullspace (ours)", arm, x, ours, None, ns_ms,
                  _time_single(lambda xx: nullspace.compute(arm, xx), x, min(size.single, 10)))]
     if (model / "card.json").is_file():
@@ -258,7 +269,10 @@ def simulation(size: SmmBenchSize, rows: list[dict[str, Any]], progress: Callabl
 
 
 def run(size: SmmBenchSize, robots: tuple[str, ...] = ("planar3r", "spatial4r", "spatial7r"),
-        progress: Callable[[str], None] = lambda s: None, models: Path = MODELS) -> dict[str, Any]:
+        progress: Callable[[str], None] = lambda s: None, models: Path = MODELS,
+        runner: Runner | None = None) -> dict[str, Any]:
+    """The whole bench; the Table III ground truth runs as shards where `runner` says (None: here,
+    serially), every timed part here."""
     import torch
 
     from armbridge.smm.arms import get_smm_arm
@@ -269,7 +283,8 @@ def run(size: SmmBenchSize, robots: tuple[str, ...] = ("planar3r", "spatial4r", 
     result: dict[str, Any] = {"benchmark": "smm (Table III, Fig. 3, Figs. 15-16)", "size": asdict(size),
                               "machine": {"python": platform.python_version(),
                                           "cpu": platform.processor() or platform.machine(), "threads": 1}}
-    result["table3"] = [table3(name, size, progress, models) for name in robots]
+    result["shards"] = runner.backend if runner is not None else "serial"
+    result["table3"] = [table3(name, size, progress, models, runner) for name in robots]
     Ks = (10, 20, 40, 90)
     progress("fig3")
     result["fig3"] = {"K": list(Ks), "mean_abs_error_rad": {

@@ -13,6 +13,9 @@ grid, which lie outside the workspace, count as outside. A component that
 touches the outer edge is outside the workspace; every other one is an
 enclosed vacancy. The check runs after every batch.
 
+The random configurations come in batches of `batch`, batch k from
+Generator([seed, k]) (so each batch can be drawn anywhere: shards, below).
+
 Poses are stored as (x, y, phi) with phi the MA's absolute heading
 theta_hat_{j_d} as MasrArm.fk gives it, wrapped to [-pi, pi).
 """
@@ -22,11 +25,17 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
+
+JOB = "masr-dataset"  # the sharded job's name: its checkpoint folder below --checkpoint
 
 
 @dataclass(frozen=True)
@@ -96,44 +105,70 @@ def largest_enclosed_vacancy(occ: np.ndarray) -> int:
     return int(sizes.max())
 
 
-def generate(arm: Any, spec: GridSpec = GridSpec(), fk: Callable[[np.ndarray], np.ndarray] | None = None,
-             progress: Callable[[int, int, int], None] | None = None) -> MasrDataset:
-    """Build the data set for `arm` (a MasrArm: link_lengths, theta_b, fk)."""
-    fk = fk or arm.fk
+def sample_shard(params: Mapping[str, Any], shard: Any) -> dict[str, np.ndarray]:
+    """Batch shard.id of the sampling: its configurations from Generator([seed, batch]), their
+    poses, and of the poses in W+ the first in each grid cell: cell (flat index, ascending),
+    first (index among the batch's W+ poses), pose (float32, the data set's precision).
+
+    Independent of every other batch, so the batches are shards (armbridge.shards)
+    that may run anywhere; `generate` merges them in order.
+    """
+    from armbridge.robots.masr import MasrArm
+
+    arm = MasrArm.from_dict(params["arm"])
+    nx, ny = params["nx"], params["ny"]
     lengths = np.asarray(arm.link_lengths, dtype=float)
     n = lengths.size
     total = float(lengths.sum())
     tb = np.broadcast_to(np.asarray(arm.theta_b, dtype=float), (n,))
-    rng = np.random.default_rng(spec.seed)
+    rng = np.random.default_rng(shard.seed)
+    m = int(shard.params["size"])
+    q = np.concatenate([rng.uniform(-tb, tb, (m, n)), rng.uniform(0.0, total, (m, 1))], axis=1)
+    x = np.asarray(arm.fk(q), dtype=float)
+    x = x[x[:, 1] >= 0]
+    ix = np.clip(np.floor((x[:, 0] + total) / (2 * total) * nx).astype(np.int64), 0, nx - 1)
+    iy = np.clip(np.floor(x[:, 1] / total * ny).astype(np.int64), 0, ny - 1)
+    cell, first = np.unique(iy * nx + ix, return_index=True)
+    return {"cell": cell, "first": first, "pose": x[first].astype(np.float32)}
+
+
+def generate(arm: Any, spec: GridSpec = GridSpec(), progress: Callable[[int, int, int], None] | None = None,
+             runner: Runner | None = None) -> MasrDataset:
+    """Build the data set for `arm` (a MasrArm).
+
+    Batch k (spec.batch configurations, the last one shorter to end at
+    spec.max_samples) draws from Generator([spec.seed, k]); its sampling is a
+    shard (sample_shard) run where `runner` says (None: here, one after the
+    other). The shards are merged in batch order: a batch's pose joins the
+    set when its cell is still empty, and the vacancy check after every
+    batch stops the job at the same batch whatever ran where.
+    """
+    from armbridge.shards import Job, Runner, Shard
+
     occ = np.zeros((spec.ny, spec.nx), dtype=bool)
+    flat = occ.ravel()
     kept: list[np.ndarray] = []
     samples = 0
     vacancy = spec.ny * spec.nx
-    while samples < spec.max_samples:
-        m = min(spec.batch, spec.max_samples - samples)
-        q = np.concatenate([rng.uniform(-tb, tb, (m, n)), rng.uniform(0.0, total, (m, 1))], axis=1)
-        samples += m
-        x = np.asarray(fk(q), dtype=float)
-        up = x[:, 1] >= 0
-        x = x[up]
-        ix = np.floor((x[:, 0] + total) / (2 * total) * spec.nx).astype(np.int64)
-        iy = np.floor(x[:, 1] / total * spec.ny).astype(np.int64)
-        ix = np.clip(ix, 0, spec.nx - 1)
-        iy = np.clip(iy, 0, spec.ny - 1)
-        cell = iy * spec.nx + ix
-        # first sample of this batch in each cell, and only cells still empty
-        uniq, first = np.unique(cell, return_index=True)
-        new = ~occ.ravel()[uniq]
-        take = first[new]
-        occ.ravel()[uniq[new]] = True
-        kept.append(x[np.sort(take)])
+    sizes = [min(spec.batch, spec.max_samples - s) for s in range(0, spec.max_samples, spec.batch)]
+    job = Job(JOB, sample_shard, {"arm": arm.to_dict(), "nx": spec.nx, "ny": spec.ny})
+    shards = [Shard(k, [spec.seed, k], {"size": m}) for k, m in enumerate(sizes)]
+
+    def merge(shard: Shard, part: dict[str, np.ndarray]) -> bool:
+        nonlocal samples, vacancy
+        samples += int(shard.params["size"])
+        cell, first, pose = part["cell"], part["first"], part["pose"]
+        new = ~flat[cell]
+        flat[cell[new]] = True
+        kept.append(pose[new][np.argsort(first[new])])
         vacancy = largest_enclosed_vacancy(occ)
         if progress:
             progress(samples, int(occ.sum()), vacancy)
-        if vacancy <= spec.rho:
-            break
-    upper = np.concatenate(kept) if kept else np.zeros((0, 3))
-    lower = upper * np.array([1.0, -1.0, -1.0])
+        return vacancy <= spec.rho
+
+    (runner or Runner()).map(job, shards, stop=merge, label="IK-NN data")
+    upper = np.concatenate(kept) if kept else np.zeros((0, 3), dtype=np.float32)
+    lower = upper * np.array([1.0, -1.0, -1.0], dtype=np.float32)
     poses = np.concatenate([upper, lower]).astype(np.float32)
     return MasrDataset(poses, samples, vacancy, int(occ.sum()), spec, vacancy <= spec.rho)
 
@@ -141,26 +176,33 @@ def generate(arm: Any, spec: GridSpec = GridSpec(), fk: Callable[[np.ndarray], n
 def cache_key(arm: Any, spec: GridSpec) -> str:
     robot = {"name": str(arm.name), "link_lengths": np.asarray(arm.link_lengths, float).tolist(),
              "theta_b": np.broadcast_to(np.asarray(arm.theta_b, float), (np.size(arm.link_lengths),)).tolist()}
-    blob = json.dumps({"robot": robot, "spec": asdict(spec), "v": 1}, sort_keys=True).encode()
+    blob = json.dumps({"robot": robot, "spec": asdict(spec), "v": 2}, sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
 def load_or_generate(arm: Any, spec: GridSpec, cache_dir: Path | None,
-                     progress: Callable[[int, int, int], None] | None = None) -> tuple[MasrDataset, bool]:
-    """The data set from cache_dir (a .npz keyed by robot and grid), or a fresh one (then cached)."""
+                     progress: Callable[[int, int, int], None] | None = None,
+                     runner: Runner | None = None) -> tuple[MasrDataset, bool]:
+    """The data set from cache_dir (a .npz keyed by robot and grid), or a fresh one (then cached).
+
+    Once cached, the runner's shard checkpoints of the data set are deleted (the cache holds it all).
+    (v 2 of the key: batch k from Generator([seed, k]); v 1 drew every batch from one stream.)
+    """
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / f"masr-dataset-{arm.name}-{cache_key(arm, spec)}.npz"
         if path.exists():
-            z = np.load(path)
+            z = np.load(path, allow_pickle=False)
             info = json.loads(str(z["info"]))
             ds = MasrDataset(z["poses"], info["samples"], info["largest_enclosed_vacancy_cells"],
                              info["occupied_cells_w_plus"], spec, info["converged"])
             return ds, True
-    ds = generate(arm, spec, progress=progress)
+    ds = generate(arm, spec, progress=progress, runner=runner)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, poses=ds.poses, info=json.dumps(ds.info()))
+        np.savez_compressed(tmp, allow_pickle=False, poses=ds.poses, info=json.dumps(ds.info()))
         tmp.replace(path)
+        if runner is not None:
+            runner.discard(JOB)
     return ds, False

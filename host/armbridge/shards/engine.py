@@ -31,6 +31,7 @@ CLI's start-up do not load it.
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -43,7 +44,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.shards.progress import ShardBar
-from armbridge.shards.store import ShardStore, digest
+from armbridge.shards.store import MANIFEST, ShardStore, digest
 
 Arrays = dict[str, np.ndarray]
 ShardFn = Callable[[Mapping[str, Any], "Shard"], Mapping[str, Any]]
@@ -134,6 +135,14 @@ class Runner:
         params = {**job.params, "shard_specs": digest([s.key for s in shards])}
         return ShardStore(Path(self.checkpoint) / job.name, job.name, params)
 
+    def discard(self, job: str) -> None:
+        """Delete a job's checkpoint folder: for a job whose product is saved (the folder is then
+        only a copy of it, and shard files of SMMs are large)."""
+        if self.checkpoint is not None:
+            folder = Path(self.checkpoint) / job
+            if (folder / MANIFEST).exists():
+                shutil.rmtree(folder)
+
     def map(self, job: Job, shards: Sequence[Shard], on_result: OnResult | None = None, stop: Stop | None = None,
             label: str = "") -> list[Arrays]:
         """The shards' results in shard order.
@@ -187,6 +196,8 @@ class Runner:
                         finished(i, *_call(job, shards[i]))
             elif todo and not stopped:
                 self._ray_map(job, shards, todo, finished, lambda: stopped, bar)
+            if stopped:
+                bar.ended()
         kept = results[:delivered]
         if stop is None and delivered < len(shards):
             raise ArmbridgeError(f"job {job.name}: {len(shards) - delivered} shards have no result")

@@ -51,6 +51,12 @@ class ShardBar:
         if self._bar is not None:
             self._bar.update(self._task, advance=1, rate=f"{self.rate():.3g}/min")
 
+    def ended(self) -> None:
+        """The job stopped early (Runner.map's stop): the bar ends at what was done."""
+        self.total = self.done
+        if self._bar is not None:
+            self._bar.update(self._task, total=self.done, completed=self.done)
+
     def cluster(self, text: str) -> None:
         """Where the shards run; the throughput's clock starts here (after a cluster's start-up)."""
         self.t0 = time.perf_counter()

@@ -27,6 +27,7 @@ time (Table III's 2.16 %); the boundary points sample it finer.
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -239,17 +240,34 @@ def compute_smms(
     job: str = "smm",
     **nullspace_options: Any,
 ) -> SmmSet:
-    """Nullspace SMMs at canonical locations (no shift), `batch` locations per call, one shard each.
+    """Nullspace SMMs at canonical locations (no shift): trace_smms at arm.uncanonical(canon)."""
+    x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64)))
+    return trace_smms(arm, x, n_points, batch, progress, runner, job, **nullspace_options)
+
+
+def trace_smms(
+    arm: SmmArm,
+    x: np.ndarray,
+    n_points: int = 128,
+    batch: int = 2048,
+    progress: Progress | None = None,
+    runner: Runner | None = None,
+    job: str = "smm",
+    seconds: list[float] | None = None,
+    **nullspace_options: Any,
+) -> SmmSet:
+    """Nullspace SMMs at task locations x, `batch` locations per call, one shard each.
 
     The shards (armbridge.shards) run where `runner` says (None: here, one
     after the other); each traces its locations with the same IK seed
     `seed` (a nullspace option), as the serial path always has, so the
     result does not depend on where or in which order the shards ran.
-    progress(done, total) follows the shards in order.
+    progress(done, total) follows the shards in order; `seconds` gets each
+    shard's nullspace time (a measurement, not part of the result).
     """
     from armbridge.shards import Job, Runner, Shard
 
-    x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64)))
+    x = np.asarray(x, dtype=np.float64)
     options = dict(nullspace_options)
     seed = options.pop("seed", 0)
     if "device" in options and options["device"] is not None:
@@ -262,6 +280,8 @@ def compute_smms(
     def advance(shard: Shard, arrays: dict[str, np.ndarray]) -> None:
         nonlocal done
         done += len(arrays["count"])
+        if seconds is not None:
+            seconds.append(float(arrays["seconds"]))
         if progress is not None:
             progress(done, len(x))
 
@@ -270,7 +290,7 @@ def compute_smms(
 
 
 def smm_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
-    """One shard of compute_smms: nullspace.compute on its locations, on one torch thread (the
+    """One shard of trace_smms: nullspace.compute on its locations, on one torch thread (the
     tracer's ops are small: a second thread only adds hand-offs, nullspace's docstring)."""
     import torch
 
@@ -279,12 +299,14 @@ def smm_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    arm = DHChain.from_dict(params["arm"])
     try:
-        s = nullspace.compute(DHChain.from_dict(params["arm"]), shard.inputs["x"], n_points=params["n_points"],
-                              seed=shard.seed, **params["options"])
+        t0 = time.perf_counter()
+        s = nullspace.compute(arm, shard.inputs["x"], n_points=params["n_points"], seed=shard.seed, **params["options"])
+        took = time.perf_counter() - t0
     finally:
         torch.set_num_threads(threads)
-    return {"points": s.points, "count": s.count, "singular": s.singular}
+    return {"points": s.points, "count": s.count, "singular": s.singular, "seconds": np.asarray(took)}
 
 
 def harmonics(smms: SmmSet, label: np.ndarray, order: np.ndarray) -> np.ndarray:

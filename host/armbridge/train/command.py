@@ -85,8 +85,14 @@ def masr_iknn_cmd(
     int8_lr: float = typer.Option(3e-4, "--int8-lr", help="Learning rate of the int8 fine-tune."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the accuracy as JSON here."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards"),
 ) -> None:
-    """Build/cache the data set, train the IK-NN, export float/int8 ONNX + flat int8, write the card."""
+    """Build/cache the data set, train the IK-NN, export float/int8 ONNX + flat int8, write the card.
+
+    The data set's sampling batches are shards (--ray, --workers; docs/cluster.md),
+    merged here in batch order; the network trains here."""
     _require_train_extra()
     from armbridge.ik.masr_data import GridSpec
     from armbridge.ik.masr_nn import TrainConfig
@@ -109,7 +115,9 @@ def masr_iknn_cmd(
                          command=_command_line())
     check_output(cfg.out / f"{cfg.model_name}-card.json", force, resume)
     console = Console(stderr=True)
-    card = run(cfg, resume=resume, progress=progress, log=lambda s: console.print(s, highlight=False))
+    with shard_options.runner(ray, workers, checkpoint or work_dir / "shards", progress) as runner:
+        card = run(cfg, resume=resume, progress=progress, log=lambda s: console.print(s, highlight=False),
+                   runner=runner)
     acc = card["accuracy"]
     table = Table(title=f"{card['name']}: {acc['trials']} random trials (Table I protocol)")
     for col in ("model", "mean dp (mm)", "mean dphi (deg)", "success (%)", "action time (s)", "ms/query (batch)"):

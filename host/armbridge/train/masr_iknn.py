@@ -52,14 +52,14 @@ def _say(log: Callable[[str], None] | None, msg: str) -> None:
         log(msg)
 
 
-def build_dataset(cfg: PipelineConfig, log: Callable[[str], None] | None = None) -> Any:
+def build_dataset(cfg: PipelineConfig, log: Callable[[str], None] | None = None, runner: Any = None) -> Any:
     from armbridge.ik.masr_data import GridSpec, load_or_generate
     from armbridge.robots import get_masr
 
     arm = get_masr(cfg.robot)
     spec = GridSpec(nx=cfg.nx, ny=cfg.ny, rho=cfg.rho, max_samples=cfg.max_samples, seed=cfg.data_seed)
     t0 = time.perf_counter()
-    ds, cached = load_or_generate(arm, spec, cfg.work_dir / "cache")
+    ds, cached = load_or_generate(arm, spec, cfg.work_dir / "cache", runner=runner)
     info = ds.info()
     _say(log, f"data set: {info['size']} poses from {info['samples']} samples "
               f"(largest enclosed vacancy {info['largest_enclosed_vacancy_cells']} cells, rho {cfg.rho}; "
@@ -82,8 +82,10 @@ def measure(arm: Any, solver: Callable[[np.ndarray, np.ndarray], np.ndarray], tr
 
 
 def run(cfg: PipelineConfig, resume: bool = False, progress: bool = True,
-        log: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Run the whole pipeline; returns the card (also written to OUT/NAME-card.json)."""
+        log: Callable[[str], None] | None = None, runner: Any = None) -> dict[str, Any]:
+    """Run the whole pipeline; returns the card (also written to OUT/NAME-card.json).
+
+    runner (armbridge.shards.Runner): where the data set's sampling shards run (None: here)."""
     import torch
 
     from armbridge.ik import export as ex
@@ -93,7 +95,9 @@ def run(cfg: PipelineConfig, resume: bool = False, progress: bool = True,
 
     arm = get_masr(cfg.robot)
     tcfg = cfg.train
-    ds = build_dataset(cfg, log)
+    ds = build_dataset(cfg, log, runner)
+    if runner is not None:
+        runner.close()  # a Ray it started has done its part: training runs here
     cfg.work_dir.mkdir(parents=True, exist_ok=True)
     ckpt = cfg.work_dir / f"{cfg.model_name}.pt"
     res = train(arm, ds.poses, tcfg, checkpoint=ckpt, resume=resume, progress=progress,

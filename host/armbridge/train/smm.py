@@ -424,7 +424,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     """The data set at `path`, or a new one built over --grid and saved there; and its card entry.
 
     The SMMs are traced in shards where `runner` says (armbridge.shards; None:
-    here, serially), with one progress bar per sharded job.
+    here, serially), with one progress bar per sharded job; their checkpoints
+    are deleted once the data set is saved.
     """
     from armbridge.shards import Runner
     from armbridge.smm.dataset import build_dataset
@@ -440,6 +441,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     build.dataset.save(path)
+    for job in ("smm-grid", "smm-boundary"):  # the data set holds what their shards did
+        runner.discard(job)
     if log:
         log(f"data set: {g.size} cells in {seconds:.1f} s -> {path}")
     return build.dataset, {"built": "armbridge.smm.dataset.build_dataset", "grid_lo": list(g.lo), "grid_hi": list(g.hi),
