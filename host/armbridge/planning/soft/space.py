@@ -97,6 +97,36 @@ def tip_jacobian(q, lengths, base, pts, J):
     return tx, ty
 
 
+@njit(cache=True)
+def jt_step(q, goal, dx, lengths, base, lo, hi, pts, J, out):
+    """One Jacobian-transpose step of the tip towards goal into out, clipped to [lo, hi]; returns the tip's
+    distance to goal before the step (m).
+
+    WJRRT eq. (17)-(19): dX = goal - tip shortened to at most dx (m); dq = rho J^T dX with
+    rho = <dX, J J^T dX> / |J J^T dX|^2, the rho that brings the linearised tip step J dq closest to dX
+    (Buss's choice for the transpose method), so the predicted tip step is never longer than dX; out = q + dq.
+    """
+    n = lengths.size
+    tx, ty = tip_jacobian(q, lengths, base, pts, J)
+    ex, ey = goal[0] - tx, goal[1] - ty
+    d = math.sqrt(ex * ex + ey * ey)
+    if d > dx:
+        ex *= dx / d
+        ey *= dx / d
+    vx = 0.0
+    vy = 0.0
+    for j in range(n):
+        g = J[0, j] * ex + J[1, j] * ey
+        out[j] = g
+        vx += J[0, j] * g
+        vy += J[1, j] * g
+    den = vx * vx + vy * vy
+    rho = (ex * vx + ey * vy) / den if den > 0.0 else 0.0
+    for j in range(n):
+        out[j] = min(max(q[j] + rho * out[j], lo[j]), hi[j])
+    return d
+
+
 @dataclass(frozen=True, eq=False)
 class ChainSpace:
     """The joint box of a planar chain with the Euclidean metric (module doc)."""
@@ -181,7 +211,7 @@ class ChainChecker:
     def code(self, q: Any) -> int:
         """state_code of one configuration (-1 free; see module constants)."""
         self.checks += 1
-        return int(state_code(np.ascontiguousarray(q, dtype=float), *self._args(), self._pts))
+        return int(state_code(*(np.ascontiguousarray(q, dtype=float), *self._args(), self._pts)))
 
     def is_valid(self, q: Any) -> bool:
         return self.code(q) == FREE

@@ -1,0 +1,396 @@
+"""Planar-chain planning scenes: a robot at a base pose among polygons, a start and a tip goal (JSON).
+
+    scene = fixed_scene("three-arm")                  # or load_scene("mine.json"), horn_scene(7)
+    result = planners.plan(scene, "wjrrt", seed=0)    # planning.soft.planners
+    save_scene(scene, "mine.json")
+
+File format (docs/planning-soft.md): `"format": "armbridge-chain-env"`,
+version 1; lengths in m, angles in rad. A scene carries its planner
+defaults in "params" (the WJRRT paper's iterations, C1, C2, lambda, k, P_G).
+Loading validates and stops at the first problem with one ArmbridgeError
+naming the file, the field and the allowed range.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import read_json
+from armbridge.planning.base import Problem
+from armbridge.planning.soft.ik import goal_configs
+from armbridge.planning.soft.space import EDGE_RES, FREE, LIMITS, ChainChecker, ChainSpace
+from armbridge.robots.catalog import get_robot, is_registered, robot_from_dict, robot_to_dict
+from armbridge.robots.planar import PlanarChain
+
+FORMAT = "armbridge-chain-env"
+VERSION = 1
+SCENE_DIR = Path(__file__).with_name("scenes")
+FIXED = ("two-arm", "three-arm", "seven-tube", "horn")
+#: Random starts of the goal search (ik.goal_configs) when a file gives no goal.q.
+IK_STARTS = 64
+
+_TOP = ("format", "version", "name", "description", "robot", "base", "link_width", "obstacles", "start", "goal",
+        "params", "provenance")
+_GOAL = ("point", "tol", "q")
+#: params key -> (lowest, highest, integer?): the planner defaults a scene may carry (docs/planning-soft.md).
+PARAM_RANGES: dict[str, tuple[float, float, bool]] = {
+    "iterations": (1, 1_000_000, True),
+    "p_goal": (0.0, 1.0, False),
+    "C1": (0.0, math.inf, False),
+    "C2": (0.0, math.inf, False),
+    "lambda": (0.0, math.inf, False),
+    "k": (0.0, 1.0, False),
+    "dx": (1e-6, 10.0, False),
+    "step": (1e-6, math.pi, False),
+    "d_min": (0.0, 1.0, False),
+    "goal_tries": (1, 1000, True),
+}
+
+
+def _fmt(x: float) -> str:
+    s = f"{x:.4f}".rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
+@dataclass(eq=False)
+class TipGoal:
+    """Arrived when the tip is within tol (m) of point: the goal of WJRRT's Algorithm 2 (X_G and its radius)."""
+
+    checker: ChainChecker
+    point: np.ndarray
+    tol: float
+
+    def distance(self, q: np.ndarray) -> float:
+        return float(np.linalg.norm(self.checker.tip(q) - self.point))
+
+    def is_satisfied(self, q: np.ndarray) -> bool:
+        return self.distance(q) <= self.tol
+
+
+@dataclass(eq=False)
+class Scene:
+    """A validated planning scene (module doc). obstacles: (k, 2) vertex arrays, a 2-vertex one a wall."""
+
+    name: str
+    robot: PlanarChain
+    base: np.ndarray
+    link_width: float
+    obstacles: list
+    start: np.ndarray
+    goal_point: np.ndarray
+    goal_tol: float
+    goal_q: Optional[np.ndarray] = None
+    params: dict = field(default_factory=dict)
+    description: str = ""
+    provenance: dict = field(default_factory=dict)
+    source: Optional[Path] = None
+    goal_states: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def checker(self, res: float = EDGE_RES, link_width: Optional[float] = None) -> ChainChecker:
+        """A fresh checker (its own `checks` count) at edge resolution res (m)."""
+        w = self.link_width if link_width is None else link_width
+        return ChainChecker.create(self.robot, self.obstacles, base=self.base, link_width=w, res=res)
+
+    def space(self) -> ChainSpace:
+        return ChainSpace(np.array(self.robot.q_min), np.array(self.robot.q_max))
+
+    def find_goal_states(self, checker: Optional[ChainChecker] = None) -> np.ndarray:
+        """goal_q (if given) and the collision-free goal configurations the tip descent finds (ik.py); cached."""
+        if self.goal_states is None:
+            found, _ = goal_configs(checker or self.checker(), self.goal_point, self.goal_tol, starts=IK_STARTS,
+                                    extra=self.start)
+            known = [] if self.goal_q is None else [self.goal_q]
+            self.goal_states = np.array(known + list(found)).reshape(-1, self.robot.n)
+        return self.goal_states
+
+    def problem(self, res: float = EDGE_RES) -> Problem:
+        checker = self.checker(res)
+        return Problem(self.space(), checker, self.start.copy(), TipGoal(checker, self.goal_point, self.goal_tol),
+                       self.find_goal_states(checker).copy(), name=self.name)
+
+    def to_dict(self) -> dict[str, Any]:
+        goal: dict[str, Any] = {"point": [float(v) for v in self.goal_point], "tol": float(self.goal_tol)}
+        if self.goal_q is not None:
+            goal["q"] = [float(v) for v in self.goal_q]
+        d: dict[str, Any] = {"format": FORMAT, "version": VERSION, "name": self.name}
+        if self.description:
+            d["description"] = self.description
+        d["robot"] = self.robot.name if is_registered(self.robot) else robot_to_dict(self.robot)
+        d["base"] = [float(v) for v in self.base]
+        d["link_width"] = float(self.link_width)
+        d["obstacles"] = [[[float(x), float(y)] for x, y in p] for p in self.obstacles]
+        d["start"] = [float(v) for v in self.start]
+        d["goal"] = goal
+        d["params"] = dict(self.params)
+        if self.provenance:
+            d["provenance"] = dict(self.provenance)
+        return d
+
+
+# ------------------------------------------------------------------ validation
+class _Ctx:
+    def __init__(self, source: Any):
+        self.name = str(source) if source is not None else "<scene>"
+
+    def err(self, msg: str) -> ArmbridgeError:
+        return ArmbridgeError(f"{self.name}: {msg}")
+
+
+def _number(x: Any, where: str, ctx: _Ctx) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
+        raise ctx.err(f"{where} must be a number, got {json.dumps(x) if _jsonable(x) else type(x).__name__}")
+    if not math.isfinite(float(x)):
+        raise ctx.err(f"{where} is {x}: scenes hold finite numbers only")
+    return float(x)
+
+
+def _jsonable(x: Any) -> bool:
+    try:
+        json.dumps(x)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def _vector(v: Any, n: int, where: str, ctx: _Ctx) -> np.ndarray:
+    if not isinstance(v, (list, tuple, np.ndarray)):
+        raise ctx.err(f"{where} must be a list of {n} numbers, got {type(v).__name__}")
+    if len(v) != n:
+        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
+    return np.array([_number(x, f"{where}[{i}]", ctx) for i, x in enumerate(v)])
+
+
+def _obstacle(v: Any, i: int, ctx: _Ctx) -> np.ndarray:
+    """A wall segment (2 vertices, length > 0) or a simple polygon (>= 3 vertices, area > 0)."""
+    import shapely  # type: ignore[import-untyped]
+    from shapely.geometry import Polygon  # type: ignore[import-untyped]
+
+    where = f"obstacles[{i}]"
+    if not isinstance(v, (list, tuple)) or len(v) < 2:
+        raise ctx.err(f"{where} must be a list of [x, y] vertices: 2 for a wall segment, at least 3 for a polygon")
+    pts = np.array([_vector(p, 2, f"{where}[{k}]", ctx) for k, p in enumerate(v)])
+    if len(pts) == 2:
+        if np.allclose(pts[0], pts[1]):
+            raise ctx.err(f"{where} is a wall of zero length: its two vertices are the same point")
+        return pts
+    if len(pts) > 3 and np.allclose(pts[0], pts[-1]):
+        pts = pts[:-1]  # a closed ring: drop the repeated vertex
+    poly = Polygon(pts)
+    if not (shapely.is_valid(poly) and poly.exterior.is_simple):
+        raise ctx.err(f"{where} is self-intersecting or degenerate ({shapely.is_valid_reason(poly)}): list the "
+                      "vertices in order around the polygon")
+    if poly.area <= 1e-12:
+        raise ctx.err(f"{where} has zero area")
+    return pts
+
+
+def _robot(spec: Any, ctx: _Ctx) -> PlanarChain:
+    try:
+        robot = get_robot(spec) if isinstance(spec, str) else robot_from_dict(spec)
+    except ArmbridgeError as exc:
+        raise ctx.err(f"robot: {exc}") from None
+    if not isinstance(robot, PlanarChain):
+        raise ctx.err(f"robot: {robot.name!r} is a {robot.kind} robot; a chain scene needs a planar chain")
+    return robot
+
+
+def _params(doc: Any, ctx: _Ctx) -> dict[str, Any]:
+    if not isinstance(doc, dict):
+        raise ctx.err("params must be an object of planner defaults")
+    out: dict[str, Any] = {}
+    for key, v in doc.items():
+        if key not in PARAM_RANGES:
+            raise ctx.err(f'params: unknown field "{key}" (allowed: {", ".join(PARAM_RANGES)})')
+        lo, hi, integer = PARAM_RANGES[key]
+        x = _number(v, f"params.{key}", ctx)
+        if integer and x != int(x):
+            raise ctx.err(f"params.{key} must be a whole number, got {v}")
+        if not lo <= x <= hi:
+            raise ctx.err(f"params.{key} = {_fmt(x) if abs(x) >= 1e-4 else x} is outside [{lo}, {hi}]")
+        out[key] = int(x) if integer else x
+    return out
+
+
+def _config(v: Any, robot: PlanarChain, where: str, ctx: _Ctx, checker: ChainChecker) -> np.ndarray:
+    """A configuration inside the joint limits and free of collisions."""
+    q = _vector(v, robot.n, where, ctx)
+    code = checker.code(q)
+    if code == LIMITS:
+        j = int(np.flatnonzero((q < robot.q_min) | (q > robot.q_max))[0])
+        lo, hi = robot.q_min[j], robot.q_max[j]
+        raise ctx.err(f"{where}[{j}] = {_fmt(q[j])} rad is outside {robot.joint_names[j]}'s range "
+                      f"[{_fmt(lo)}, {_fmt(hi)}] rad ({_fmt(math.degrees(lo))} to {_fmt(math.degrees(hi))} deg)")
+    if code != FREE:
+        raise ctx.err(f"{where} is in collision: {checker.describe(code)} (obstacles[] counts from 0; link width "
+                      f"{_fmt(checker.link_width)} m)")
+    return q
+
+
+def scene_from_dict(doc: Any, source: Any = None) -> Scene:
+    """Validate a parsed scene document; ArmbridgeError names the first problem."""
+    ctx = _Ctx(source)
+    if not isinstance(doc, dict):
+        raise ctx.err("a scene is a JSON object")
+    if doc.get("format") != FORMAT:
+        raise ctx.err(f'format is {json.dumps(doc.get("format"))}, expected "{FORMAT}"')
+    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
+        raise ctx.err(f"unsupported version {json.dumps(doc.get('version'))} (this armbridge reads version {VERSION})")
+    for key in doc:
+        if key not in _TOP:
+            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP)})')
+    for key in ("robot", "obstacles", "start", "goal"):
+        if key not in doc:
+            raise ctx.err(f'missing field "{key}"')
+    name = doc.get("name", Path(str(source)).stem if source is not None else "scene")
+    if not isinstance(name, str) or not name:
+        raise ctx.err("name must be a non-empty string")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise ctx.err("description must be a string")
+    robot = _robot(doc["robot"], ctx)
+    base = _vector(doc.get("base", [0.0, 0.0, 0.0]), 3, "base ([x, y, heading] in m, m, rad)", ctx)
+    width = _number(doc.get("link_width", 0.0), "link_width", ctx)
+    if width < 0:
+        raise ctx.err(f"link_width = {_fmt(width)} m is outside [0, inf)")
+    if not isinstance(doc["obstacles"], list):
+        raise ctx.err("obstacles must be a list of polygons and walls")
+    obstacles = [_obstacle(p, i, ctx) for i, p in enumerate(doc["obstacles"])]
+    checker = ChainChecker.create(robot, obstacles, base=base, link_width=width)
+    start = _config(doc["start"], robot, "start", ctx, checker)
+
+    goal = doc["goal"]
+    if not isinstance(goal, dict):
+        raise ctx.err("goal must be an object with point ([x, y], m), tol (m) and optionally q")
+    for key in goal:
+        if key not in _GOAL:
+            raise ctx.err(f'goal: unknown field "{key}" (allowed: {", ".join(_GOAL)})')
+    for key in ("point", "tol"):
+        if key not in goal:
+            raise ctx.err(f'goal: missing field "{key}"')
+    point = _vector(goal["point"], 2, "goal.point", ctx)
+    tol = _number(goal["tol"], "goal.tol", ctx)
+    if not 0 < tol <= robot.reach:
+        raise ctx.err(f"goal.tol = {_fmt(tol) if tol >= 1e-4 else tol} m is outside (0, {_fmt(robot.reach)}] "
+                      "(the robot's reach)")
+    far = float(np.hypot(*(point - base[:2])))
+    if far > robot.reach + tol:
+        raise ctx.err(f"goal.point ({_fmt(point[0])}, {_fmt(point[1])}) is out of reach: {_fmt(far)} m from the "
+                      f"base, the arm reaches {_fmt(robot.reach)} m")
+    goal_q = None
+    if "q" in goal:
+        goal_q = _config(goal["q"], robot, "goal.q", ctx, checker)
+        miss = float(np.linalg.norm(checker.tip(goal_q) - point))
+        if miss > tol:
+            raise ctx.err(f"goal.q puts the tip {_fmt(miss)} m from goal.point, outside goal.tol = {_fmt(tol)} m")
+    params = _params(doc.get("params", {}), ctx)
+    prov = doc.get("provenance", {})
+    if not isinstance(prov, dict):
+        raise ctx.err("provenance must be an object")
+    scene = Scene(name, robot, base, width, obstacles, start, point, tol, goal_q, params, description, dict(prov),
+                  Path(source) if source is not None else None)
+    if goal_q is None:
+        found, best = goal_configs(checker, point, tol, starts=IK_STARTS, extra=start)
+        if found.shape[0] == 0:
+            raise ctx.err(f"goal.point ({_fmt(point[0])}, {_fmt(point[1])}): the tip descent from {IK_STARTS} random "
+                          f"starts found no collision-free configuration within goal.tol = {_fmt(tol)} m of it "
+                          f"(closest tip: {_fmt(best)} m, in collision or outside the joint limits); if the goal is "
+                          "reachable, give one as goal.q")
+        scene.goal_states = found
+    return scene
+
+
+def load_scene(path: Any) -> Scene:
+    """Read and validate a scene file (or a fixed scene's name, see FIXED)."""
+    if isinstance(path, str) and path in FIXED and not Path(path).exists():
+        return fixed_scene(path)
+    doc = read_json(path, "scene file", f" (fixed scenes: {', '.join(FIXED)})")
+    return scene_from_dict(doc, Path(path))
+
+
+def save_scene(scene: Scene, path: Any) -> Path:
+    """Write scene as JSON (one obstacle per line); refuses what load_scene would refuse."""
+    path = Path(path)
+    doc = scene.to_dict()
+    scene_from_dict(json.loads(json.dumps(doc)), path)
+    lines = []
+    for k, v in doc.items():
+        if k == "obstacles":
+            inner = ",\n".join("    " + json.dumps(p) for p in v)
+            lines.append(f'  "{k}": [\n{inner}\n  ]' if v else f'  "{k}": []')
+        else:
+            lines.append(f"  {json.dumps(k)}: {json.dumps(v)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("{\n" + ",\n".join(lines) + "\n}\n", encoding="utf-8")
+    return path
+
+
+def fixed_scene(name: str) -> Scene:
+    """One of the shipped scenes (FIXED; host/armbridge/planning/soft/scenes/)."""
+    if name not in FIXED:
+        raise ArmbridgeError(f"unknown fixed scene {name!r} (known: {', '.join(FIXED)})")
+    return _fixed(name)
+
+
+@lru_cache(maxsize=None)
+def _fixed(name: str) -> Scene:
+    return load_scene(SCENE_DIR / f"{name}.json")
+
+
+# ------------------------------------------------------------------ OMPL's horn
+def horn_walls(n: int, eps: float) -> list[np.ndarray]:
+    """The 2 (n - 1) wall segments of OMPL's createHornEnvironment(n, eps) (demos/KinematicChain.h).
+
+    Two walls start at (1/n, -eps) and (1/n, +eps) and turn by pi/n per
+    segment, as the start configuration's chain does; the outer (lower) one
+    has segments of (1/n)(1 + pi eps), the inner one (1/n)(1 - pi eps), so
+    the passage between them narrows along the horn.
+    """
+    walls = []
+    w = 1.0 / n
+    for y0, scale in ((-eps, w * (1.0 + math.pi * eps)), (eps, w * (1.0 - math.pi * eps))):
+        x, y, th = w, y0, 0.0
+        for _ in range(n - 1):
+            th += math.pi / n
+            xn, yn = x + math.cos(th) * scale, y + math.sin(th) * scale
+            walls.append(np.array([[x, y], [xn, yn]]))
+            x, y = xn, yn
+    return walls
+
+
+#: Tip tolerance of the horn's goal (its chain reaches 1): OMPL asks for the goal state itself.
+HORN_TOL = 0.01
+
+
+def horn_scene(n: int = 7, params: Optional[dict] = None) -> Scene:
+    """OMPL's kinematic-chain benchmark (demos/KinematicChainBenchmark.cpp) as a scene.
+
+    n links of 1/n (limits [-pi, pi], width 0: OMPL's segments), walls
+    horn_walls(n, log(n)/n), start [0, pi/n, ..., pi/n] (curled inside the
+    horn), goal q [pi - 0.001, 0, ..., 0] (straight out behind the base);
+    the goal point is that q's tip, within HORN_TOL.
+    """
+    if not (isinstance(n, int) and 2 <= n <= 64):
+        raise ArmbridgeError(f"horn_scene: n = {n!r} links is outside [2, 64]")
+    robot = PlanarChain(name=f"horn{n}", link_lengths=np.full(n, 1.0 / n), q_min=np.full(n, -math.pi),
+                        q_max=np.full(n, math.pi), v_max=np.ones(n), joint_names=tuple(f"j{i + 1}" for i in range(n)))
+    start = np.full(n, math.pi / n)
+    start[0] = 0.0
+    goal_q = np.zeros(n)
+    goal_q[0] = math.pi - 0.001
+    doc = {"format": FORMAT, "version": VERSION, "name": "horn" if n == 7 else f"horn-{n}",
+           "description": f"OMPL's horn (KinematicChainBenchmark) for {n} links of 1/{n}: out of a narrowing "
+                          "curved passage",
+           "robot": robot_to_dict(robot), "base": [0.0, 0.0, 0.0], "link_width": 0.0,
+           "obstacles": [p.tolist() for p in horn_walls(n, math.log(n) / n)], "start": start.tolist(),
+           "goal": {"point": robot.ee_point(goal_q).tolist(), "tol": HORN_TOL, "q": goal_q.tolist()},
+           "params": dict(params or {}),
+           "provenance": {"tool": "armbridge.planning.soft.scene.horn_scene", "n": n,
+                          "after": "OMPL demos/KinematicChain.h createHornEnvironment(n, log(n)/n)"}}
+    return scene_from_dict(doc, f"horn_scene({n})")
