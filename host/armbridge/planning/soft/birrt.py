@@ -12,7 +12,6 @@ checker.motion_valid; there are no weights (the plain collision test).
 """
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Optional
 
