@@ -11,8 +11,8 @@ import typer
 
 from armbridge.shards.engine import Runner
 
-RAY_HELP = ("Run the shards on a running Ray cluster: auto (the one `ray start --head` started on this "
-            "machine) or its address, HOST:PORT or ray://HOST:PORT (docs/cluster.md). Needs the ray extra.")
+RAY_HELP = ("Run the shards on a running Ray cluster: auto (the one this machine joined with `ray start`) "
+            "or the head's address HOST:PORT (docs/cluster.md). Needs the ray extra.")
 WORKERS_HELP = ("Without --ray: 1 runs the shards here, one after the other; N > 1 starts a Ray of N CPUs "
                 "on this machine.")
 

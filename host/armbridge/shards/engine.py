@@ -8,7 +8,7 @@ results in shard order:
 * Runner() (workers 1, no ray): the serial path, in this process, one shard
   after the other.
 * Runner(workers=N), N > 1: a Ray of N CPUs started on this machine.
-* Runner(ray="auto" | "HOST:PORT" | "ray://..."): the running Ray cluster
+* Runner(ray="auto" | "HOST:PORT"): the running Ray cluster
   (`ray start --head`, `ray start --address`), see docs/cluster.md.
 
 Every backend calls the same function on the same shard, so the results are
@@ -106,7 +106,7 @@ class Runner:
         if not isinstance(self.workers, int) or self.workers < 1:
             raise ArmbridgeError(f"--workers must be an integer >= 1, got {self.workers!r}")
         if self.ray is not None and not str(self.ray).strip():
-            raise ArmbridgeError("--ray needs 'auto' or a cluster address (HOST:PORT or ray://HOST:PORT)")
+            raise ArmbridgeError("--ray needs 'auto' or the cluster head's address HOST:PORT")
 
     @property
     def backend(self) -> str:
