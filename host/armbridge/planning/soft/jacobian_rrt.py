@@ -57,16 +57,31 @@ _WEIGHTED = ("C1", "C2", "lambda", "d_min")
 
 @njit(cache=True)
 def weigh(qc, qn, goal, lengths, base, verts, starts, margin, pts, cl):
-    """(tip distance to goal, min_l dist_l, W_s, W_d) of theta_new = qn extended from theta_c = qc (eq. 8, 20, 21)."""
+    """(tip distance to goal, min_l dist_l, W_s, W_d, |qn - qc|) of theta_new = qn extended from theta_c = qc
+    (eq. 8, 20, 21; the last is the edge's joint-space length, the tree's cost); cl gets each link's dist_l."""
     least = link_clearance(qn, lengths, base, verts, starts, margin, pts, cl)
     n = lengths.size
     ws = 0.0
     wd = 0.0
+    ln = 0.0
     for j in range(n):
         ws += cl[j]
         wd += abs(qn[j] - qc[j])
+        ln += (qn[j] - qc[j]) ** 2
     dx, dy = goal[0] - pts[n, 0], goal[1] - pts[n, 1]
-    return math.sqrt(dx * dx + dy * dy), least, ws, wd
+    return math.sqrt(dx * dx + dy * dy), least, ws, wd, math.sqrt(ln)
+
+
+@njit(cache=True)
+def goal_step(qc, u, k, goal, dx, lengths, base, lo, hi, verts, starts, margin, pts, J, cl, qp, qn):
+    """One extend_Towards_Goal step from theta_c = qc into qn; returns weigh(qc, qn).
+
+    qp = clip(qc + k (2u - 1)) (eq. 16, u uniform in [0, 1)^n), then qn = jt_step(qp) (eq. 17-19).
+    """
+    for j in range(lengths.size):
+        qp[j] = min(max(qc[j] + k * (2.0 * u[j] - 1.0), lo[j]), hi[j])
+    jt_step(qp, goal, dx, lengths, base, lo, hi, pts, J, qn)
+    return weigh(qc, qn, goal, lengths, base, verts, starts, margin, pts, cl)
 
 
 def objective(tip_dist: float, least: float, lam: float) -> float:
@@ -102,7 +117,7 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
     L, B, V, S, m = chk.lengths, chk.base, chk.verts, chk.starts, chk.margin
     lo, hi = chk.lower, chk.upper
     pts, J, cl = np.empty((n + 1, 2)), np.empty((2, n)), np.empty(n)
-    qp, qn = np.empty(n), np.empty(n)
+    qp, qn, ones = np.empty(n), np.empty(n), np.ones(n)
     p_goal, k, dx, step, tries = float(s["p_goal"]), float(s["k"]), float(s["dx"]), float(s["step"]), s["goal_tries"]
     C1, C2, lam, d_min = float(s["C1"]), float(s["C2"]), float(s["lambda"]), float(s["d_min"])
     weighted = variant == "wjrrt"
@@ -115,24 +130,21 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
     tree = Tree(start, capacity=1024, kind=START)
     tip_d = np.full(tree.capacity, math.inf)  # per node: tip distance to X_G, inf once exhausted
     fails = np.zeros(tree.capacity, dtype=np.int64)
-    d0, _, _, _ = weigh(start, start, X_G, L, B, V, S, m, pts, cl)
+    d0 = weigh(start, start, X_G, L, B, V, S, m, pts, cl)[0]
     chk.checks += 1
     tip_d[0] = d0
     best_v, best_d = 0, d0  # the node closest to X_G so far and its tip distance
 
-    def accept(qc: np.ndarray, q: np.ndarray) -> Optional[tuple[float, float]]:
-        """(tip distance, min clearance) if the step qc -> q passes the variant's tests, else None."""
-        d, least, ws, wd = weigh(qc, q, X_G, L, B, V, S, m, pts, cl)
-        chk.checks += 1
-        if weighted and not (least > d_min and ws > C1 and wd < C2):
-            return None
-        if not chk.motion_valid(qc, q):
-            return None
-        return d, least
+    def accept(qc: np.ndarray, q: np.ndarray, w: tuple[float, float, float, float, float]) -> bool:
+        """The step qc -> q with weigh()'s w passes the variant's tests (module doc) and its edge is free."""
+        chk.checks += 1  # weigh's clearance: one answer of the checker
+        if weighted and not (w[1] > d_min and w[2] > C1 and w[3] < C2):
+            return False
+        return bool(chk.motion_valid(qc, q))
 
-    def add(q: np.ndarray, parent: int, d: float, kind: int) -> int:
+    def add(q: np.ndarray, parent: int, d: float, length: float, kind: int) -> int:
         nonlocal tip_d, fails, best_v, best_d
-        v = tree.add(q, parent, tree.cost[parent] + float(np.sqrt(np.sum((q - tree.Q[parent]) ** 2))), kind)
+        v = tree.add(q, parent, tree.cost[parent] + length, kind)
         if tree.capacity > tip_d.size:
             tip_d = np.concatenate([tip_d, np.full(tree.capacity - tip_d.size, math.inf)])
             fails = np.concatenate([fails, np.zeros(tree.capacity - fails.size, dtype=np.int64)])
@@ -148,19 +160,16 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
             return -1
         h_best, last, qc = math.inf, -1, tree.Q[c]
         for _ in range(MAX_SERIES):
-            noise = k * (2.0 * rng.random(n) - 1.0) if k > 0 else 0.0
-            np.clip(qc + noise, lo, hi, out=qp)  # eq. (16)
-            jt_step(qp, X_G, dx, L, B, lo, hi, pts, J, qn)  # eq. (17)-(19)
-            got = accept(qc, qn)
-            if got is None:
+            w = goal_step(qc, rng.random(n), k, X_G, dx, L, B, lo, hi, V, S, m, pts, J, cl, qp, qn)
+            if not accept(qc, qn, w):
                 break
-            h = objective(got[0], got[1], lam)
+            h = objective(w[0], w[1], lam)
             if h >= h_best:
                 break
             h_best = h
-            last = add(qn.copy(), c if last < 0 else last, got[0], GOAL)
+            last = add(qn.copy(), c if last < 0 else last, w[0], w[4], GOAL)
             qc = tree.Q[last]
-            if got[0] <= tol:
+            if w[0] <= tol:
                 break
         if last < 0:
             fails[c] += 1
@@ -170,10 +179,10 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
 
     def randomly() -> int:
         qr = problem.space.sample(rng, 1)[0]
-        near = tree.nearest(qr, np.ones(n))
-        q = problem.space.interpolate(tree.Q[near], qr, step)
-        got = accept(tree.Q[near], q)
-        return -1 if got is None else add(q, near, got[0], RANDOM)
+        near = tree.nearest(qr, ones)
+        q = np.ascontiguousarray(problem.space.interpolate(tree.Q[near], qr, step))
+        w = weigh(tree.Q[near], q, X_G, L, B, V, S, m, pts, cl)
+        return add(q, near, w[0], w[4], RANDOM) if accept(tree.Q[near], q, w) else -1
 
     it, reached = 0, -1
     if d0 <= tol:
@@ -185,7 +194,7 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
             reached = v
     elapsed = time.perf_counter() - t0
     end = reached if reached >= 0 else best_v
-    d_end, least_end, _, _ = weigh(tree.Q[end], tree.Q[end], X_G, L, B, V, S, m, pts, cl)
+    d_end, least_end, _, _, _ = weigh(tree.Q[end], tree.Q[end], X_G, L, B, V, S, m, pts, cl)
     h_end = objective(d_end, least_end, lam) if weighted else None
     return chain_result(variant, tree, reached, end, it, elapsed, chk.checks - checks0, seed, float(d_end), h_end,
                         {key: s[key] for key in s if weighted or key not in _WEIGHTED})
