@@ -47,18 +47,31 @@ def line_style(planner: str) -> dict[str, Any]:
 
 
 def log_seconds_axis(ax: Any, lo: float, hi: float, axis: str = "x") -> None:
-    """A log axis from lo to hi s with ticks at 1-2-5 steps written plainly (0.01, 0.02, 0.05, 0.1, ...)."""
-    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+    """A log axis from lo to hi s with plain tick labels (0.001, 0.01, 0.1, 1; not 10^k).
 
-    ticks = [m * 10.0 ** e for e in range(-5, 4) for m in (1, 2, 5) if lo * 0.999 <= m * 10.0 ** e <= hi * 1.001]
+    Up to two decades every 1-2-5 step is labelled; over a longer range the
+    decades (and hi) carry the labels and the 2 and 5 steps are unlabelled ticks.
+    """
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
+    steps = [m * 10.0 ** e for e in range(-6, 4) for m in (1, 2, 5) if lo * 0.999 <= m * 10.0 ** e <= hi * 1.001]
+    if hi / lo <= 150:
+        major, minor = steps, []
+    else:
+        major = [t for t in steps if abs(np.log10(t) - round(np.log10(t))) < 1e-9]
+        if hi not in major:
+            major.append(hi)
+        minor = [t for t in steps if t not in major]
     a = ax.xaxis if axis == "x" else ax.yaxis
     (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
     (ax.set_xlim if axis == "x" else ax.set_ylim)(lo, hi)
-    a.set_major_locator(FixedLocator(ticks))
+    a.set_major_locator(FixedLocator(major))
     a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    a.set_minor_locator(NullLocator())
+    a.set_minor_locator(FixedLocator(minor))
+    a.set_minor_formatter(NullFormatter())
     ax.tick_params(axis=axis, labelsize=8)
-    ax.grid(True, axis=axis, which="major", lw=0.3, color="0.85")
+    ax.grid(True, axis=axis, which="major", lw=0.4, color="0.85")
+    ax.grid(True, axis=axis, which="minor", lw=0.25, color="0.92")
 
 
 def _floor(result: dict[str, Any]) -> float:
@@ -89,10 +102,14 @@ def success_figure(result: dict[str, Any]) -> Any:
     T = float(result["size"]["time_limit"])
     lo = _floor(result)
     planners = _order(result)
-    fig, axes = plt.subplots(1, len(scenes), figsize=(3.3 * len(scenes) + 0.6, 3.9), layout="constrained",
+    cols = 2 if len(scenes) > 2 else len(scenes)
+    rows = -(-len(scenes) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols + 0.4, 3.3 * rows + 0.9), layout="constrained",
                              squeeze=False, sharey=True)
+    for ax in axes.flat[len(scenes):]:
+        ax.set_visible(False)
     grid = np.logspace(np.log10(lo), np.log10(T), 400)
-    for ax, name in zip(axes[0], scenes):
+    for ax, name in zip(axes.flat, scenes):
         sc = result["scenes"][name]
         for k, pl in enumerate(planners):
             if pl not in sc["planners"]:
@@ -109,7 +126,8 @@ def success_figure(result: dict[str, Any]) -> Any:
         ax.set_xlabel("time budget per query t (s)")
         ax.set_title(f"{name} ({sc['links']} links, {len(next(iter(sc['planners'].values()))['runs'])} seeds)",
                      fontsize=9)
-    axes[0][0].set_ylabel("queries solved within t (%)")
+    for r in range(rows):
+        axes[r][0].set_ylabel("queries solved within t (%)")
     _legend(fig, planners, "ours solid, OMPL dashed; the same runs read at every budget (budget = T "
                            f"{T:g} s per run)")
     return fig
