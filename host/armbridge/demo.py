@@ -15,7 +15,8 @@ from armbridge.demos import DemoOptions, default_port, names, run_demo
 def demo_cmd(
     robot: str = typer.Option("arm3r", help=f"Robot whose demo runs: {', '.join(names())}."),
     port: str = typer.Option(None, help="Board to run on [default: the robot's emulated board: emu:esp32 for "
-                                        "arm3r, emu:masr_ma for masr5], a serial device or a pyserial URL."),
+                                        "arm3r, emu:masr_ma for masr5, emu:arduino_pump for soft3], a serial "
+                                        "device or a pyserial URL."),
     rrd: Path = typer.Option(None, help="Rerun recording to write [default: runs/<time>-<plan>.rrd]."),
     write_plan: Path = typer.Option(None, "--write-plan", help="Only write the demo's plan to this file and exit."),
     fault_tolerant: bool = typer.Option(
@@ -23,7 +24,8 @@ def demo_cmd(
         help="arm3r: instead of the square, a target appears, a joint stalls on the way, and the arm still "
              "reaches it (SMM bounding boxes, Clark and Xie Fig. 15). Needs an emu: port.",
     ),
-    seed: int = typer.Option(0, help="Seed of the fault-tolerant scenario (target, stalled joint)."),
+    seed: int = typer.Option(0, help="Seed of the planner (masr5, soft3) or of the fault-tolerant scenario "
+                                     "(target, stalled joint)."),
     smm: str = typer.Option("learned", help="SMMs for --fault-tolerant: learned (ms, the shipped model) or "
                                             "nullspace (the slow ground truth; the arm waits longer)."),
     clear: bool = typer.Option(False, "--clear", help="Clear a board latched (ESTOP/WDOG/FAULT) from before; "

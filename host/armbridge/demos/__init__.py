@@ -24,10 +24,13 @@ MODULES: dict[str, str] = {
     "arm3r": "armbridge.demos.arm3r",
     "masr5": "armbridge.demos.masr",
     "masr": "armbridge.demos.masr",  # the MASR's demo by its kind
+    "soft3": "armbridge.demos.soft",
+    "soft": "armbridge.demos.soft",  # the soft arm's demo by its kind
 }
 
 #: robot name -> the port its demo runs on by default (its emulated board).
-PORTS: dict[str, str] = {"arm3r": "emu:esp32", "masr5": "emu:masr_ma", "masr": "emu:masr_ma"}
+PORTS: dict[str, str] = {"arm3r": "emu:esp32", "masr5": "emu:masr_ma", "masr": "emu:masr_ma",
+                         "soft3": "emu:arduino_pump", "soft": "emu:arduino_pump"}
 
 
 def default_port(robot: str) -> str:

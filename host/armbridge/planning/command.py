@@ -11,6 +11,7 @@ from rich.table import Table
 
 from armbridge import resources
 from armbridge.errors import ArmbridgeError
+from armbridge.planning.soft.command import soft_cmd
 
 plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
                        add_completion=False, pretty_exceptions_enable=False)
@@ -132,3 +133,6 @@ def masr_cmd(
             "n_near": n_near, "step_s": step, "ik": ik_desc, "planning_time_s": round(result.time_s, 4)}
     save_masr_plan(environment, result.path, out, provenance=prov)
     console.print(f"plan: {out} ({result.path.shape[0]} waypoints, tau = {result.cost:.2f} s)")
+
+
+plan_app.command("soft")(soft_cmd)  # the soft arm's: planning/soft/command.py

@@ -12,7 +12,7 @@ soft arm needs rides in `provenance["soft_plan"]`:
     waypoints    the selection criterion and its outcome (PumpWaypoints.criterion: nodes kept,
                  tolerance, snapped joints, tracking errors, move and hold times)
     timing       the PumpTiming model the durations came from
-    pose_rows    for each pose, the plan row that reaches it (the row after it, when a hold follows)
+    pose_rows    for each pose, the plan row whose move reaches it (a hold, when there is one, is the next row)
 
 `soft_info(plan)` reads it back (one ArmbridgeError naming the field when it is
 damaged) and `recording_layers(plan)` gives the executor's recording the scene
@@ -50,8 +50,8 @@ def soft_plan(scene: Any, result: Any, waypoints: Any, timing: Any, *, planner: 
     rows, durs = waypoints.plan_rows()
     pose_rows, r = [], 0
     for hold in waypoints.hold_s:
+        pose_rows.append(r)
         r += 2 if hold > 0 else 1
-        pose_rows.append(r - 1)
     section = {
         "scene": {"name": scene.name, "file": str(scene.source) if scene.source is not None else None,
                   "base": _rounded(scene.base), "link_width": float(scene.link_width),

@@ -52,10 +52,10 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.polygons import chain_points
-from armbridge.planning.soft.pump_timing import MOVE_MIN_S, RATE_FRACTION, PumpTiming, durations, pump_timing
+from armbridge.planning.soft.pump_timing import MOVE_MIN_S, RATE_FRACTION, Opening, PumpTiming, durations, pump_timing
 
-__all__ = ["MOVE_MIN_S", "RATE_FRACTION", "TOLERANCE_M", "PumpTiming", "PumpWaypoints", "durations", "pump_timing",
-           "reach_of", "select_nodes", "shape_distance", "snap", "subsample", "tracking_error"]
+__all__ = ["MOVE_MIN_S", "RATE_FRACTION", "TOLERANCE_M", "Opening", "PumpTiming", "PumpWaypoints", "durations",
+           "pump_timing", "reach_of", "select_nodes", "shape_distance", "snap", "subsample", "tracking_error"]
 
 #: Default tracking tolerance of (a), m.
 TOLERANCE_M = 0.01

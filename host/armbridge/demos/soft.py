@@ -1,0 +1,104 @@
+"""The soft-arm demo: WJRRT plans on the three-arm scene, the pump board's firmware executes the plan.
+
+WJRRT (planning/soft/planners.py) plans on the built-in scene "three-arm" (soft3, the
+pump board's robot; WJRRT paper, section V-C), the pump waypoints are picked and
+timed (planning/soft/waypoints.py: the fewest nodes within the tracking tolerance,
+collision-free, the dead band, the inflation/deflation rates with a settle hold),
+the plan is written as an armbridge-plan and `armbridge run`'s own run_command
+executes it on the syringe-pump board's .elf in simavr (`emu:arduino_pump`). The
+recording draws the arm, the obstacles, the planned tip path and poses, and the
+executed arm and tip trace in one 2-D view; the demo's summary (demos/soft_report.py)
+reports each waypoint's settled angles against its target, the settle times, the
+tip errors, the executed path's deviation and clearance, and the executed time
+against the planned.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from armbridge.demos import Demo, DemoOptions
+
+SCENE = "three-arm"
+PLANNER = "wjrrt"
+
+
+@dataclass
+class SoftDemo:
+    """One run of the demo: the planning (scene, planner result, waypoints, Plan), the executor's
+    Summary and the demo's report (demos/soft_report.py)."""
+
+    planning: Any
+    summary: Any
+    report: dict[str, Any]
+
+
+def execute(opts: DemoOptions, console: Any, *, tolerance: float | None = None) -> SoftDemo | None:
+    """Plan, write (--write-plan: returns None) or run, and report (module doc)."""
+    from armbridge.executor.command import run_command
+    from armbridge.planning.soft.command import plan_for_pump
+    from armbridge.planning.soft.plan_file import soft_info
+    from armbridge.plans.format import save_plan
+    from armbridge.telemetry.recording import default_rrd_path
+    from armbridge.demos.soft_report import read_trace, soft_report
+
+    console.print(f"demo: {PLANNER.upper()} on {SCENE} (seed {opts.seed})")
+    sp = plan_for_pump(SCENE, PLANNER, seed=opts.seed, tolerance=tolerance, tool="armbridge demo")
+    w, plan = sp.waypoints, sp.plan
+    console.print(f"demo: {w.planned_nodes} planned nodes -> {len(w.q)} pump waypoints (tracking tolerance "
+                  f"{w.tolerance_m * 1000:.0f} mm, {int(w.snapped.sum())} joint changes held below the dead band), "
+                  f"{plan.total_duration:.1f} s planned")
+    if opts.write_plan is not None:
+        save_plan(plan, opts.write_plan)
+        console.print(f"wrote {opts.write_plan} ({plan.k} waypoints, {plan.total_duration:.1f} s)")
+        return None
+    rrd = opts.rrd if opts.rrd is not None else default_rrd_path(plan.name)
+    summary = run_command(plan, opts.port, rrd, 50, None, opts.clear, True)
+    info = soft_info(plan)
+    assert info is not None
+    names = list(plan.robot.joint_names)
+    tol = [summary.settle_tolerance.get(n, 0.0) for n in names]
+    report = soft_report(plan, info, read_trace(rrd, names), tol, sp.scene.checker())
+    report["rrd"] = str(rrd)
+    report["run"] = {"completed": summary.completed, "measured_duration_s": summary.measured_duration_s,
+                     "settle": {n: s.__dict__ for n, s in summary.settle.items()}}
+    console.print(_table(report))
+    return SoftDemo(sp, summary, report)
+
+
+def _mrad(v: list) -> str:
+    return " ".join("-" if x is None else f"{x * 1000:.0f}" for x in v)
+
+
+def _mm(d: float | None) -> str:
+    return "-" if d is None else f"{d * 1000:.1f}"
+
+
+def _table(r: dict[str, Any]) -> Any:
+    from rich.table import Table
+
+    t = Table(title=f"soft-arm demo: {r['planner']} on {r['scene']}", show_header=True, header_style="bold")
+    for col in ("waypoint", "node", "target (mrad)", "settled (mrad)", "in band", "settle (s)", "tip error (mm)"):
+        t.add_column(col, justify="right")
+    for i, p in enumerate(r["poses"]):
+        t.add_row(str(i), str(p["node"]), _mrad(p["target"]), _mrad(p["settled"]), "yes" if p["inside_band"] else "NO",
+                  "never" if p["settle_s"] is None else f"{p['settle_s']:.2f}",
+                  _mm(p["tip_error_m"]))
+    t.caption = (f"{r['waypoints']} waypoints of {r['planned_nodes']} planned nodes; every joint settled in its band: "
+                 f"{'yes' if r['all_settled'] else 'NO'}; settle mean / max {r['settle_s']['mean']} / "
+                 f"{r['settle_s']['max']} s; tip error mean / max {_mm(r['tip_error_m']['mean'])} / "
+                 f"{_mm(r['tip_error_m']['max'])} mm; executed tip path from the planned: mean / max "
+                 f"{_mm(r['path_deviation_m']['mean'])} / {_mm(r['path_deviation_m']['max'])} mm; least clearance "
+                 f"{_mm(r['min_clearance_m'])} mm; goal {_mm(r['goal_distance_m'])} mm off (tolerance "
+                 f"{_mm(r['goal_tol_m'])} mm); executed {r['executed_s']} s to rest at the goal, planned "
+                 f"{r['planned_arrival_s']} s to the last move's end ({r['planned_s']} s with the last hold); "
+                 f"recording {r['rrd']}")
+    return t
+
+
+def run(opts: DemoOptions, console: Any) -> None:
+    execute(opts, console)
+
+
+DEMO = Demo(robot="soft3", summary=f"soft3: plan {SCENE} with WJRRT and run it on the emulated syringe-pump board",
+            run=run, aliases=("soft",))

@@ -1,0 +1,117 @@
+"""`armbridge plan soft --env ENV --out PLAN.json`: plan a soft-arm motion and write it for the pump board.
+
+Plan with WJRRT (or JT-RRT, Bi-RRT) on a scene, pick the pump waypoints
+(planning/soft/waypoints.py: the fewest nodes within the tracking tolerance,
+collision-free, dead band, timed by the inflation/deflation rates) and write an
+armbridge-plan that `armbridge run` executes (planning/soft/plan_file.py).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from armbridge.errors import ArmbridgeError
+
+
+@dataclass
+class SoftPlanning:
+    """What planning a scene for the pump gave: the scene, the planner's result, the waypoints, the Plan."""
+
+    scene: Any
+    result: Any
+    waypoints: Any
+    timing: Any
+    plan: Any
+
+    def summary(self) -> dict[str, Any]:
+        r, w = self.result, self.waypoints
+        return {"scene": self.scene.name, "planner": r.planner, "seed": r.seed, "success": True,
+                "iterations": r.iterations, "planning_time_s": round(r.time_s, 4), "tree_size": r.tree_size,
+                "planned_nodes": w.planned_nodes, "waypoints": int(len(w.q)), "plan_rows": self.plan.k,
+                "tolerance_m": w.tolerance_m, "max_tracking_error_m": float(w.error_m.max(initial=0.0)),
+                "snapped_joints": int(w.snapped.sum()), "planned_duration_s": round(self.plan.total_duration, 3),
+                "tip_error_m": r.stats.get("tip_error_m"), **{k: v for k, v in r.stats.items() if k != "tip_error_m"}}
+
+
+def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations: Optional[int] = None,
+                  tolerance: Optional[float] = None, tool: str = "armbridge plan soft") -> SoftPlanning:
+    """Load the scene (a file or a fixed scene's name), plan, pick and time the pump waypoints."""
+    from armbridge.planning.soft import waypoints as W
+    from armbridge.planning.soft.planners import PLANNERS, plan
+    from armbridge.planning.soft.plan_file import soft_plan
+    from armbridge.planning.soft.pump_timing import board_timing
+    from armbridge.planning.soft.scene import Scene, load_scene
+
+    if planner not in PLANNERS:
+        raise ArmbridgeError(f"--planner {planner!r}: unknown planner (known: {', '.join(PLANNERS)})")
+    if iterations is not None and iterations < 1:
+        raise ArmbridgeError(f"--iterations {iterations}: must be at least 1")
+    tol = W.TOLERANCE_M if tolerance is None else float(tolerance)
+    if not 0 < tol <= 1.0:
+        raise ArmbridgeError(f"--tolerance {tol:g} m is outside (0, 1]")
+    scene = env if isinstance(env, Scene) else load_scene(str(env))
+    result = plan(scene, planner, seed=seed, iterations=iterations)
+    if result.path is None:
+        raise ArmbridgeError(f"{planner} found no path to the goal of {scene.name} in {result.iterations} iterations "
+                             f"(seed {seed}); try more --iterations or another --seed; no plan written")
+    timing = board_timing(scene.robot)
+    wp = W.subsample(result.path, scene.checker(), timing, tol)
+    return SoftPlanning(scene, result, wp, timing, soft_plan(scene, result, wp, timing, planner=planner, seed=seed,
+                                                             tool=tool))
+
+
+def soft_cmd(
+    env: str = typer.Option(..., "--env", help="Scene JSON file (armbridge-chain-env), or a fixed scene: two-arm, "
+                                               "three-arm, seven-tube, horn."),
+    out: Path = typer.Option(..., "--out", help="Plan file to write (armbridge-plan JSON; `armbridge run` runs it)."),
+    planner: str = typer.Option("wjrrt", "--planner", help="wjrrt, jt-rrt or birrt."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same plan)."),
+    iterations: Optional[int] = typer.Option(None, "--iterations", "-n",
+                                             help="Planner iterations [default: the scene's params.iterations]."),
+    tolerance: float = typer.Option(0.01, "--tolerance",
+                                    help="Tracking tolerance of the pump waypoints, m: the largest distance of any "
+                                         "arm point between the straight segments and the planned path."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also draw the scene, the path and the waypoints to this PNG."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the planning summary as JSON."),
+) -> None:
+    """Plan a soft-arm motion and write it as a plan for the pump board.
+
+    WJRRT (the WJRRT paper's Algorithms 1-2) or a baseline plans on the scene; the plan keeps the fewest
+    planned nodes whose straight segments stay within --tolerance of the path and are collision-free,
+    holds joint changes below the dead band, and times each move by the pump's inflation and deflation
+    rates with a settle hold. `armbridge run PLAN --port emu:arduino_pump` executes it."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.plans.format import save_plan
+
+    console = Console()
+    sp = plan_for_pump(env, planner, seed=seed, iterations=iterations, tolerance=tolerance)
+    summary = sp.summary()
+    table = Table(title=f"{planner} on {sp.scene.name}", show_header=False)
+    for key in ("iterations", "planning_time_s", "tree_size", "planned_nodes", "waypoints", "plan_rows",
+                "max_tracking_error_m", "snapped_joints", "planned_duration_s", "tip_error_m"):
+        v = summary.get(key)
+        table.add_row(key, f"{v:.4f}" if isinstance(v, float) else str(v))
+    console.print(table)
+    if png is not None:
+        from armbridge.planning.soft.figure import soft_figure
+
+        soft_figure(sp.scene, sp.result.path, sp.waypoints.q, png, title=f"{sp.scene.name} ({planner}, seed {seed})")
+        console.print(f"figure: {png}")
+    if json_out is not None:
+        try:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(summary, indent=2, default=float) + "\n")
+        except OSError as exc:
+            raise ArmbridgeError(f"{json_out}: cannot write the summary: {exc.strerror}") from None
+    try:
+        save_plan(sp.plan, out)
+    except OSError as exc:
+        raise ArmbridgeError(f"{out}: cannot write the plan: {exc.strerror}") from None
+    console.print(f"plan: {out} ({len(sp.waypoints.q)} pump waypoints of {sp.waypoints.planned_nodes} planned "
+                  f"nodes, {sp.plan.total_duration:.1f} s)")
