@@ -63,14 +63,14 @@ def test_weights_and_objective_against_shapely():
     qc, qn = np.array([0.2, 0.95]), np.array([0.25, 0.9])
     goal = np.array([0.15, 0.1])
     pts, cl = np.empty((3, 2)), np.empty(2)
-    d, least, ws, wd = weigh(qc, qn, goal, chk.lengths, chk.base, chk.verts, chk.starts, chk.margin, pts, cl)
+    d, least, ws, wd, length = weigh(qc, qn, goal, chk.lengths, chk.base, chk.verts, chk.starts, chk.margin, pts, cl)
     P = chk.points(qn)
     links = [LineString(P[i:i + 2]) for i in range(2)]
     dist = [min(link.distance(Polygon(box)), link.distance(LineString(wall))) - width / 2 for link in links]
     assert min(dist) > 0  # a free configuration: both links clear of both obstacles
     assert cl == pytest.approx(dist, abs=1e-12)
     assert ws == pytest.approx(sum(dist), abs=1e-12) and least == pytest.approx(min(dist), abs=1e-12)
-    assert wd == pytest.approx(0.05 + 0.05)
+    assert wd == pytest.approx(0.05 + 0.05) and length == pytest.approx(math.hypot(0.05, 0.05))
     assert d == pytest.approx(float(np.linalg.norm(goal - P[-1])))
     lam = 1e-5
     assert objective(d, least, lam) == pytest.approx(d ** 2 + lam / min(dist))
