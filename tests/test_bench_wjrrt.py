@@ -121,3 +121,21 @@ def test_figures(result, tmp_path):
     paths = plots(result, tmp_path)
     assert [p.name for p in paths] == ["wjrrt-success.png", "wjrrt-time.png"]
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_cli_on_a_shipped_scene(tmp_path):
+    from typer.testing import CliRunner
+
+    from armbridge.bench.command import bench_app
+
+    out = tmp_path / "w.json"
+    r = CliRunner().invoke(bench_app, ["wjrrt", "--quick", "--seeds", "1", "--scenes", "two-arm",
+                                       "--planners", "wjrrt,RRTConnect", "--time-limit", "5", "--json", str(out)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert list(doc["scenes"]) == ["two-arm"] and doc["size"] == {"seeds": 1, "time_limit": 5.0}
+    assert set(doc["scenes"]["two-arm"]["planners"]) == {"wjrrt", "RRTConnect"}
+    assert doc["scenes"]["two-arm"]["iterations_budget"] == 500  # Table 1's for two arms
+    assert "Table 1 columns" in r.output
+    bad = CliRunner().invoke(bench_app, ["wjrrt", "--scenes", "four-arm", "--json", str(out)])
+    assert isinstance(bad.exception, ArmbridgeError) and "four-arm" in str(bad.exception)  # cli.py prints it
