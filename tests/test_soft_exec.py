@@ -285,6 +285,23 @@ def test_plan_soft_writes_a_plan_the_executor_takes_and_a_png(tmp_path):
     assert len(layers["world/obstacles"][0]) == len(info.obstacles) and len(layers["plan/shapes"][0]) == len(poses)
 
 
+def test_the_demo_writes_its_plan_only_when_asked(tmp_path):
+    import io
+
+    from rich.console import Console
+
+    from armbridge.demos import DemoOptions, default_port, get_demo, run_demo
+    from armbridge.planning.soft.plan_file import soft_info
+    from armbridge.plans.format import load_plan
+
+    assert default_port("soft") == default_port("soft3") == "emu:arduino_pump"
+    assert get_demo("soft").robot == "soft3"
+    out = tmp_path / "demo.json"
+    run_demo(DemoOptions(port="emu:arduino_pump", write_plan=out, seed=0), "soft", Console(file=io.StringIO()))
+    info = soft_info(load_plan(out))
+    assert info is not None and info.scene == "three-arm" and info.planner == "wjrrt"
+
+
 def test_a_bad_scene_file_is_one_line_naming_the_field(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"format": "armbridge-chain-env", "version": 1, "robot": "soft3", "obstacles": [], '

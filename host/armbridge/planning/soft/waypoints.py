@@ -32,7 +32,10 @@ the waypoints by a stated criterion instead of by hand:
     smaller change is snapped to a hold of the joint's previous value (`snap`); the
     goal keeps its planned value (its last move is merged back until it is at least
     the band, or it is the only move). Each snapped segment is checked for collision
-    again; one that collides gets its waypoint's planned values back.
+    again; one that collides gets its waypoint's planned values back. (c) wins over
+    (a): a held joint is up to a band from its node, which moves the tip by up to the
+    band times the joint's length to the tip, so a snapped segment may stray from the
+    planned path by more than `tol`; `PumpWaypoints.error_m` is the error after (c).
 (d) Timing, from the inflation/deflation asymmetry (planning/soft/pump_timing.py: `PumpTiming`,
     `durations`).
 
