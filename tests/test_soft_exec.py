@@ -365,6 +365,7 @@ def demo(tmp_path_factory):
             p.close()
 
 
+@pytest.mark.hil
 def test_the_demo_settles_every_joint_in_its_dead_band_at_every_waypoint(demo):
     from plan_runs import assert_executed_once_with_values
 
@@ -402,6 +403,7 @@ def test_the_demo_settles_every_joint_in_its_dead_band_at_every_waypoint(demo):
     assert "every joint settled in its band: yes" in demo["text"].replace("\n", " ").replace("  ", " ")
 
 
+@pytest.mark.hil
 def test_the_recording_shows_the_obstacles_the_planned_path_and_the_executed_one(demo):
     from test_recording import layout, read
 
