@@ -23,10 +23,7 @@ from armbridge.bench.plots import family, fig5_figure, fig7_figure  # noqa: E402
 from armbridge.errors import ArmbridgeError  # noqa: E402
 from armbridge.planning import figure  # noqa: E402
 
-try:  # the MASR planning modules are moving under planning/masr/
-    from armbridge.planning.masr.environment import fixed_environment
-except ImportError:  # pragma: no cover - the layout before the move
-    from armbridge.planning.environment import fixed_environment  # type: ignore[no-redef]
+from armbridge.planning.masr.environment import fixed_environment  # noqa: E402
 
 
 def _png(path):
@@ -244,3 +241,18 @@ def test_bench_plots_write_readable_pngs(tmp_path):
     assert [p.name for p in written] == ["masr-fig5.png", "masr-fig7.png"]
     for p in written:
         _png(p)
+
+
+def test_walls_draw_as_lines_with_their_margin_and_long_ones_numbered():
+    """2-vertex obstacles (walls, as in OMPL's horn) are lines; their number sits at the middle, and short
+    walls, where numbers would pile up, carry none."""
+    fig, ax = plt.subplots()
+    walls = [np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[0.0, 0.5], [0.01, 0.5]])]
+    box = np.array([[0.2, 0.2], [0.4, 0.2], [0.4, 0.4], [0.2, 0.4]])
+    pts = figure.draw_obstacles(ax, [*walls, box], margin=0.02)
+    assert np.allclose(pts[0], [0.5, 0.0]) and Polygon(box).contains(Point(pts[2]))
+    texts = sorted(t.get_text() for t in ax.texts)
+    assert texts == ["0", "2"]
+    labels = [h.get_label() for h in ax.get_legend_handles_labels()[0]]
+    assert "wall" in labels and "obstacle" in labels
+    plt.close(fig)

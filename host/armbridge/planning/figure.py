@@ -133,29 +133,43 @@ def draw_obstacles(ax: Any, polygons: Iterable[Any], *, margin: float = 0.0,
                    labels: Union[bool, Sequence[str]] = True) -> np.ndarray:
     """Obstacles ((k, 2) vertex arrays) in grey, their margin-inflated outline dashed, a number inside each.
 
+    A 2-vertex obstacle is a wall segment: a thick black line, its number at its middle (none on
+    walls shorter than 4 % of the obstacles' extent, where numbers would pile up).
+
     labels: True numbers them 0, 1, ... (the index of obstacles[i] in environment files and
     error messages), a sequence gives the texts, False draws none. Returns the label
     points (m, 2): each the polygon's `label_point`, inside it.
     """
     from matplotlib.patches import Polygon as MplPolygon
-    from shapely.geometry import Polygon  # type: ignore[import-untyped]
+    from shapely.geometry import LineString, Polygon  # type: ignore[import-untyped]
 
     polys = [np.asarray(p, float) for p in polygons]
     names = [str(i) for i in range(len(polys))] if labels is True else list(labels) if labels else []
     if names and len(names) != len(polys):
         raise ArmbridgeError(f"draw_obstacles: {len(names)} labels for {len(polys)} obstacles")
     points = np.empty((len(polys), 2))
+    walls = 0
+    every = np.concatenate(polys) if polys else np.zeros((1, 2))
+    span = float(np.ptp(every, axis=0).max()) if len(every) > 1 else 1.0  # walls shorter than 4 % go unnumbered
     for i, p in enumerate(polys):
+        wall = p.shape[0] == 2  # a wall segment (OMPL's kinematic-chain environments)
         if margin > 0:
-            xs, ys = Polygon(p).buffer(margin, quad_segs=16).exterior.xy
+            shape = LineString(p) if wall else Polygon(p)
+            xs, ys = shape.buffer(margin, quad_segs=16).exterior.xy
             ax.add_patch(MplPolygon(np.c_[xs, ys], closed=True, fc="#F6D5C8", ec=OKABE_ITO["vermillion"], lw=0.6,
                                     ls="--", zorder=Z["margin"],
                                     label=f"obstacle margin ({margin * 1000:.0f} mm)" if i == 0 else None))
-        ax.add_patch(MplPolygon(p, closed=True, fc="0.6", ec="k", lw=0.8, zorder=Z["obstacle"],
-                                label="obstacle" if i == 0 else None))
-        points[i] = label_point(p)
-        if names:
-            _halo_text(ax, points[i], names[i], fontsize=9, fontweight="bold")
+        if wall:
+            ax.plot(p[:, 0], p[:, 1], "-", color="k", lw=2.0, solid_capstyle="butt", zorder=Z["obstacle"],
+                    label="wall" if walls == 0 else None)
+            walls += 1
+            points[i] = p.mean(axis=0)
+        else:
+            ax.add_patch(MplPolygon(p, closed=True, fc="0.6", ec="k", lw=0.8, zorder=Z["obstacle"],
+                                    label="obstacle" if i - walls == 0 else None))
+            points[i] = label_point(p)
+        if names and (not wall or np.linalg.norm(p[1] - p[0]) >= 0.04 * span):
+            _halo_text(ax, points[i], names[i], fontsize=7 if wall else 9, fontweight="bold")
     return points
 
 
