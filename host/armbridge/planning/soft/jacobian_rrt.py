@@ -131,13 +131,13 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
     tip_d = np.full(tree.capacity, math.inf)  # per node: tip distance to X_G, inf once exhausted
     fails = np.zeros(tree.capacity, dtype=np.int64)
     d0 = weigh(start, start, X_G, L, B, V, S, m, pts, cl)[0]
-    chk.checks += 1
     tip_d[0] = d0
     best_v, best_d = 0, d0  # the node closest to X_G so far and its tip distance
 
     def accept(qc: np.ndarray, q: np.ndarray, w: tuple[float, float, float, float, float]) -> bool:
         """The step qc -> q with weigh()'s w passes the variant's tests (module doc) and its edge is free."""
-        chk.checks += 1  # weigh's clearance: one answer of the checker
+        if weighted:
+            chk.checks += 1  # WJRRT asked the checker for the links' clearance (JT-RRT uses only the tip)
         if weighted and not (w[1] > d_min and w[2] > C1 and w[3] < C2):
             return False
         return bool(chk.motion_valid(qc, q))
