@@ -202,3 +202,20 @@ def test_killed_worker_and_killed_job_resume_from_checkpoints(cluster, serial_sm
     redone = [r["shard"] for r in after[len(done):]]
     assert sorted(redone) == sorted(set(range(16)) - finished)  # only the unfinished ones, once each
     assert {i: (tmp_path / "smm-grid" / f"{i:06d}.npz").stat().st_mtime_ns for i in finished} == files
+
+
+def test_bench_shards_cli_times_one_and_two_workers_with_identical_smms(cluster, tmp_path):
+    from typer.testing import CliRunner
+
+    from armbridge.cli import build_app
+
+    out = tmp_path / "shards.json"
+    res = CliRunner().invoke(build_app(), ["bench", "shards", "--robot", "planar3r", "--locations", "8", "--shard",
+                                           "4", "--workers", "1,2", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    one, two = data["rows"]
+    assert (one["backend"], two["backend"]) == ("serial", "ray") and two["identical_to_first"]
+    assert data["shards"] == 2 and len(two["shard_seconds"]) == 2 and one["efficiency"] == 1.0
+    assert two["efficiency"] == pytest.approx(one["wall_s"] / (2 * two["wall_s"]))
+    assert data["projection_paper_7r_grid"] is None  # the projection is the 7R's

@@ -1,0 +1,85 @@
+"""`armbridge bench shards`: how a fixed SMM data job scales with Ray workers, and what the
+paper's 7R grid would take on N workers.
+
+The job: nullspace SMMs (smm.dataset.trace_smms, the data sets' sharded
+tracer) of `locations` 7R locations (another robot: tips of random
+configurations, the CI size) uniform over the region grid's positions
+and tool directions (smm.dataset.region_locations, seed 0), `shard`
+locations a shard, sing_tol 0.005 as `train smm-7r` is run (docs/smm.md).
+For each worker count: the wall time of the job (from the first shard sent
+to the last result, the workers' start-up included, the cluster's own
+start-up not), the sum of the shards' nullspace seconds, the speed-up over
+one worker and the efficiency T_1 / (w T_w). Every run must give the same
+SMMs (checked, reported as identical).
+
+Projection: the paper grids 80 x 160 positions times 12,000 tool
+orientations of its 7R (1.536e8 SMMs, section VI-A). From the one-worker
+run's nullspace seconds per location c, N workers at the measured two-worker
+efficiency e take 1.536e8 c / (N e).
+"""
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+PAPER_7R_SMMS = 80 * 160 * 12_000
+PROJECT_WORKERS = (1, 2, 16, 64, 256, 1024)
+
+
+def job_locations(robot: str, count: int) -> tuple[Any, np.ndarray]:
+    """The job's locations: over the region grid for the 7R (as its data set), else tips of random
+    configurations (smaller arms: the CI size of this bench)."""
+    from armbridge.smm.arms import get_smm_arm
+    from armbridge.smm.dataset import random_locations, region_grid, region_locations
+
+    arm = get_smm_arm(robot)
+    if arm.tool_roll:
+        return arm, np.asarray(arm.uncanonical(region_locations(region_grid(arm), count, seed=0)))
+    return arm, random_locations(arm, count, seed=0)
+
+
+def run(locations: int = 1024, shard: int = 256, workers: Sequence[int] = (1, 2), robot: str = "spatial7r",
+        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    from armbridge.shards import Runner
+    from armbridge.smm.dataset import trace_smms
+
+    arm, x = job_locations(robot, locations)
+    rows: list[dict[str, Any]] = []
+    first = None
+    for w in workers:
+        progress(f"{w} worker{'s' if w > 1 else ''}: {locations} locations in shards of {shard}")
+        with Runner(workers=w) as runner:
+            if runner.backend == "ray":
+                runner._connect()  # the cluster's start-up is not the job's
+            took: list[float] = []
+            t0 = time.perf_counter()
+            smms = trace_smms(arm, x, 128, shard, runner=runner, job="bench-shards", seconds=took, sing_tol=0.005)
+            wall = time.perf_counter() - t0
+        same = True
+        if first is None:
+            first = smms
+        else:
+            same = bool(np.array_equal(smms.points, first.points, equal_nan=True)
+                        and np.array_equal(smms.count, first.count) and np.array_equal(smms.singular, first.singular))
+        rows.append({"workers": w, "backend": runner.backend, "wall_s": wall, "load_average_1min": os.getloadavg()[0], "shard_seconds_sum": sum(took),
+                     "shard_seconds": took, "identical_to_first": same})
+    t1 = rows[0]["wall_s"] if rows[0]["workers"] == 1 else None
+    for r in rows:
+        r["speedup"] = t1 / r["wall_s"] if t1 else None
+        r["efficiency"] = t1 / (r["workers"] * r["wall_s"]) if t1 else None
+    per_location = rows[0]["shard_seconds_sum"] / locations
+    eff = next((r["efficiency"] for r in rows if r["workers"] == 2 and r["efficiency"]), 1.0)
+    projection = {str(n): PAPER_7R_SMMS * per_location / (n * (eff if n > 1 else 1.0)) / 86400 for n in PROJECT_WORKERS
+                  } if arm.name == "spatial7r" else None
+    return {"benchmark": "shards (SMM data job scaling)", "robot": arm.name, "locations": locations,
+            "locations_per_shard": shard, "shards": -(-locations // shard), "sing_tol": 0.005,
+            "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
+                        "cores": os.cpu_count()},
+            "rows": rows, "seconds_per_location_1_worker": per_location,
+            "projection_paper_7r_grid": {"smms": PAPER_7R_SMMS, "efficiency_assumed": eff, "days_on_n_workers": projection}
+            if projection else None}
