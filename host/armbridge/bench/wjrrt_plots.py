@@ -46,11 +46,12 @@ def line_style(planner: str) -> dict[str, Any]:
             "label": LABELS[planner], "gid": planner}
 
 
-def log_seconds_axis(ax: Any, lo: float, hi: float, axis: str = "x") -> None:
+def log_seconds_axis(ax: Any, lo: float, hi: float, axis: str = "x", mark: float = 0.0) -> None:
     """A log axis from lo to hi s with plain tick labels (0.001, 0.01, 0.1, 1; not 10^k).
 
     Up to two decades every 1-2-5 step is labelled; over a longer range the
-    decades (and hi) carry the labels and the 2 and 5 steps are unlabelled ticks.
+    decades (and `mark`, e.g. the budget T) carry the labels and the 2 and 5
+    steps are unlabelled ticks.
     """
     from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
@@ -59,8 +60,8 @@ def log_seconds_axis(ax: Any, lo: float, hi: float, axis: str = "x") -> None:
         major, minor = steps, []
     else:
         major = [t for t in steps if abs(np.log10(t) - round(np.log10(t))) < 1e-9]
-        if hi not in major:
-            major.append(hi)
+        if mark and mark not in major:
+            major.append(mark)
         minor = [t for t in steps if t not in major]
     a = ax.xaxis if axis == "x" else ax.yaxis
     (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
@@ -121,7 +122,7 @@ def success_figure(result: dict[str, Any]) -> Any:
             style = line_style(pl)
             ax.plot(grid, y, drawstyle="steps-post", markevery=[m for m in marks if 0 <= m < grid.size],
                     zorder=3 if pl in OURS else 4, **style)
-        log_seconds_axis(ax, lo, T)
+        log_seconds_axis(ax, lo, T, mark=T)
         ax.set_ylim(-3, 103)
         ax.set_xlabel("time budget per query t (s)")
         ax.set_title(f"{name} ({sc['links']} links, {len(next(iter(sc['planners'].values()))['runs'])} seeds)",
@@ -165,7 +166,7 @@ def time_figure(result: dict[str, Any]) -> Any:
                            capprops={"color": s["color"], "linewidth": 1.1},
                            flierprops={"marker": s["marker"], "ms": 3, "mec": s["color"], "mfc": "none"})
             ax.text(x, lo * 1.15, f"{ts.size}", ha="center", va="bottom", fontsize=7, color="0.2")
-    log_seconds_axis(ax, lo, T * 1.6, axis="y")
+    log_seconds_axis(ax, lo, T * 1.6, axis="y", mark=T)
     ax.axhline(TARGET_MEDIAN_S, color="0.35", lw=0.8, ls=":", zorder=0)
     ax.text(-0.6, TARGET_MEDIAN_S * 1.05, f"target median {TARGET_MEDIAN_S:g} s", ha="left", va="bottom",
             fontsize=7, color="0.35")
