@@ -227,7 +227,7 @@ def solve(problem: Problem, planner: str = "RRTConnect", *, time_limit: float = 
     default is a fifth of the space's extent); named as OMPL names it.
     The path is the planner's own (un-simplified unless `simplify`); stats
     carry Table 1's columns that exist for OMPL: nodes (its PlannerData
-    vertices), track_nodes (path states before any simplification),
+    vertices), track_nodes (path states but the start, before any simplification),
     obstacle_checks (our checker's calls during the solve).
     """
     require()
@@ -276,7 +276,7 @@ def solve(problem: Problem, planner: str = "RRTConnect", *, time_limit: float = 
     track = 0
     if pdef.hasExactSolution():
         sol = pdef.getSolutionPath()
-        track = int(sol.getStateCount())
+        track = int(sol.getStateCount()) - 1  # the path's states but the start, as our planners count
         if simplify:
             og.PathSimplifier(si).simplifyMax(sol)
         path = np.array([to_np(sol.getState(i)) for i in builtins.range(sol.getStateCount())])
