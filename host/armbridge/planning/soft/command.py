@@ -80,7 +80,7 @@ def soft_cmd(
 ) -> None:
     """Plan a soft-arm motion and write it as a plan for the pump board.
 
-    WJRRT (the WJRRT paper's Algorithms 1-2) or a baseline plans on the scene; the plan keeps the fewest
+    WJRRT (the WJRRT paper's Algorithms 2-3) or a baseline plans on the scene; the plan keeps the fewest
     planned nodes whose straight segments stay within --tolerance of the path and are collision-free,
     holds joint changes below the dead band, and times each move by the pump's inflation and deflation
     rates with a settle hold. `armbridge run PLAN --port emu:arduino_pump` executes it."""
