@@ -9,7 +9,7 @@ from typing import Any, Optional
 
 import typer
 
-from armbridge.shards.engine import Runner
+from armbridge.shards.engine import Runner, reachable
 
 RAY_HELP = ("Run the shards on a running Ray cluster: auto (the one this machine joined with `ray start`) "
             "or the head's address HOST:PORT (docs/cluster.md). Needs the ray extra.")
@@ -32,5 +32,9 @@ def checkpoint_option(default: str) -> Any:
 
 
 def runner(ray: Optional[str], workers: int, checkpoint: Optional[Path], progress: bool = True) -> Runner:
-    """The Runner of the options (Runner checks them)."""
-    return Runner(ray=ray, workers=workers, checkpoint=checkpoint, progress=progress)
+    """The Runner of the options (Runner checks them); a head address that does not answer is an
+    error before any work starts."""
+    out = Runner(ray=ray, workers=workers, checkpoint=checkpoint, progress=progress)
+    if ray is not None and ray != "auto":
+        reachable(ray)
+    return out

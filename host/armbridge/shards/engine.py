@@ -20,7 +20,7 @@ driver) resumes where it was.
 
 On Ray each shard is a task of num_cpus=1 (Ray sets OMP_NUM_THREADS to match),
 num_gpus=1 when the job can use a GPU and the cluster has one (Ray then makes
-that GPU the task's only visible CUDA device; tasks without a GPU see none).
+that GPU the task's visible CUDA device).
 A task whose worker dies is retried by Ray (max_retries); a task that raises
 ends the job with an ArmbridgeError naming the shard, after the finished ones
 are on disk.
@@ -208,11 +208,13 @@ class Runner:
     def _connect(self) -> Any:
         from armbridge.extras import require
 
-        ray = require("ray", "ray", "--ray and --workers > 1")
+        ray = require("ray", "ray", "running shards on Ray (--ray, --workers > 1)")
         if not ray.is_initialized():
             import logging
 
             if self.ray is not None:
+                if self.ray != "auto":
+                    reachable(self.ray)
                 ray.init(address=self.ray, logging_level=logging.WARNING, log_to_driver=False)
             else:
                 ray.init(num_cpus=self.workers, include_dashboard=False, logging_level=logging.WARNING,
@@ -262,6 +264,18 @@ class Runner:
         finally:
             for ref in running:
                 ray.cancel(ref, force=True)
+
+
+def reachable(address: str, timeout: float = 5.0) -> None:
+    """A clear error at once for a head that is not there (ray.init retries a dead address for minutes)."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise ArmbridgeError(f"--ray {address}: need 'auto' or the cluster head's address HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ArmbridgeError(f"--ray {address}: no Ray head answers there ({e}); start one with "
+                             "`ray start --head` (docs/cluster.md)") from None
 
 
 def _call(job: Job, shard: Shard) -> tuple[Arrays, dict[str, Any]]:

@@ -87,7 +87,7 @@ def masr_iknn_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the accuracy as JSON here."),
     ray: Optional[str] = shard_options.ray_option(),
     workers: int = shard_options.workers_option(),
-    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards"),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards, deleted once the data set is saved"),
 ) -> None:
     """Build/cache the data set, train the IK-NN, export float/int8 ONNX + flat int8, write the card.
 
@@ -211,7 +211,7 @@ def smm_cmd(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),
     ray: Optional[str] = shard_options.ray_option(),
     workers: int = shard_options.workers_option(),
-    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards"),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards, deleted once the data set is saved"),
 ) -> None:
     """Train the learned-SMM networks (section V-D), export ONNX and a card with held-out accuracy.
 
