@@ -22,9 +22,30 @@ if not BOOTLOADER.is_file():
     missing(f"{BOOTLOADER} is missing (arduino-core-avr, scripts/setup.sh)")
 
 
+def _flash_cmd(*args: str) -> list[str]:
+    return [str(Path(sys.executable).with_name("armbridge")), "flash", "arduino_pump", *args]
+
+
 def _flash(*args: str) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).with_name("armbridge")
-    return subprocess.run([str(exe), "flash", "arduino_pump", *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run(_flash_cmd(*args), capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def silent_port():
+    """`armbridge flash` on a pty whose other end never answers, started before this module's
+    first test: avrdude spends about 30 s in its own timeouts there (idle), beside the flash
+    through the bootloader. (The test below reads what it said.)"""
+    master, slave = os.openpty()
+    proc = subprocess.Popen(_flash_cmd("--port", os.ttyname(slave)), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        yield proc
+    finally:
+        if proc.returncode is None:   # the test did not read it
+            proc.kill()
+            proc.communicate()
+        os.close(master)
+        os.close(slave)
 
 
 def test_flash_another_version_through_the_bootloader(tmp_path):
@@ -61,14 +82,10 @@ def test_flash_another_version_through_the_bootloader(tmp_path):
     assert b"9.8.7" in image
 
 
-def test_a_port_without_the_bootloader_is_one_line(tmp_path):
+def test_a_port_without_the_bootloader_is_one_line(silent_port):
     """A pty whose other end never answers (no bootloader behind it): one line, exit 1."""
-    master, slave = os.openpty()
-    try:
-        r = _flash("--port", os.ttyname(slave))
-    finally:
-        os.close(master)
-        os.close(slave)
+    stdout, stderr = silent_port.communicate(timeout=120)
+    r = subprocess.CompletedProcess(silent_port.args, silent_port.returncode, stdout, stderr)
     assert r.returncode == 1, (r.stdout, r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1 and "does not answer the stk500v2 bootloader" in lines[0], r.stderr
