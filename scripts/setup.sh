@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Build the development environment: .venv (package + the extras in PIP_EXTRAS),
 # node_modules (MicroPython WebAssembly interpreter), typings (ESP32 stubs)
-# and, as root, the Debian AVR toolchain.
+# and, as root, the Debian AVR toolchain and OMPL 1.5 (libompl-dev: STRIDE's shim).
 #
 # Idempotent: each step records a hash of its inputs in a /.stamp-* file and
 # is skipped while the hash matches and its output still exists, so a re-run
@@ -14,7 +14,8 @@ VENV=.venv
 # Exact pins for these live in constraints.txt (one place for every pin).
 PIP_EXTRAS="[test,train,masr,ompl,smm-peer,ray]"
 STUBS=micropython-esp32-stubs
-APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude)
+# libompl-dev: OMPL 1.5 headers and libompl.so for the STRIDE shim (planning/ext; the PyPI wheel binds no STRIDE).
+APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude libompl-dev)
 
 log() { printf 'setup: %s\n' "$*"; }
 
@@ -76,11 +77,11 @@ step_apt() {
     if dpkg -s "${APT_PKGS[@]}" >/dev/null 2>&1; then return; fi
     local cmd="apt-get install -y --no-install-recommends ${APT_PKGS[*]}"
     if [[ $(id -u) -ne 0 ]]; then
-        echo "setup: AVR toolchain missing (needed for the Arduino firmware and its simavr tests); run:" >&2
+        echo "setup: AVR toolchain or libompl-dev missing (needed for the Arduino firmware, its simavr tests and OMPL STRIDE); run:" >&2
         echo "  sudo apt-get update && sudo $cmd" >&2
         return
     fi
-    log "installing AVR toolchain from apt"
+    log "installing AVR toolchain and libompl-dev from apt"
     export DEBIAN_FRONTEND=noninteractive
     apt-get update -qq
     $cmd -qq >/dev/null
@@ -101,10 +102,26 @@ step_harness() {
     }
 }
 
+# OMPL STRIDE's pybind11 shim (host/armbridge/planning/ext/stride.cpp), built into the same
+# cache folder, where it would otherwise be built on first use (~12 s of g++). Needs the apt
+# step's libompl-dev; skipped (with a note) without it.
+step_stride() {
+    if [[ ! -f /usr/include/ompl-1.5/ompl/geometric/planners/stride/STRIDE.h ]]; then
+        log "OMPL STRIDE shim skipped: libompl-dev is missing"
+        return
+    fi
+    local out
+    out=$("$VENV/bin/python" -c 'from armbridge.planning.ext.build import stride_module; stride_module()' 2>&1) || {
+        echo "setup: building the OMPL STRIDE shim failed: $out" >&2
+        exit 1
+    }
+}
+
 step_venv
 step_pip
 step_npm
 step_typings
 step_apt
 step_harness
+step_stride
 log "environment ready"

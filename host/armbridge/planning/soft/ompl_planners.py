@@ -9,7 +9,7 @@ scene's goal_q and the tip descent of ik.py) that our planners get, so
 the checks they count and the paths they return are comparable; OMPL's
 paths are checked again by that checker before they count (bench wjrrt).
 
-Projection planners (KPIECE1, STRIDE, and BKPIECE1 / LBKPIECE1) need a
+Projection planners (KPIECE1, and BKPIECE1 / LBKPIECE1) need a
 projection of a state to a few coordinates whose grid cells they explore.
 projection="tip" (default) projects onto the tip's (x, y), the quantity the
 goal is set in (as WJRRT's Jacobian step works in it); "random" leaves
@@ -17,11 +17,13 @@ OMPL's default for a RealVectorStateSpace, the random linear projection to
 max(2, ceil(log n)) dimensions that OMPL's KinematicChain demo uses too.
 Cell sizes are OMPL's inferred ones (1/20 of the projected range).
 
-STRIDE: the PyPI `ompl` 2.0.1 wheel (the only one there) compiles STRIDE into
-libompl.so but binds no Python class for it, so it cannot be run from
-Python; `missing("STRIDE")` says so and the benchmark reports it as not
-run instead of standing another planner in for it. A later wheel that binds
-`ompl.geometric.STRIDE` is picked up without a change here.
+STRIDE: the PyPI `ompl` 2.0.1 wheel compiles STRIDE into its libompl.so but
+binds no Python class for it, so it runs through planning.ext.stride, a
+pybind11 shim over Debian's libompl-dev (OMPL 1.5.2) with the same space,
+checker callbacks and goal. It keeps OMPL's defaults, which use no
+projection (its GNAT works on the full state), so `projection` does not
+apply to it (settings "projection": None). `missing("STRIDE")` says what
+is absent (libompl-dev, g++, pybind11) and the benchmark reports it as not run.
 Table 1's goal / random node split and H do not exist for OMPL's planners
 (stats None).
 """
@@ -32,31 +34,32 @@ from typing import Any, Optional
 from armbridge.errors import ArmbridgeError
 from armbridge.planning import ompl_bridge
 from armbridge.planning.base import PlanResult, Problem
+from armbridge.planning.ext import stride
 from armbridge.planning.soft.space import EDGE_RES
 
 #: The OMPL planners of the soft-arm benchmark (bench wjrrt).
 OMPL_PLANNERS = ("RRTConnect", "KPIECE1", "STRIDE")
 #: Planners that explore a projection's grid.
-PROJECTION = frozenset({"KPIECE1", "BKPIECE1", "LBKPIECE1", "STRIDE"})
+PROJECTION = frozenset({"KPIECE1", "BKPIECE1", "LBKPIECE1"})
 PROJECTIONS = ("tip", "random")
 
 
 def missing(planner: str) -> Optional[str]:
     """None if `planner` can run here, else why not."""
+    if planner == "STRIDE":
+        return stride.missing()
     why = ompl_bridge.available()
     if why:
         return f"OMPL is not available ({why})"
     from ompl import geometric as og  # type: ignore[import-untyped]
 
-    if planner == "STRIDE" and not hasattr(og, "STRIDE"):
-        return "the PyPI ompl wheel binds no STRIDE (compiled into libompl.so, no Python class)"
     if planner not in ompl_bridge.planner_names() and not hasattr(og, planner):
         return f"unknown OMPL planner {planner!r}"
     return None
 
 
 def _ensure(planner: str) -> None:
-    """Register planners the bridge's list lacks but this wheel binds (STRIDE in a later wheel)."""
+    """Register planners the bridge's list lacks but this wheel binds."""
     from ompl import geometric as og
 
     if planner not in ompl_bridge.planner_names() and hasattr(og, planner):
@@ -82,6 +85,8 @@ def solve(problem: Problem, planner: str = "RRTConnect", *, time_limit: float = 
         raise ArmbridgeError(f"OMPL {planner}: {why}")
     if projection not in PROJECTIONS:
         raise ArmbridgeError(f"projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
+    if planner == "STRIDE":
+        return stride.solve(problem, time_limit=time_limit, iterations=iterations, seed=seed, range=range)
     _ensure(planner)
     proj = tip_projection(problem) if planner in PROJECTION and projection == "tip" else None
     result = ompl_bridge.solve(problem, planner, time_limit=time_limit, iterations=iterations, range=range,

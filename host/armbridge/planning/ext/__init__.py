@@ -1,0 +1,1 @@
+"""Compiled extensions over system libraries the PyPI wheels lack (built on first use: ext.build)."""
