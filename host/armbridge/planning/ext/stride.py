@@ -36,7 +36,8 @@ from armbridge.planning.ext import build
 
 def missing() -> Optional[str]:
     """None if STRIDE can run here (the shim is built or can be), else what is missing."""
-    return build.missing()
+    why = build.missing()
+    return f"the STRIDE shim cannot be built: {why}" if why else None
 
 
 def goal_distance(goal: Any) -> Callable[[np.ndarray], float]:
