@@ -5,10 +5,16 @@
 
 The build is keyed by the source, the compiler line and the Python ABI, so
 an edit or another interpreter builds anew; scripts/setup.sh builds it once
-so tests and benchmarks never pay the ~12 s compile. The module links
-Debian's libompl.so.16 (soname differs from the ompl wheel's libompl.so, and
-both load RTLD_LOCAL), so each OMPL resolves its own symbols; docs/planning-soft.md
-"OMPL STRIDE" says what the two still share.
+so tests and benchmarks never pay the ~12 s compile.
+
+Beside the ompl wheel in one process: the module links Debian's
+libompl.so.16, whose soname differs from the wheel's libompl.so, and Python
+loads both RTLD_LOCAL, so every OMPL symbol resolves inside its own library
+(checked with LD_DEBUG=bindings, either import order). What the two do share
+are the process-wide STB_GNU_UNIQUE objects of header-only code: boost.random's
+constant ziggurat tables, boost.math initialisers, Eigen's cache sizes (same
+contents in both) and boost.serialization singletons, which only OMPL's
+PlannerDataStorage (never used here) touches.
 """
 from __future__ import annotations
 
