@@ -15,14 +15,14 @@ Set-up (PyPI `ompl` 2.x, nanobind bindings; optional extra `armbridge[ompl]`):
   resolution, and every answer counts in `checker.checks` (Table 1's
   "Obstacle Check" column is the difference of that counter). The bindings
   route OMPL's checkMotion(s1, s2, lastValid) overload to the same Python
-  method without a last valid state, so KPIECE1 / STRIDE keep no partial
-  motions (their minValidPathFraction never applies);
+  method without a last valid state, so KPIECE1 keeps no partial
+  motions (its minValidPathFraction never applies);
 * goal: a GoalSampleableRegion whose distanceGoal is the goal's own
   `distance` (0 where `is_satisfied`), sampling `problem.goal_states` (known
-  goal configurations: RRTConnect grows its goal tree from them, KPIECE1 and
-  STRIDE use them for their goal bias). Without goal states RRTConnect
+  goal configurations: RRTConnect grows its goal tree from them, KPIECE1 uses
+  them for its goal bias). Without goal states RRTConnect
   cannot start its goal tree and fails at once, as in OMPL;
-* projection (KPIECE1, STRIDE and the other projection planners): the
+* projection (KPIECE1 and the other projection planners): the
   caller's `projection` callable (q -> k coordinates; cells given or inferred), or
   else the space's default, OMPL's random linear projection of the joints;
 * termination: wall clock `time_limit` and, if given, a number of planner
@@ -30,6 +30,9 @@ Set-up (PyPI `ompl` 2.x, nanobind bindings; optional extra `armbridge[ompl]`):
   it at the top of every iteration (RRTConnect also inside its connect
   loop), so `iterations` counts the evaluations that let it go on: OMPL's
   iterations, and for RRTConnect its connect steps as well.
+
+STRIDE, which the wheel does not bind, runs through planning.ext.stride
+(Debian's OMPL 1.5 behind a C++ shim) with this same set-up.
 
 OMPL's random seed can be set once per process only (`seed_once`: the
 first seed asked for stays); every planner object then draws its own seed
