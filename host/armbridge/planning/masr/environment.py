@@ -27,6 +27,7 @@ from armbridge.jsonfile import read_json
 from armbridge.ik import masr_dls
 from armbridge.ik.masr_dls import E_P, E_PHI  # the goal tolerances of section V-A
 from armbridge.planning.base import Problem
+from armbridge.planning.envfile import Ctx, fmt, header, obstacle, vector
 from armbridge.planning.masr.collision import SWEEP_RES, CollisionChecker
 from armbridge.planning.masr.space import MasrChecker, MasrGoal, MasrSpace
 from armbridge.robots.catalog import get_masr, is_registered
@@ -40,11 +41,6 @@ FIXED = ("E1", "E2", "E3")
 
 _TOP = ("format", "version", "name", "description", "robot", "obstacles", "start", "goal", "known_path", "provenance")
 _GOAL = ("pose", "q", "e_p", "e_phi")
-
-
-def _fmt(x: float) -> str:
-    s = f"{x:.4f}".rstrip("0").rstrip(".")
-    return "0" if s in ("-0", "") else s
 
 
 @dataclass(eq=False)
@@ -129,56 +125,7 @@ class Environment:
 
 
 # ------------------------------------------------------------------ validation
-class _Ctx:
-    def __init__(self, source: Any):
-        self.name = str(source) if source is not None else "<environment>"
-
-    def err(self, msg: str) -> ArmbridgeError:
-        return ArmbridgeError(f"{self.name}: {msg}")
-
-
-def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _vector(v: Any, n: int, where: str, ctx: _Ctx) -> np.ndarray:
-    if not isinstance(v, (list, tuple, np.ndarray)):
-        raise ctx.err(f"{where} must be a list of {n} numbers, got {type(v).__name__}")
-    if len(v) != n:
-        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
-    for i, x in enumerate(v):
-        if not (_is_num(x) or isinstance(x, (np.floating, np.integer))):
-            raise ctx.err(f"{where}[{i}] must be a number, got {x!r}")
-        if not math.isfinite(float(x)):
-            raise ctx.err(f"{where}[{i}] is {x}: environments hold finite numbers only")
-    return np.array(v, dtype=float)
-
-
-def _polygon(v: Any, i: int, ctx: _Ctx) -> np.ndarray:
-    import shapely  # type: ignore[import-untyped]
-    from shapely.geometry import Polygon  # type: ignore[import-untyped]
-
-    where = f"obstacles[{i}]"
-    if not isinstance(v, (list, tuple, np.ndarray)) or len(v) < 3:
-        raise ctx.err(f"{where} must be a list of at least 3 [x, y] vertices")
-    pts = np.array([_vector(p, 2, f"{where}[{k}]", ctx) for k, p in enumerate(v)])
-    if np.allclose(pts[0], pts[-1]) and len(pts) > 3:
-        pts = pts[:-1]  # a closed ring: drop the repeated vertex
-    poly = Polygon(pts)
-    if not shapely.is_valid(poly):
-        reason = shapely.is_valid_reason(poly)
-        if reason.startswith("Self-intersection"):
-            xy = reason[reason.find("[") + 1: reason.find("]")].split()
-            at = f" at ({_fmt(float(xy[0]))}, {_fmt(float(xy[1]))})" if len(xy) == 2 else ""
-            raise ctx.err(f"{where} is self-intersecting{at}: its edges cross; list the vertices in order "
-                          "around the polygon")
-        raise ctx.err(f"{where} is not a valid polygon: {reason}")
-    if poly.area <= 1e-12:
-        raise ctx.err(f"{where} has zero area")
-    return pts
-
-
-def _robot(spec: Any, ctx: _Ctx) -> MasrArm:
+def _robot(spec: Any, ctx: Ctx) -> MasrArm:
     try:
         if isinstance(spec, str):
             return get_masr(spec)
@@ -191,10 +138,10 @@ def _describe_q(arm: MasrArm, q: np.ndarray) -> Optional[str]:
     """Why q is outside C_f (eq. 5), or None."""
     for j in range(arm.n):
         if abs(q[j]) > arm.theta_b[j]:
-            return (f"theta_{j + 1} = {_fmt(q[j])} rad is outside the joint limits "
-                    f"[-{_fmt(arm.theta_b[j])}, {_fmt(arm.theta_b[j])}]")
+            return (f"theta_{j + 1} = {fmt(q[j])} rad is outside the joint limits "
+                    f"[-{fmt(arm.theta_b[j])}, {fmt(arm.theta_b[j])}]")
     if not 0.0 <= q[-1] <= arm.total_length:
-        return f"d = {_fmt(q[-1])} m is off the arm [0, {_fmt(arm.total_length)}]"
+        return f"d = {fmt(q[-1])} m is off the arm [0, {fmt(arm.total_length)}]"
     return None
 
 
@@ -224,42 +171,25 @@ def find_goal_configs(arm: MasrArm, goal_pose: np.ndarray, checker: CollisionChe
 
 def environment_from_dict(doc: Any, source: Any = None) -> Environment:
     """Validate a parsed environment document; ArmbridgeError names the first problem."""
-    ctx = _Ctx(source)
-    if not isinstance(doc, dict):
-        raise ctx.err("an environment is a JSON object")
-    if doc.get("format") != FORMAT:
-        raise ctx.err(f'format is {json.dumps(doc.get("format"))}, expected "{FORMAT}"')
-    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
-        raise ctx.err(f"unsupported version {json.dumps(doc.get('version'))} (this armbridge reads version {VERSION})")
-    for key in doc:
-        if key not in _TOP:
-            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP)})')
-    for key in ("robot", "obstacles", "start", "goal"):
-        if key not in doc:
-            raise ctx.err(f'missing field "{key}"')
-    name = doc.get("name", Path(str(source)).stem if source is not None else "env")
-    if not isinstance(name, str) or not name:
-        raise ctx.err("name must be a non-empty string")
-    description = doc.get("description", "")
-    if not isinstance(description, str):
-        raise ctx.err("description must be a string")
+    ctx = Ctx(source, "environment")
+    name, description = header(doc, ctx, FORMAT, VERSION, _TOP, ("robot", "obstacles", "start", "goal"), "env")
     arm = _robot(doc["robot"], ctx)
     n = arm.n
 
     obs = doc["obstacles"]
     if not isinstance(obs, list):
         raise ctx.err("obstacles must be a list of polygons")
-    obstacles = [_polygon(p, i, ctx) for i, p in enumerate(obs)]
+    obstacles = [obstacle(p, i, ctx) for i, p in enumerate(obs)]
     checker = CollisionChecker.create(arm, obstacles)
 
-    start = _vector(doc["start"], n + 1, "start", ctx)
+    start = vector(doc["start"], n + 1, "start", ctx)
     why = _describe_q(arm, start)
     if why:
         raise ctx.err(f"start configuration is infeasible: {why}")
     hit = checker.first_hit(start)
     if hit is not None:
         raise ctx.err(f"start configuration is in collision: link {hit[1] + 1} is within "
-                      f"{_fmt(checker.margin)} m (half the link width) of obstacles[{hit[0]}]")
+                      f"{fmt(checker.margin)} m (half the link width) of obstacles[{hit[0]}]")
 
     goal = doc["goal"]
     if not isinstance(goal, dict):
@@ -269,31 +199,31 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
             raise ctx.err(f'goal: unknown field "{key}" (allowed: {", ".join(_GOAL)})')
     if "pose" not in goal:
         raise ctx.err('goal: missing field "pose" ([x, y, phi] in m, m, rad)')
-    pose = _vector(goal["pose"], 3, "goal.pose", ctx)
-    e_p = float(_vector([goal.get("e_p", E_P)], 1, "goal.e_p", ctx)[0])
-    e_phi = float(_vector([goal.get("e_phi", E_PHI)], 1, "goal.e_phi", ctx)[0])
+    pose = vector(goal["pose"], 3, "goal.pose", ctx)
+    e_p = float(vector([goal.get("e_p", E_P)], 1, "goal.e_p", ctx)[0])
+    e_phi = float(vector([goal.get("e_phi", E_PHI)], 1, "goal.e_phi", ctx)[0])
     if e_p <= 0 or e_phi <= 0:
-        raise ctx.err(f"goal tolerances must be > 0, got e_p = {_fmt(e_p)} m, e_phi = {_fmt(e_phi)} rad")
+        raise ctx.err(f"goal tolerances must be > 0, got e_p = {fmt(e_p)} m, e_phi = {fmt(e_phi)} rad")
     reach = float(np.hypot(pose[0], pose[1]))
     if reach > arm.total_length + e_p:
-        raise ctx.err(f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is out of reach: "
-                      f"{_fmt(reach)} m from the base, the arm reaches {_fmt(arm.total_length)} m")
+        raise ctx.err(f"goal pose ({fmt(pose[0])}, {fmt(pose[1])}, {fmt(pose[2])}) is out of reach: "
+                      f"{fmt(reach)} m from the base, the arm reaches {fmt(arm.total_length)} m")
     goal_q = None
     if "q" in goal:
-        goal_q = _vector(goal["q"], n + 1, "goal.q", ctx)
+        goal_q = vector(goal["q"], n + 1, "goal.q", ctx)
         why = _describe_q(arm, goal_q)
         if why:
             raise ctx.err(f"goal.q is infeasible: {why}")
         clear = float(arm.joint_clearance(goal_q[-1]))
         if not arm.holds_margin(goal_q[-1]):
-            raise ctx.err(f"goal.q puts the MA {_fmt(clear * 1e3)} mm from a joint, inside the robot's "
-                          f"d_margin = {_fmt(arm.d_margin * 1e3)} mm (its localisation bound)")
+            raise ctx.err(f"goal.q puts the MA {fmt(clear * 1e3)} mm from a joint, inside the robot's "
+                          f"d_margin = {fmt(arm.d_margin * 1e3)} mm (its localisation bound)")
         dp_q, dphi_q = (float(v) for v in arm.span_pose_errors(goal_q, pose))
         if not (dp_q <= e_p and dphi_q <= e_phi):
-            raise ctx.err(f"goal.q puts the MA {_fmt(dp_q * 1e3)} mm and {_fmt(math.degrees(dphi_q))} deg "
-                          f"from the goal pose, outside e_p = {_fmt(e_p * 1e3)} mm, "
-                          f"e_phi = {_fmt(math.degrees(e_phi))} deg (eq. 9, for every d within "
-                          f"d_margin = {_fmt(arm.d_margin * 1e3)} mm)")
+            raise ctx.err(f"goal.q puts the MA {fmt(dp_q * 1e3)} mm and {fmt(math.degrees(dphi_q))} deg "
+                          f"from the goal pose, outside e_p = {fmt(e_p * 1e3)} mm, "
+                          f"e_phi = {fmt(math.degrees(e_phi))} deg (eq. 9, for every d within "
+                          f"d_margin = {fmt(arm.d_margin * 1e3)} mm)")
         hit = checker.first_hit(goal_q)
         if hit is not None:
             raise ctx.err(f"goal.q is in collision: link {hit[1] + 1} touches obstacles[{hit[0]}]")
@@ -301,13 +231,13 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         good, free, dp, dphi = find_goal_configs(arm, pose, checker, e_p=e_p, e_phi=e_phi, extra_starts=start)
         if good.shape[0] == 0:
             raise ctx.err(
-                f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is out of reach: no configuration "
-                f"within the joint limits puts the MA within e_p = {_fmt(e_p * 1e3)} mm and "
-                f"e_phi = {_fmt(math.degrees(e_phi))} deg of it with d at least d_margin = "
-                f"{_fmt(arm.d_margin * 1e3)} mm from every joint (closest found: {_fmt(dp * 1e3)} mm, "
-                f"{_fmt(math.degrees(dphi))} deg)")
+                f"goal pose ({fmt(pose[0])}, {fmt(pose[1])}, {fmt(pose[2])}) is out of reach: no configuration "
+                f"within the joint limits puts the MA within e_p = {fmt(e_p * 1e3)} mm and "
+                f"e_phi = {fmt(math.degrees(e_phi))} deg of it with d at least d_margin = "
+                f"{fmt(arm.d_margin * 1e3)} mm from every joint (closest found: {fmt(dp * 1e3)} mm, "
+                f"{fmt(math.degrees(dphi))} deg)")
         if not np.any(free):
-            raise ctx.err(f"goal pose ({_fmt(pose[0])}, {_fmt(pose[1])}, {_fmt(pose[2])}) is blocked: every "
+            raise ctx.err(f"goal pose ({fmt(pose[0])}, {fmt(pose[1])}, {fmt(pose[2])}) is blocked: every "
                           f"configuration found that reaches it ({good.shape[0]}) collides with an obstacle")
         cand = good[free]
         goal_q = cand[int(np.argmin(arm.action_cost(start, cand)))]
@@ -317,7 +247,7 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         kp = doc["known_path"]
         if not isinstance(kp, list) or len(kp) < 2:
             raise ctx.err("known_path must be a list of at least 2 configurations")
-        known = np.array([_vector(q, n + 1, f"known_path[{k}]", ctx) for k, q in enumerate(kp)])
+        known = np.array([vector(q, n + 1, f"known_path[{k}]", ctx) for k, q in enumerate(kp)])
     prov = doc.get("provenance", {})
     if not isinstance(prov, dict):
         raise ctx.err("provenance must be an object")

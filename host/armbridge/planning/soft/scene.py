@@ -24,6 +24,7 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import read_json
 from armbridge.planning.base import Problem
+from armbridge.planning.envfile import Ctx, fmt, header, number, obstacle, vector
 from armbridge.planning.soft.ik import goal_configs
 from armbridge.planning.soft.space import EDGE_RES, FREE, LIMITS, ChainChecker, ChainSpace
 from armbridge.robots.catalog import get_robot, is_registered, robot_from_dict, robot_to_dict
@@ -52,11 +53,6 @@ PARAM_RANGES: dict[str, tuple[float, float, bool]] = {
     "d_min": (0.0, 1.0, False),
     "goal_tries": (1, 1000, True),
 }
-
-
-def _fmt(x: float) -> str:
-    s = f"{x:.4f}".rstrip("0").rstrip(".")
-    return "0" if s in ("-0", "") else s
 
 
 @dataclass(eq=False)
@@ -135,63 +131,7 @@ class Scene:
 
 
 # ------------------------------------------------------------------ validation
-class _Ctx:
-    def __init__(self, source: Any):
-        self.name = str(source) if source is not None else "<scene>"
-
-    def err(self, msg: str) -> ArmbridgeError:
-        return ArmbridgeError(f"{self.name}: {msg}")
-
-
-def _number(x: Any, where: str, ctx: _Ctx) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
-        raise ctx.err(f"{where} must be a number, got {json.dumps(x) if _jsonable(x) else type(x).__name__}")
-    if not math.isfinite(float(x)):
-        raise ctx.err(f"{where} is {x}: scenes hold finite numbers only")
-    return float(x)
-
-
-def _jsonable(x: Any) -> bool:
-    try:
-        json.dumps(x)
-        return True
-    except (TypeError, ValueError):
-        return False
-
-
-def _vector(v: Any, n: int, where: str, ctx: _Ctx) -> np.ndarray:
-    if not isinstance(v, (list, tuple, np.ndarray)):
-        raise ctx.err(f"{where} must be a list of {n} numbers, got {type(v).__name__}")
-    if len(v) != n:
-        raise ctx.err(f"{where} must have {n} values, got {len(v)}")
-    return np.array([_number(x, f"{where}[{i}]", ctx) for i, x in enumerate(v)])
-
-
-def _obstacle(v: Any, i: int, ctx: _Ctx) -> np.ndarray:
-    """A wall segment (2 vertices, length > 0) or a simple polygon (>= 3 vertices, area > 0)."""
-    import shapely  # type: ignore[import-untyped]
-    from shapely.geometry import Polygon  # type: ignore[import-untyped]
-
-    where = f"obstacles[{i}]"
-    if not isinstance(v, (list, tuple)) or len(v) < 2:
-        raise ctx.err(f"{where} must be a list of [x, y] vertices: 2 for a wall segment, at least 3 for a polygon")
-    pts = np.array([_vector(p, 2, f"{where}[{k}]", ctx) for k, p in enumerate(v)])
-    if len(pts) == 2:
-        if np.allclose(pts[0], pts[1]):
-            raise ctx.err(f"{where} is a wall of zero length: its two vertices are the same point")
-        return pts
-    if len(pts) > 3 and np.allclose(pts[0], pts[-1]):
-        pts = pts[:-1]  # a closed ring: drop the repeated vertex
-    poly = Polygon(pts)
-    if not (shapely.is_valid(poly) and poly.exterior.is_simple):
-        raise ctx.err(f"{where} is self-intersecting or degenerate ({shapely.is_valid_reason(poly)}): list the "
-                      "vertices in order around the polygon")
-    if poly.area <= 1e-12:
-        raise ctx.err(f"{where} has zero area")
-    return pts
-
-
-def _robot(spec: Any, ctx: _Ctx) -> PlanarChain:
+def _robot(spec: Any, ctx: Ctx) -> PlanarChain:
     try:
         robot = get_robot(spec) if isinstance(spec, str) else robot_from_dict(spec)
     except ArmbridgeError as exc:
@@ -201,7 +141,7 @@ def _robot(spec: Any, ctx: _Ctx) -> PlanarChain:
     return robot
 
 
-def _params(doc: Any, ctx: _Ctx) -> dict[str, Any]:
+def _params(doc: Any, ctx: Ctx) -> dict[str, Any]:
     if not isinstance(doc, dict):
         raise ctx.err("params must be an object of planner defaults")
     out: dict[str, Any] = {}
@@ -209,59 +149,42 @@ def _params(doc: Any, ctx: _Ctx) -> dict[str, Any]:
         if key not in PARAM_RANGES:
             raise ctx.err(f'params: unknown field "{key}" (allowed: {", ".join(PARAM_RANGES)})')
         lo, hi, integer = PARAM_RANGES[key]
-        x = _number(v, f"params.{key}", ctx)
+        x = number(v, f"params.{key}", ctx)
         if integer and x != int(x):
             raise ctx.err(f"params.{key} must be a whole number, got {v}")
         if not lo <= x <= hi:
-            raise ctx.err(f"params.{key} = {_fmt(x) if abs(x) >= 1e-4 else x} is outside [{lo}, {hi}]")
+            raise ctx.err(f"params.{key} = {fmt(x) if abs(x) >= 1e-4 else x} is outside [{lo}, {hi}]")
         out[key] = int(x) if integer else x
     return out
 
 
-def _config(v: Any, robot: PlanarChain, where: str, ctx: _Ctx, checker: ChainChecker) -> np.ndarray:
+def _config(v: Any, robot: PlanarChain, where: str, ctx: Ctx, checker: ChainChecker) -> np.ndarray:
     """A configuration inside the joint limits and free of collisions."""
-    q = _vector(v, robot.n, where, ctx)
+    q = vector(v, robot.n, where, ctx)
     code = checker.code(q)
     if code == LIMITS:
         j = int(np.flatnonzero((q < robot.q_min) | (q > robot.q_max))[0])
         lo, hi = robot.q_min[j], robot.q_max[j]
-        raise ctx.err(f"{where}[{j}] = {_fmt(q[j])} rad is outside {robot.joint_names[j]}'s range "
-                      f"[{_fmt(lo)}, {_fmt(hi)}] rad ({_fmt(math.degrees(lo))} to {_fmt(math.degrees(hi))} deg)")
+        raise ctx.err(f"{where}[{j}] = {fmt(q[j])} rad is outside {robot.joint_names[j]}'s range "
+                      f"[{fmt(lo)}, {fmt(hi)}] rad ({fmt(math.degrees(lo))} to {fmt(math.degrees(hi))} deg)")
     if code != FREE:
         raise ctx.err(f"{where} is in collision: {checker.describe(code)} (obstacles[] counts from 0; link width "
-                      f"{_fmt(checker.link_width)} m)")
+                      f"{fmt(checker.link_width)} m)")
     return q
 
 
 def scene_from_dict(doc: Any, source: Any = None) -> Scene:
     """Validate a parsed scene document; ArmbridgeError names the first problem."""
-    ctx = _Ctx(source)
-    if not isinstance(doc, dict):
-        raise ctx.err("a scene is a JSON object")
-    if doc.get("format") != FORMAT:
-        raise ctx.err(f'format is {json.dumps(doc.get("format"))}, expected "{FORMAT}"')
-    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
-        raise ctx.err(f"unsupported version {json.dumps(doc.get('version'))} (this armbridge reads version {VERSION})")
-    for key in doc:
-        if key not in _TOP:
-            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP)})')
-    for key in ("robot", "obstacles", "start", "goal"):
-        if key not in doc:
-            raise ctx.err(f'missing field "{key}"')
-    name = doc.get("name", Path(str(source)).stem if source is not None else "scene")
-    if not isinstance(name, str) or not name:
-        raise ctx.err("name must be a non-empty string")
-    description = doc.get("description", "")
-    if not isinstance(description, str):
-        raise ctx.err("description must be a string")
+    ctx = Ctx(source, "scene")
+    name, description = header(doc, ctx, FORMAT, VERSION, _TOP, ("robot", "obstacles", "start", "goal"), "scene")
     robot = _robot(doc["robot"], ctx)
-    base = _vector(doc.get("base", [0.0, 0.0, 0.0]), 3, "base ([x, y, heading] in m, m, rad)", ctx)
-    width = _number(doc.get("link_width", 0.0), "link_width", ctx)
+    base = vector(doc.get("base", [0.0, 0.0, 0.0]), 3, "base ([x, y, heading] in m, m, rad)", ctx)
+    width = number(doc.get("link_width", 0.0), "link_width", ctx)
     if width < 0:
-        raise ctx.err(f"link_width = {_fmt(width)} m is outside [0, inf)")
+        raise ctx.err(f"link_width = {fmt(width)} m is outside [0, inf)")
     if not isinstance(doc["obstacles"], list):
         raise ctx.err("obstacles must be a list of polygons and walls")
-    obstacles = [_obstacle(p, i, ctx) for i, p in enumerate(doc["obstacles"])]
+    obstacles = [obstacle(p, i, ctx, walls=True) for i, p in enumerate(doc["obstacles"])]
     checker = ChainChecker.create(robot, obstacles, base=base, link_width=width)
     start = _config(doc["start"], robot, "start", ctx, checker)
 
@@ -274,21 +197,21 @@ def scene_from_dict(doc: Any, source: Any = None) -> Scene:
     for key in ("point", "tol"):
         if key not in goal:
             raise ctx.err(f'goal: missing field "{key}"')
-    point = _vector(goal["point"], 2, "goal.point", ctx)
-    tol = _number(goal["tol"], "goal.tol", ctx)
+    point = vector(goal["point"], 2, "goal.point", ctx)
+    tol = number(goal["tol"], "goal.tol", ctx)
     if not 0 < tol <= robot.reach:
-        raise ctx.err(f"goal.tol = {_fmt(tol) if tol >= 1e-4 else tol} m is outside (0, {_fmt(robot.reach)}] "
+        raise ctx.err(f"goal.tol = {fmt(tol) if tol >= 1e-4 else tol} m is outside (0, {fmt(robot.reach)}] "
                       "(the robot's reach)")
     far = float(np.hypot(*(point - base[:2])))
     if far > robot.reach + tol:
-        raise ctx.err(f"goal.point ({_fmt(point[0])}, {_fmt(point[1])}) is out of reach: {_fmt(far)} m from the "
-                      f"base, the arm reaches {_fmt(robot.reach)} m")
+        raise ctx.err(f"goal.point ({fmt(point[0])}, {fmt(point[1])}) is out of reach: {fmt(far)} m from the "
+                      f"base, the arm reaches {fmt(robot.reach)} m")
     goal_q = None
     if "q" in goal:
         goal_q = _config(goal["q"], robot, "goal.q", ctx, checker)
         miss = float(np.linalg.norm(checker.tip(goal_q) - point))
         if miss > tol:
-            raise ctx.err(f"goal.q puts the tip {_fmt(miss)} m from goal.point, outside goal.tol = {_fmt(tol)} m")
+            raise ctx.err(f"goal.q puts the tip {fmt(miss)} m from goal.point, outside goal.tol = {fmt(tol)} m")
     params = _params(doc.get("params", {}), ctx)
     prov = doc.get("provenance", {})
     if not isinstance(prov, dict):
@@ -298,9 +221,9 @@ def scene_from_dict(doc: Any, source: Any = None) -> Scene:
     if goal_q is None:
         found, best = goal_configs(checker, point, tol, starts=IK_STARTS, extra=start)
         if found.shape[0] == 0:
-            raise ctx.err(f"goal.point ({_fmt(point[0])}, {_fmt(point[1])}): the tip descent from {IK_STARTS} random "
-                          f"starts found no collision-free configuration within goal.tol = {_fmt(tol)} m of it "
-                          f"(closest tip: {_fmt(best)} m, in collision or outside the joint limits); if the goal is "
+            raise ctx.err(f"goal.point ({fmt(point[0])}, {fmt(point[1])}): the tip descent from {IK_STARTS} random "
+                          f"starts found no collision-free configuration within goal.tol = {fmt(tol)} m of it "
+                          f"(closest tip: {fmt(best)} m, in collision or outside the joint limits); if the goal is "
                           "reachable, give one as goal.q")
         scene.goal_states = found
     return scene
