@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -246,15 +247,32 @@ def test_a_file_that_fails_its_hash(esp32, monkeypatch):
     assert not esp32.hal.outputs_enabled
 
 
-def test_an_interrupted_flash_is_reported_by_board_info(esp32):
+def test_an_interrupted_flash_is_reported_by_board_info(esp32, monkeypatch):
+    """SIGINT while the flash waits on the board: the board's REPL holds its answer to the write of
+    mlp.mpy (after link.mpy and the manifest have landed) until the signal has been sent, so the
+    interruption falls mid-flash however fast or loaded the machine is."""
+    from armbridge.emulator.repl import Repl
+
+    held, release = threading.Event(), threading.Event()
+    real = Repl._execute
+
+    def holding(self, src):
+        landed = "armbridge.json" in esp32.fs.files and "link.mpy" in esp32.fs.files
+        if landed and b"mlp.mpy" in src and not release.is_set():
+            held.set()
+            release.wait(60)
+        real(self, src)
+
+    monkeypatch.setattr(Repl, "_execute", holding)
     port = str(esp32.port)
     proc = subprocess.Popen([str(ARMBRIDGE), "flash", "esp32", "--port", port], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        assert wait(lambda: "armbridge.json" in esp32.fs.files and "link.mpy" in esp32.fs.files, 60)
+        assert held.wait(60)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     finally:
+        release.set()
         proc.kill()
     assert proc.returncode == 130, err
     assert "half-flashed" in err.strip().splitlines()[-1]
