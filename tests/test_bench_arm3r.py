@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 from require import missing
-from typer.testing import CliRunner
 
 try:
     import onnxruntime  # noqa: F401
@@ -15,12 +14,12 @@ except ImportError as exc:
     missing(f"{exc.name} is not installed (`make setup` installs it)")
 
 from armbridge.bench import arm3r  # noqa: E402
-from armbridge.bench.command import bench_app  # noqa: E402
 
 
-def test_bench_arm3r_quick(tmp_path):
-    out = tmp_path / "b.json"
-    r = CliRunner().invoke(bench_app, ["arm3r", "--quick", "--json", str(out)])
+def test_bench_arm3r_quick(bench_arm3r_quick):
+    """The run (with --lyapunov-png, which only adds the PNG) is shared with test_lyapunov:
+    tests/bench_runs.py."""
+    r, out, _ = bench_arm3r_quick
     assert r.exit_code == 0, r.output
     res = json.loads(out.read_text())
     assert [s["name"] for s in res["samples"]] == list(arm3r.QUICK.samples)

@@ -166,15 +166,12 @@ def test_section_on_two_samples_and_the_png(tmp_path):
     assert is_png(p2)[0] > 200
 
 
-def test_bench_arm3r_writes_the_lyapunov_key_and_fig13(tmp_path):
-    """`armbridge bench arm3r --quick --lyapunov-png`: the report's lyapunov key and the figure."""
-    from typer.testing import CliRunner
-
+def test_bench_arm3r_writes_the_lyapunov_key_and_fig13(bench_arm3r_quick):
+    """`armbridge bench arm3r --quick --lyapunov-png`: the report's lyapunov key and the figure
+    (the run is shared with test_bench_arm3r: tests/bench_runs.py)."""
     from armbridge.bench import arm3r
-    from armbridge.bench.command import bench_app
 
-    out, png = tmp_path / "b.json", tmp_path / "f13.png"
-    r = CliRunner().invoke(bench_app, ["arm3r", "--quick", "--json", str(out), "--lyapunov-png", str(png)])
+    r, out, png = bench_arm3r_quick
     assert r.exit_code == 0, r.output
     ly = json.loads(out.read_text())["lyapunov"]
     assert ly["samples"] == list(arm3r.QUICK.samples) and ly["rows"] == 3
