@@ -15,6 +15,29 @@ from armbridge.robots.catalog import get_robot
 ARMBRIDGE = Path(sys.executable).with_name("armbridge")
 
 
+@pytest.fixture(scope="module", autouse=True)
+def demo_run(request, tmp_path_factory):
+    """`armbridge demo --rrd demo.rrd` (its own emulator, on the wall clock: about 10 s,
+    mostly waiting for the arm), started with the module when
+    test_demo_runs_to_the_end_and_records is to run, so the module's other tests run
+    beside it; that test, last, reads what it did. (the process, the .rrd) or None."""
+    wanted = any(item.name == "test_demo_runs_to_the_end_and_records" and item.module is request.module
+                 for item in request.session.items)
+    if not wanted:
+        yield None
+        return
+    rrd = tmp_path_factory.mktemp("demo") / "demo.rrd"
+    env = dict(os.environ, COLUMNS="120")
+    proc = subprocess.Popen([ARMBRIDGE, "demo", "--rrd", rrd], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        yield proc, rrd
+    finally:
+        if proc.returncode is None:   # the test did not read it
+            proc.kill()
+            proc.communicate()
+
+
 def test_square_plan_traces_the_square():
     robot = get_robot("arm3r")
     plan = square_plan(robot)
@@ -32,18 +55,6 @@ def test_write_plan_only(tmp_path):
     subprocess.run([ARMBRIDGE, "demo", "--write-plan", out], check=True, capture_output=True, timeout=60)
     plan = load_plan(out)
     assert plan.k == square_plan(get_robot("arm3r")).k and plan.provenance["shape"] == "square"
-
-
-@pytest.mark.hil
-def test_demo_runs_to_the_end_and_records(tmp_path):
-    rrd = tmp_path / "demo.rrd"
-    env = dict(os.environ, COLUMNS="120")
-    run = subprocess.run([ARMBRIDGE, "demo", "--rrd", rrd], capture_output=True, text=True, timeout=120, env=env)
-    assert run.returncode == 0, run.stdout + run.stderr
-    assert "completed" in run.stdout and "83 / 83" in run.stdout
-    assert rrd.stat().st_size > 10_000
-    verify = subprocess.run([ARMBRIDGE.with_name("rerun"), "rrd", "verify", rrd], capture_output=True, timeout=60)
-    assert verify.returncode == 0, verify.stderr
 
 
 @pytest.mark.hil
@@ -77,3 +88,16 @@ def test_demo_refuses_a_latched_board_unless_clear(tmp_path):
         assert "83 / 83" in cleared.stdout
     finally:
         emu.stop()
+
+
+# last: it waits for demo_run, which ran beside the tests above
+@pytest.mark.hil
+def test_demo_runs_to_the_end_and_records(demo_run):
+    proc, rrd = demo_run
+    stdout, stderr = proc.communicate(timeout=120)
+    run = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "completed" in run.stdout and "83 / 83" in run.stdout
+    assert rrd.stat().st_size > 10_000
+    verify = subprocess.run([ARMBRIDGE.with_name("rerun"), "rrd", "verify", rrd], capture_output=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
