@@ -265,8 +265,11 @@ def test_an_interrupted_flash_is_reported_by_board_info(esp32, monkeypatch):
 
     monkeypatch.setattr(Repl, "_execute", holding)
     port = str(esp32.port)
+    # SIGINT as a terminal gives it: default disposition in the child even where this test process was
+    # started (or left by an earlier test) with SIGINT ignored, which a child would inherit
     proc = subprocess.Popen([str(ARMBRIDGE), "flash", "esp32", "--port", port], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert held.wait(60)
         proc.send_signal(signal.SIGINT)
