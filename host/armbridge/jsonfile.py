@@ -30,3 +30,13 @@ def read_json(path: Path | str, what: str, hint: str = "") -> Any:
     except OSError as exc:
         raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
     return parse_json(text, path)
+
+
+def write_json(path: Path, doc: Any, what: str = "the summary") -> None:
+    """Write doc as indented JSON (numpy scalars as floats), making the folder; an OSError is one line."""
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    except OSError as exc:
+        raise ArmbridgeError(f"{path}: cannot write {what}: {exc.strerror}") from None

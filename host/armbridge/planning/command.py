@@ -11,6 +11,7 @@ from rich.table import Table
 
 from armbridge import resources
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import write_json
 from armbridge.planning.soft.command import soft_cmd
 
 plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
@@ -119,11 +120,7 @@ def masr_cmd(
         draw(environment, result.path, png, title=f"{environment.name} ({planner})")
         console.print(f"figure: {png}")
     if json_out is not None:
-        try:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
-            json_out.write_text(json.dumps(summary, indent=2, default=float) + "\n")
-        except OSError as exc:
-            raise ArmbridgeError(f"{json_out}: cannot write the summary: {exc.strerror}") from None
+        write_json(json_out, summary)
     if result.path is None:
         raise ArmbridgeError(f"{planner} found no path to the goal of {environment.name} in {iterations} iterations "
                              "(try more --iterations or another --seed); no plan written")

@@ -7,7 +7,6 @@ armbridge-plan that `armbridge run` executes (planning/soft/plan_file.py).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -15,6 +14,7 @@ from typing import Any, Optional
 import typer
 
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import write_json
 
 
 @dataclass
@@ -104,11 +104,7 @@ def soft_cmd(
         soft_figure(sp.scene, sp.result.path, sp.waypoints.q, png, title=f"{sp.scene.name} ({planner}, seed {seed})")
         console.print(f"figure: {png}")
     if json_out is not None:
-        try:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
-            json_out.write_text(json.dumps(summary, indent=2, default=float) + "\n")
-        except OSError as exc:
-            raise ArmbridgeError(f"{json_out}: cannot write the summary: {exc.strerror}") from None
+        write_json(json_out, summary)
     try:
         save_plan(sp.plan, out)
     except OSError as exc:
