@@ -172,7 +172,7 @@ def test_a_reset_mid_move_stops_the_run_with_one_clear_line(tmp_path, ports):  #
     with pytest.raises(RunFailed) as err:
         run_plan(path, "emu:masr_ma?speed=0&seed=2&reset_at=25", tmp_path / "r.rrd", progress=False, home=True)
     msg = str(err.value)
-    assert "UNHOMED" in msg and "reset while it moved" in msg and "e-stop sent" in msg and "\n" not in msg
+    assert "UNHOMED" in msg and "reset while it moved" in msg and "e-stop sent and confirmed" in msg and "\n" not in msg
     emu = ports[0].emulator
     reset_ms = emu.resets[0] * 1000.0
     done = [wid for _, wid, _ in emu.executed]
@@ -180,7 +180,7 @@ def test_a_reset_mid_move_stops_the_run_with_one_clear_line(tmp_path, ports):  #
     assert [tuple(a) for _, _, a in emu.executed] == [tuple(a) for _, a in commands[:len(done)]]
     assert all(ms < reset_ms for ms, _, _ in emu.executed)                       # nothing ran after the reset
     assert emu.board.unhomed and emu.state == "ESTOP"
-    assert err.value.summary.resyncs >= 1
+    assert err.value.summary.resyncs >= 1 and err.value.summary.estop_confirmed
 
 
 # ---------------------------------------------------------------- e-stop, watchdog

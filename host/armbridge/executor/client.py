@@ -321,12 +321,14 @@ class BoardClient:
         queued = None if p[2] == "-" else int(p[2])
         return p[0], done, queued, self.board_clock(int(p[3]))
 
-    def drain(self, seconds: float, until: Callable[[], bool] | None = None) -> None:
+    def drain(self, seconds: float, until: Callable[[], bool] | None = None, *, resync: bool = True) -> None:
         """Keep the link serviced for `seconds` (telemetry keeps flowing to the
-        callbacks, resyncs and new epochs happen as needed), or until `until()`."""
+        callbacks, resyncs and new epochs happen as needed), or until `until()`.
+        `resync` False: read and dispatch board lines only, never a HELLO (whose
+        own timeout would overrun `seconds`): the wait after an e-stop."""
         end = self.now() + seconds
         while self.now() < end and not (until is not None and until()):
-            if self.arq.need_resync is not None:
+            if resync and self.arq.need_resync is not None:
                 self._resync()
                 continue
             self.arq.loop_once(min(0.01, max(0.0, end - self.now())))

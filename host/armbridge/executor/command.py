@@ -18,7 +18,7 @@ import typer
 from rich.console import Console
 
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, run_plan
+from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, estop_note, run_plan
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
 
 
@@ -86,8 +86,7 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
             _say(f"error: {failed}", "red")
             raise typer.Exit(1)
         if summary.stopped_by_user:
-            _say(f"stopped by {summary.stopped_by or 'SIGINT'}"
-                 + (", e-stop sent" if summary.estop_sent else ""), "yellow")
+            _say(f"stopped by {summary.stopped_by or 'SIGINT'}, {estop_note(summary)}", "yellow")
             raise typer.Exit(128 + _signum(summary.stopped_by))
         if not summary.completed:
             raise typer.Exit(1)

@@ -275,7 +275,8 @@ class ModbusClient:
         t = self.poll()
         return t.state, t.done, self.queued_id, self.board_time
 
-    def drain(self, seconds: float, until: Callable[[], bool] | None = None) -> None:
+    def drain(self, seconds: float, until: Callable[[], bool] | None = None, *, resync: bool = True) -> None:
+        """Poll the board for `seconds` or until `until()` (`resync`: as BoardClient's; Modbus has none)."""
         end = self.now() + seconds
         while self.now() < end and not (until is not None and until()):
             self._tick()

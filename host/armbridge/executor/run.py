@@ -12,8 +12,10 @@ Ctrl-C, SIGTERM and SIGHUP (executor/signals.py) all take one path: the e-stop
 byte at once, a bounded wait for the board's ESTOP, the recording closed (it
 verifies), and a Summary with `stopped_by_user` and `stopped_by` set. Any
 other failure while the arm may move also sends the e-stop byte (unless the
-board has stopped itself), closes the recording, and raises `RunFailed`, which
-carries the Summary (`error`, `final_state`, and `fault` for a FAULT).
+board has stopped itself) and waits the same way, closes the recording, and
+raises `RunFailed`, which carries the Summary (`error`, `final_state`, and
+`fault` for a FAULT). The one line says whether the board confirmed the e-stop
+(`estop_confirmed`) or not within ESTOP_CONFIRM_S.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from armbridge.plans.format import Plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
 SETTLE_WAIT_S = 3.0  # board time the run waits, after the last DONE, for a board with a dead band to come to rest
+ESTOP_CONFIRM_S = 0.5  # board time the run waits, after sending the e-stop, for the board to report ESTOP
 
 __all__ = ["RATE_MAX", "RATE_MIN", "JointTracking", "RunFailed", "Summary", "plan_error", "run_plan"]
 
@@ -324,26 +327,42 @@ def _progress_bar(plan: Plan, console):
 
 
 def _estop(client: BoardClient, summary: Summary) -> None:
+    """The e-stop, then a bounded wait (ESTOP_CONFIRM_S of board time) for the board to
+    report ESTOP (its `EV ESTOP` or a telemetry line; over Modbus its status register),
+    as a G-code sender waits for the controller's alarm report: the host keeps reading
+    meanwhile (a board in lockstep with its host, the emulator at speed 0, only takes
+    the byte in while it is read), the recording gets the event, and the run says
+    whether the board confirmed the stop instead of hoping the byte landed. Every stop
+    and failure of every board's run takes this one path (`_stop`, `_fail`)."""
     try:
         client.estop()
         summary.estop_sent = True
     except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
+        return
+    try:
+        client.drain(ESTOP_CONFIRM_S, until=lambda: client.state == "ESTOP", resync=False)
+    except (Exception, KeyboardInterrupt):  # noqa: BLE001 - the port went away; a signal: the byte is sent
         pass
+    summary.estop_confirmed = client.state == "ESTOP"
+
+
+def estop_note(summary: Summary) -> str:
+    """What became of the e-stop, as the run's messages say it."""
+    if summary.estop_confirmed:
+        return "e-stop sent and confirmed by the board"
+    if summary.estop_sent:
+        return f"e-stop sent, not confirmed by the board within {ESTOP_CONFIRM_S * 1000:.0f} ms"
+    return "e-stop could not be sent"
 
 
 def _stop(client: BoardClient, summary: Summary, rec, stop: KeyboardInterrupt) -> None:
-    """A stop signal mid-run: the e-stop byte at once, then wait (bounded) for the
-    board to confirm it, so the recording holds the ESTOP event and the last samples."""
+    """A stop signal mid-run: the e-stop byte at once and its confirmation awaited, so
+    the recording holds the ESTOP event and the last samples."""
     _estop(client, summary)
     summary.stopped_by_user = True
     summary.stopped_by = getattr(stop, "name", "SIGINT")
     if rec is not None:
-        rec.error(None, f"stopped by {summary.stopped_by}" + (", e-stop sent" if summary.estop_sent else
-                                                              ", e-stop could not be sent"), "error")
-    try:
-        client.drain(1.0, until=lambda: client.state == "ESTOP")
-    except (ArmbridgeError, KeyboardInterrupt):
-        pass
+        rec.error(None, f"stopped by {summary.stopped_by}, {estop_note(summary)}", "error")
     summary.final_state = client.state
 
 
@@ -353,7 +372,8 @@ def _fail(client: BoardClient, summary: Summary, rec, exc: BaseException) -> Non
         _estop(client, summary)
     summary.error = str(exc) or type(exc).__name__
     if summary.estop_sent and isinstance(exc, ArmbridgeError):
-        summary.error += "; e-stop sent (the next run needs --clear)"
+        check = "" if summary.estop_confirmed else "check the arm; "
+        summary.error += f"; {estop_note(summary)} ({check}the next run needs --clear)"
     summary.final_state = client.state
     summary.fault = client.fault_reason
     if rec is not None:

@@ -63,6 +63,7 @@ class Summary:
     stopped_by_user: bool = False
     stopped_by: str | None = None  # SIGINT, SIGTERM or SIGHUP
     estop_sent: bool = False
+    estop_confirmed: bool = False  # the board reported ESTOP within run.ESTOP_CONFIRM_S of the e-stop
     error: str | None = None
     fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None
@@ -106,7 +107,9 @@ class Summary:
                                                       f"failed: {self.error}" if self.error else "incomplete")
         t.add_row("status", status)
         if self.final_state:
-            t.add_row("final board state", self.final_state + (", e-stop sent" if self.estop_sent else ""))
+            estop = (", e-stop confirmed" if self.estop_confirmed else
+                     ", e-stop sent, not confirmed" if self.estop_sent else "")
+            t.add_row("final board state", self.final_state + estop)
         if self.fault:
             t.add_row("fault", self.fault)
         t.add_row("board", f"{self.fw} {self.fw_version}" if self.fw else "-")
