@@ -32,7 +32,9 @@ from armbridge.emulator import EmulatedBoard
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient
 from armbridge.executor.masr import masr_commands
+from armbridge.executor import run as executor_run
 from armbridge.executor.run import RunFailed, run_plan
+from armbridge.executor.summary import Summary
 from armbridge.geometry import wrap_angle
 from armbridge.planning.command import resolve_goal_ik
 from armbridge.planning.masr.environment import load_environment
@@ -217,6 +219,29 @@ def test_estop_mid_plan_switches_the_motors_off_within_one_period(tmp_path):
     assert emu.state == "ESTOP" and not hal.outputs_enabled and emu.plant.v == 0.0
     n_done = len(emu.executed)
     assert setup + 2 <= n_done < len(commands) and all(ms <= t_byte * 1000 for ms, _, _ in emu.executed)
+
+
+def test_an_e_stop_the_board_never_takes_in_is_reported_as_not_confirmed():
+    """The board resets as the host sends the e-stop (the reset cuts the byte from the wire, and the board
+    boots unlatched): no ESTOP comes back. The host waits ESTOP_CONFIRM_S of board time for it, no longer
+    (no HELLO meanwhile), and the run's one line says the stop was not confirmed."""
+    port = transport.open_port("emu:masr_ma?speed=0&seed=3")
+    try:
+        emu = port.emulator
+        client = BoardClient(port, None)
+        client.connect()
+        summary = Summary(plan="p", port=port.url, rrd=None, robot="masr", waypoints_total=1)
+        emu.schedule_reset(emu.now())
+        t0 = client.now()
+        executor_run._fail(client, summary, None, ArmbridgeError("the board refused MV"))
+        waited = client.now() - t0
+    finally:
+        port.close()
+    assert emu.resets and emu.hal.estop_byte_at == [] and emu.state != "ESTOP"    # the truth: never taken in
+    assert summary.estop_sent and not summary.estop_confirmed and summary.final_state != "ESTOP"
+    assert summary.error == ("the board refused MV; e-stop sent, not confirmed by the board within 500 ms "
+                             "(check the arm; the next run needs --clear)")
+    assert executor_run.ESTOP_CONFIRM_S <= waited <= executor_run.ESTOP_CONFIRM_S + 0.05
 
 
 def test_the_watchdog_stops_the_ma_when_the_host_falls_silent(tmp_path):
