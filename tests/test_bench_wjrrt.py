@@ -77,6 +77,28 @@ def test_ompl_paths_pass_our_checker(result):
     assert solved >= 1  # horn-5 is easy for RRTConnect (a few tenths of a second)
 
 
+def test_shard_records_round_trip_and_equal_the_plain_loop(result):
+    """A shard's arrays give one_run's records back exactly (keys in order, Python types, None, OMPL's
+    status); and the swept records of our planners are one_run's on the same scene and seed, but time_s."""
+    from armbridge.bench.wjrrt_shards import decode_runs, encode_runs
+    from armbridge.planning.soft.space import EDGE_RES
+
+    scene = small_scene()
+    for seed in (0, 1):
+        recs = [wjrrt.one_run(scene, pl, seed, 3.0, None, EDGE_RES) for pl in ("wjrrt", "birrt", "RRTConnect")]
+        back = decode_runs(**encode_runs(recs))
+        assert back == recs and [list(r) for r in back] == [list(r) for r in recs]
+        assert [[type(v) for v in r.values()] for r in back] == [[type(v) for v in r.values()] for r in recs]
+        assert "status" in back[2] and back[0]["recheck"] is None
+        for pl, rec in zip(("wjrrt", "birrt"), recs):
+            swept = result["scenes"]["test-two"]["planners"][pl]["runs"][seed]
+            assert swept["time_s"] < 3.0 and {**swept, "time_s": 0} == {**rec, "time_s": 0}
+    with pytest.raises(ValueError, match="FIELDS"):
+        encode_runs([{**recs[0], "path_length": 1.0}])
+    with pytest.raises(ValueError, match="expected int"):
+        encode_runs([{**recs[0], "nodes": np.int64(3)}])
+
+
 def test_bridge_counts_the_same_checker_and_returns_a_valid_path():
     scene = horn_scene(5)
     problem = scene.problem()
@@ -138,5 +160,13 @@ def test_cli_on_a_shipped_scene(tmp_path):
     assert set(doc["scenes"]["two-arm"]["planners"]) == {"wjrrt", "RRTConnect"}
     assert doc["scenes"]["two-arm"]["iterations_budget"] == 500  # Table 1's for two arms
     assert "Table 1 columns" in r.output
+    ck = tmp_path / "ck"
+    args = ["wjrrt", "--seeds", "2", "--scenes", "two-arm", "--planners", "wjrrt,birrt", "--time-limit", "5",
+            "--checkpoint", str(ck), "--no-progress", "--json", str(out)]
+    assert CliRunner().invoke(bench_app, args).exit_code == 0
+    first, log = json.loads(out.read_text()), (ck / "wjrrt" / "done.jsonl").read_text()
+    assert len(log.splitlines()) == 2 and first["shards"] == "serial"
+    assert CliRunner().invoke(bench_app, args).exit_code == 0  # serially too, a rerun reads the shards back
+    assert (ck / "wjrrt" / "done.jsonl").read_text() == log and json.loads(out.read_text())["scenes"] == first["scenes"]
     bad = CliRunner().invoke(bench_app, ["wjrrt", "--scenes", "four-arm", "--json", str(out)])
     assert isinstance(bad.exception, ArmbridgeError) and "four-arm" in str(bad.exception)  # cli.py prints it

@@ -1,5 +1,6 @@
-"""armbridge.shards: sharded jobs give the serial results, on a real local Ray cluster of two
-workers too, and a killed job resumes from its checkpoints without redoing finished shards.
+"""armbridge.shards: sharded jobs (SMM data, IK-NN data, bench masr-plan, bench wjrrt) give the serial
+results, on a real local Ray cluster of two workers too, and a killed job resumes from its checkpoints
+without redoing finished shards.
 
 The cluster (ray.init(num_cpus=2) in this process, its own temp folder) is started once for
 the module and shut down by a finalizer; the killed job runs in a child process that connects
@@ -150,6 +151,56 @@ def test_planning_sweep_on_ray_equals_serial(cluster):
     assert costs_only(on_ray) == costs_only(serial)
     e1 = on_ray["fig7"]["environments"]["E1"]
     assert e1["rows"][-1]["iterations"] == 150 and e1["cost_range_s"] is not None  # paths were found
+
+
+def no_times(result):
+    """A wjrrt result without its times and what is read off them (success at a budget t)."""
+    if isinstance(result, dict):
+        return {k: no_times(v) for k, v in result.items() if "time" not in k and k != "success_at"}
+    if isinstance(result, list):
+        return [no_times(v) for v in result]
+    return result
+
+
+def test_wjrrt_sweep_on_ray_equals_serial_and_resumes(cluster, tmp_path):
+    """One shard per (scene, seed): our planners' runs are the serial ones but their times (no run
+    ran out of T); RRTConnect's runs are there and re-checked; a rerun reads every shard back."""
+    from typer.testing import CliRunner
+
+    from armbridge.bench import wjrrt
+    from armbridge.bench.command import bench_app
+    from armbridge.planning import ompl_bridge
+
+    if ompl_bridge.available():
+        missing(f"the ompl Python wheel is needed: {ompl_bridge.available()}")
+    size, scenes, planners = wjrrt.WjrrtBenchSize(seeds=3, time_limit=2.0), ("two-arm", "three-arm"), \
+        ("wjrrt", "jt-rrt", "birrt", "RRTConnect")
+    serial = wjrrt.run(size, scenes, planners)
+    on_ray = wjrrt.run(size, scenes, planners, runner=Runner(ray=cluster, checkpoint=tmp_path))
+    assert (serial["shards"], on_ray["shards"]) == ("serial", "ray")
+    for name, sc in serial["scenes"].items():
+        got = on_ray["scenes"][name]["planners"]
+        for pl in wjrrt.OURS:
+            runs = sc["planners"][pl]["runs"] + got[pl]["runs"]
+            assert all(r["time_s"] < size.time_limit for r in runs)  # the budget stopped none: no race with it
+            assert no_times(got[pl]) == no_times(sc["planners"][pl])
+            assert [r["seed"] for r in got[pl]["runs"]] == [0, 1, 2]
+        ompl = got["RRTConnect"]["runs"]
+        assert [r["seed"] for r in ompl] == [0, 1, 2] and any(r["success"] for r in ompl)
+        for r in ompl:
+            assert r["planner_success"] == r["success"] and r["recheck"] is None  # our checker took every path
+    log = tmp_path / "wjrrt" / DONE_LOG
+    before = log.read_text()
+    pids = {json.loads(x)["pid"] for x in before.splitlines()}
+    assert len(before.splitlines()) == 6 and os.getpid() not in pids
+    out = tmp_path / "again.json"
+    res = CliRunner().invoke(bench_app, ["wjrrt", "--seeds", "3", "--time-limit", "2", "--scenes", ",".join(scenes),
+                                         "--planners", ",".join(planners), "--ray", cluster, "--checkpoint",
+                                         str(tmp_path), "--no-progress", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    again = json.loads(out.read_text())
+    assert log.read_text() == before  # nothing computed again
+    assert again["scenes"] == json.loads(json.dumps(on_ray["scenes"]))  # times too: read back
 
 
 DRIVER = f"""

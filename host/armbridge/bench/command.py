@@ -465,10 +465,18 @@ def wjrrt_cmd(
     json_out: Path = typer.Option(Path("runs/bench-wjrrt.json"), "--json", help="Where to write the results."),
     png: Path = typer.Option(None, "--png", help="Also write the figures (wjrrt-success.png, wjrrt-time.png) "
                                                  "into this folder."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
 ) -> None:
     """Table 1 of the WJRRT paper (success, iterations, time, nodes, track / goal / random nodes,
     obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT and OMPL's RRTConnect, KPIECE1, STRIDE on the
-    same scenes and checker, every run with the same time budget; success against the budget."""
+    same scenes and checker, every run with the same time budget; success against the budget.
+
+    One shard per scene and seed, every planner on it in turn (--ray, --workers; docs/cluster.md):
+    our planners' runs are the serial run's but their times, where no run ran out of the budget;
+    OMPL's are time-bound and not reproducible; times are measured where each shard ran."""
     from dataclasses import replace
 
     from rich.console import Console
@@ -481,9 +489,10 @@ def wjrrt_cmd(
     if time_limit is not None:
         size = replace(size, time_limit=time_limit)
     console = Console()
-    result = wjrrt.run(size, tuple(s.strip() for s in scenes.split(",") if s.strip()),
-                       tuple(p.strip() for p in planners.split(",") if p.strip()), iterations=iterations,
-                       progress=lambda text: console.print(f"[dim]bench wjrrt: {text}[/]"))
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = wjrrt.run(size, tuple(s.strip() for s in scenes.split(",") if s.strip()),
+                           tuple(p.strip() for p in planners.split(",") if p.strip()), iterations=iterations,
+                           progress=lambda text: console.print(f"[dim]bench wjrrt: {text}[/]"), runner=runner)
     write_json(result, json_out)
     wjrrt.print_result(result, console)
     if png is not None:

@@ -26,9 +26,14 @@ Protocol (docs/benchmarks.md, "Soft arm"):
   the time to success over all runs (median, p90; a failure counts as
   infinitely slow, so these are None when fewer than half / 90 % succeed).
 
-Runs go scene by scene, seed by seed, every planner on that seed in turn, in
-one process (OMPL's seed is per process: ompl_bridge.seed_once), so a load
-change on the machine falls on all planners alike.
+Runs go scene by scene, seed by seed, every planner on that seed in turn:
+one shard per (scene, seed) (bench.wjrrt_shards), so a load change falls on
+all planners alike. Serially (the default) they run in this process in that
+order; on Ray (`--workers N`, `--ray`) each shard runs on a worker, and the
+table is summarised here from the gathered runs. Our planners' records but
+their times are the serial run's when no run ran out of T; OMPL's are not
+reproducible even serially (its seed is per process: ompl_bridge.seed_once),
+and every time is measured where its shard ran (wjrrt_shards module doc).
 """
 from __future__ import annotations
 
@@ -37,11 +42,14 @@ import platform
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
 
 OURS = ("wjrrt", "jt-rrt", "birrt")
 OMPL = ("RRTConnect", "KPIECE1", "STRIDE")
@@ -190,12 +198,13 @@ def targets(result: dict[str, Any]) -> dict[str, Any]:
 
 def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str] = PLANNERS,
         iterations: Optional[int] = None, res: Optional[float] = None,
-        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+        progress: Callable[[str], None] = lambda s: None, runner: Optional[Runner] = None) -> dict[str, Any]:
     """Every planner on every scene and seed (module doc) -> the JSON document of `armbridge bench wjrrt`.
 
-    scenes: fixed-scene names (default: all of FIXED) or Scene objects.
+    scenes: fixed-scene names (default: all of FIXED) or Scene objects;
+    runner: where the (scene, seed) shards run (None: here, serially).
     """
-    from armbridge.planning import ompl_bridge
+    from armbridge.bench.wjrrt_shards import sweep
     from armbridge.planning.soft import ompl_planners
     from armbridge.planning.soft.scene import FIXED, fixed_scene
     from armbridge.planning.soft.space import EDGE_RES
@@ -210,28 +219,28 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
     loaded = [fixed_scene(n) if isinstance(n, str) else n for n in names]  # a bad name fails before any work
     skipped = {pl: why for pl in planners if pl in OMPL and (why := ompl_planners.missing(pl))}
     active = [pl for pl in planners if pl not in skipped]
-    if any(pl in OMPL for pl in active):
-        ompl_bridge.seed_once(0)
     result: dict[str, Any] = {
         "benchmark": "wjrrt (Table 1 of the WJRRT paper, with OMPL)", "size": asdict(size), "res_m": res,
         "iterations_override": iterations, "planners": list(planners), "not_run": skipped,
         "budgets_s": budgets(size.time_limit),
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
         "paper_table1": {k: {pl: dict(zip(PAPER_COLUMNS, v)) for pl, v in rows.items()} for k, rows in PAPER.items()},
-        "scenes": {},
+        "shards": runner.backend if runner is not None else "serial", "scenes": {},
     }
     t0 = time.perf_counter()
-    for scene in loaded:
-        scene.find_goal_states()  # once, outside every planner's time (planners share the cache)
+    wins: list[dict[str, int]] = [dict.fromkeys(active, 0) for _ in loaded]
+
+    def seed_done(k: int, seed: int, recs: list[dict[str, Any]]) -> None:
+        for pl, r in zip(active, recs):
+            wins[k][pl] += bool(r["success"])
+        if (seed + 1) % 10 == 0 or seed + 1 == size.seeds:
+            done = ", ".join(f"{LABELS[p]} {wins[k][p]}" for p in active)
+            progress(f"{loaded[k].name}: {seed + 1}/{size.seeds} seeds ({time.perf_counter() - t0:.0f} s): {done}")
+
+    per_seed = sweep(loaded, size.seeds, active, size.time_limit, iterations, res, runner, seed_done)
+    for scene, seeds_runs in zip(loaded, per_seed):
         budget = iterations if iterations is not None else int(scene.params.get("iterations", 1000))
-        runs: dict[str, list[dict]] = {pl: [] for pl in active}
-        ts = time.perf_counter()
-        for seed in range(size.seeds):
-            for pl in active:
-                runs[pl].append(one_run(scene, pl, seed, size.time_limit, iterations, res))
-            if (seed + 1) % 10 == 0 or seed + 1 == size.seeds:
-                done = ", ".join(f"{LABELS[p]} {sum(r['success'] for r in runs[p])}" for p in active)
-                progress(f"{scene.name}: {seed + 1}/{size.seeds} seeds ({time.perf_counter() - ts:.0f} s): {done}")
+        runs = {pl: [recs[i] for recs in seeds_runs] for i, pl in enumerate(active)}
         result["scenes"][scene.name] = {
             "robot": scene.robot.name, "links": scene.robot.n, "goal_tol_m": scene.goal_tol,
             "goal_states": int(scene.find_goal_states().shape[0]), "iterations_budget": budget,
