@@ -326,24 +326,32 @@ def _progress_bar(plan: Plan, console):
     return _Bar()
 
 
-def _estop(client: BoardClient, summary: Summary) -> None:
+def _estop(client: BoardClient, summary: Summary, rec=None, why: str | None = None) -> None:
     """The e-stop, then a bounded wait (ESTOP_CONFIRM_S of board time) for the board to
     report ESTOP (its `EV ESTOP` or a telemetry line; over Modbus its status register),
     as a G-code sender waits for the controller's alarm report: the host keeps reading
     meanwhile (a board in lockstep with its host, the emulator at speed 0, only takes
     the byte in while it is read), the recording gets the event, and the run says
     whether the board confirmed the stop instead of hoping the byte landed. Every stop
-    and failure of every board's run takes this one path (`_stop`, `_fail`)."""
+    and failure of every board's run takes this one path (`_stop`, `_fail`). `why`:
+    logged to the recording's errors as the byte goes out ("stopped by SIGINT, e-stop
+    sent"), and the outcome after the wait."""
     try:
         client.estop()
         summary.estop_sent = True
     except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
+        pass
+    if rec is not None and why is not None:
+        rec.error(None, f"{why}, " + ("e-stop sent" if summary.estop_sent else "e-stop could not be sent"), "error")
+    if not summary.estop_sent:
         return
     try:
         client.drain(ESTOP_CONFIRM_S, until=lambda: client.state == "ESTOP", resync=False)
     except (Exception, KeyboardInterrupt):  # noqa: BLE001 - the port went away; a signal: the byte is sent
         pass
     summary.estop_confirmed = client.state == "ESTOP"
+    if rec is not None and why is not None:
+        rec.error(None, estop_note(summary), "info" if summary.estop_confirmed else "error")
 
 
 def estop_note(summary: Summary) -> str:
@@ -358,11 +366,9 @@ def estop_note(summary: Summary) -> str:
 def _stop(client: BoardClient, summary: Summary, rec, stop: KeyboardInterrupt) -> None:
     """A stop signal mid-run: the e-stop byte at once and its confirmation awaited, so
     the recording holds the ESTOP event and the last samples."""
-    _estop(client, summary)
     summary.stopped_by_user = True
     summary.stopped_by = getattr(stop, "name", "SIGINT")
-    if rec is not None:
-        rec.error(None, f"stopped by {summary.stopped_by}, {estop_note(summary)}", "error")
+    _estop(client, summary, rec, f"stopped by {summary.stopped_by}")
     summary.final_state = client.state
 
 
