@@ -1,11 +1,13 @@
 """What the end-to-end tests share: a smooth test plan for the emulated arm3r,
-a fixture that keeps the ports run_plan opens (to look at the emulator after a
-run), the board's own completion log against the plan, and a firmware that
+a fixture (and its context manager, for module-scoped fixtures) that keeps the
+ports run_plan opens (to look at the emulator after a run), the board's own completion log against the plan, and a firmware that
 raises (to see how each runner reports a crash)."""
 from __future__ import annotations
 
 import math
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -28,10 +30,12 @@ def wave_plan(k: int = 200, dt: float = 0.05, amp=(0.4, 0.3, 0.4), freq: float =
     return make_plan(ARM3R, q, dt, {"tool": "armbridge tests", "shape": "wave"})
 
 
-@pytest.fixture
-def ports(monkeypatch):
-    """Record the ports run_plan opens, so a test can look at the emulator afterwards."""
-    opened = []
+@contextmanager
+def opened_ports() -> Iterator[list]:
+    """The ports `transport.open_port` opens inside the block, in a list (filled as they
+    open), so a test can look at the emulator after a run; closed on leaving. A
+    context manager, so a module-scoped fixture can keep one emulator for its tests."""
+    opened: list = []
     real = transport.open_port
 
     def spy(url, *a, **kw):
@@ -39,10 +43,21 @@ def ports(monkeypatch):
         opened.append(port)
         return port
 
-    monkeypatch.setattr(transport, "open_port", spy)
-    yield opened
-    for p in opened:
-        p.close()
+    mp = pytest.MonkeyPatch()
+    mp.setattr(transport, "open_port", spy)
+    try:
+        yield opened
+    finally:
+        mp.undo()
+        for p in opened:
+            p.close()
+
+
+@pytest.fixture
+def ports():
+    """Record the ports run_plan opens, so a test can look at the emulator afterwards."""
+    with opened_ports() as opened:
+        yield opened
 
 
 def sent_values(plan) -> list[tuple[int, ...]]:

@@ -31,7 +31,7 @@ from armbridge.link import protocol as P  # noqa: E402
 from armbridge.link.transport import open_port  # noqa: E402
 from armbridge.plans.format import make_plan  # noqa: E402
 from armbridge.robots import SOFT3  # noqa: E402
-from plan_runs import assert_executed_once_with_values, ports  # noqa: E402,F401
+from plan_runs import assert_executed_once_with_values, opened_ports  # noqa: E402
 from test_recording import layout, names, read  # noqa: E402
 
 pytestmark = pytest.mark.hil
@@ -61,29 +61,13 @@ def hold_ends(emu, plan) -> list[float]:
 @pytest.fixture(scope="module")
 def line_run(tmp_path_factory):
     """One plan on emu:arduino_pump?speed=0 with its summary, the board's records and the .rrd."""
-    import armbridge.link.transport as transport
-
-    opened = []
-    real = transport.open_port
-
-    def spy(url, *a, **kw):
-        port = real(url, *a, **kw)
-        opened.append(port)
-        return port
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(transport, "open_port", spy)
     plan = soft_plan()
     rrd = tmp_path_factory.mktemp("pump") / "run.rrd"
-    try:
+    with opened_ports() as opened:
         summary = run_plan(plan, "emu:arduino_pump?speed=0", rrd, progress=False, timeout=120)
         emu = opened[0].emulator
         yield {"plan": plan, "summary": summary, "emu": emu, "rrd": rrd, "executed": list(emu.executed),
                "track": list(emu.hal.track), "telemetry": list(emu.hal.telemetry)}
-    finally:
-        mp.undo()
-        for p in opened:
-            p.close()
 
 
 def test_each_joint_settles_in_its_dead_band_at_every_waypoint(line_run):

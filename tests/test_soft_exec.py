@@ -338,31 +338,17 @@ def demo(tmp_path_factory):
 
     from rich.console import Console
 
-    import armbridge.link.transport as transport
     from armbridge.demos import DemoOptions
     from armbridge.demos.soft import execute
+    from plan_runs import opened_ports
 
-    opened = []
-    real = transport.open_port
-
-    def spy(url, *a, **kw):
-        port = real(url, *a, **kw)
-        opened.append(port)
-        return port
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(transport, "open_port", spy)
     rrd = tmp_path_factory.mktemp("soft") / "demo.rrd"
     out = io.StringIO()
-    try:
+    with opened_ports() as opened:
         run = execute(DemoOptions(port="emu:arduino_pump?speed=0", rrd=rrd, seed=0), Console(file=out, width=160))
         emu = opened[0].emulator
         yield {"run": run, "emu": emu, "rrd": rrd, "executed": list(emu.executed), "track": list(emu.hal.track),
                "text": out.getvalue()}
-    finally:
-        mp.undo()
-        for p in opened:
-            p.close()
 
 
 @pytest.mark.hil
