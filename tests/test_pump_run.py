@@ -25,6 +25,7 @@ if not Path("/usr/include/simavr/sim_avr.h").is_file():
     missing("libsimavr-dev missing (scripts/setup.sh as root installs it)")
 
 from armbridge.executor.client import BoardClient  # noqa: E402
+from armbridge.executor.handshake import HELLO_INTERVAL_S  # noqa: E402
 from armbridge.executor.run import run_plan  # noqa: E402
 from armbridge.executor.summary import settle_times  # noqa: E402
 from armbridge.link import protocol as P  # noqa: E402
@@ -189,6 +190,24 @@ def board():
         yield client, port.emulator
     finally:
         port.close()
+
+
+def test_a_clean_connect_has_no_line_error_on_either_side(board):
+    """A fault-free link connects without one damaged line either way. The HELLO the
+    host sends at once reaches the chip while it boots: what arrives before its receiver
+    is enabled is lost, and a tail it catches is dropped without ER (link.cpp,
+    next_byte); the board's BOOT prompts the HELLO again at once, not 250 ms later. The
+    T lines the board sends before HELLO's answer are not read as damaged (their
+    columns after the 3n, the pump's four, need HELLO's n)."""
+    client, emu = board
+    connected_at = emu.clock.t          # at most HOST_LEAD_S past the host's last read
+    client.drain(0.3)
+    st = client.stats
+    assert (st.board_framing_errors, st.host_line_errors, st.board_lines_lost, st.seq_errors) == (0, 0, 0, 0), st
+    assert st.boots == 1 and st.retransmissions <= 1 and connected_at < HELLO_INTERVAL_S, (st, connected_at)
+    c = emu.counters
+    assert not any(c[lane][k] for lane in ("rx", "tx") for k in ("drop", "corrupt", "dup", "delay")), c
+    assert c["overruns"] == 0 and emu.runner.stats["lost"] == 0, c   # no byte the chip's FIFO refused
 
 
 def quiet_for(client, emu, seconds: float) -> None:

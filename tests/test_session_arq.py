@@ -57,6 +57,23 @@ def test_a_line_cut_by_opening_the_port_is_not_a_damaged_line():
     assert c.stats.host_line_errors == 1
 
 
+def test_a_t_line_with_the_boards_own_columns_before_hello_is_not_a_damaged_line():
+    """A board streams telemetry before our HELLO is answered (it booted, or serves an
+    older session): with its own columns after the 3n (the pump's four) the joint
+    columns cannot be split before HELLO tells n. Not read, not counted; after HELLO
+    the same line is read by n."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    t = P.encode(7, "T", 123, "IDLE", "-", 8, 1571, -1571, 0, 1571, -1571, 0, 0, 0, 0, 250, 300, 350, 0)
+    peer.rx += b"\n" + t  # after a whole line: not the first piece the port delivers
+    seen = []
+    c = client_for(peer, on_telemetry=lambda t, m: seen.append(m))
+    assert c.stats.host_line_errors == 0 and seen == []
+    peer.rx += P.encode(8, "T", 123, "IDLE", "-", 8, 1571, -1571, 0, 1571, -1571, 0, 0, 0, 0, 250, 300, 350, 0)
+    c.drain(0.05)
+    assert c.stats.host_line_errors == 0 and [m.extra for m in seen][-1:] == [(250, 300, 350, 0)]
+
+
 def test_seq_is_the_command_number_mod_65536():
     assert [Cmd(n, "PING", (), 1).seq for n in (1, 65535, 65536, 65537)] == [1, 65535, 0, 1]
 

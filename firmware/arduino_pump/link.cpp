@@ -159,6 +159,8 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     mb_frames_ = mb_exceptions_ = 0;
     last_ok_ = hal->ms();
     next_tick_us_ = hal->us();
+    boot_us_ = next_tick_us_;
+    join_ = JOIN_WAIT;
     hal->outputs_off();
     hal->set_estop_byte(!modbus_);
     board->hold_here();
@@ -177,16 +179,38 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     send(&w_);
 }
 
+/* The receiver came up while the board booted, and the host never waits for BOOT
+ * (docs/protocol.md §8): a line the host was sending then arrives without its head.
+ * The bytes of a line follow each other, so a line in flight when the receiver came
+ * up delivers its next byte within a byte time of that; hal.begin() enables the
+ * receiver before begin() here. So the first line since boot is a possible tail when
+ * its first byte arrived by JOIN_US after begin(), and such a line that fails its
+ * framing or CRC is dropped silently (no ER: nothing on the link damaged it), as the
+ * host drops the first piece its port delivers. A whole line passes its checks and
+ * runs; a first line that starts later is checked as every line is. */
+#define JOIN_US (2UL * 10UL * 1000000UL / UART_BAUD)   /* two byte times at 8N1 */
+
+int Link::next_byte() {
+    if (join_ != JOIN_WAIT) return hal_->uart_read();
+    uint32_t at;
+    int c = hal_->uart_read_at(&at);
+    if (c >= 0) join_ = (int32_t)(at - boot_us_) <= (int32_t)JOIN_US ? JOIN_TAIL : JOIN_DONE;
+    return c;
+}
+
 void Link::poll() {
     if (modbus_) {
         modbus_pass();
     } else {
         int c;
-        while ((c = hal_->uart_read()) >= 0) {   /* drain the receive ring every pass */
-            switch (reader_.feed((uint8_t)c)) {
+        while ((c = next_byte()) >= 0) {   /* drain the receive ring every pass */
+            int item = reader_.feed((uint8_t)c);
+            bool tail = join_ == JOIN_TAIL;   /* the first line since boot may be a tail */
+            if (item != AB_ITEM_NONE && join_ == JOIN_TAIL) join_ = JOIN_DONE;
+            switch (item) {
                 case AB_ITEM_ESTOP: estop(); break;
-                case AB_ITEM_ERROR: send_er(-1, reader_.error(), ""); break;
-                case AB_ITEM_LINE: on_line(reader_.line(), reader_.length()); break;
+                case AB_ITEM_ERROR: if (!tail) send_er(-1, reader_.error(), ""); break;
+                case AB_ITEM_LINE: on_line(reader_.line(), reader_.length(), tail); break;
                 default: break;
             }
             if (modbus_) return;   /* MODBUS answered: the rest is Modbus */
@@ -343,11 +367,11 @@ void Link::reply(uint16_t seq, uint8_t code, uint8_t free, const char *detail, c
     send(&w_);
 }
 
-void Link::on_line(const uint8_t *raw, size_t n) {
+void Link::on_line(const uint8_t *raw, size_t n, bool tail) {
     AbLine l;
     int e = ab_decode(raw, n, AB_MAX_HOST_LINE, sess.epoch, &l);
     if (e) {
-        send_er(-1, (uint8_t)e, "");
+        if (!tail) send_er(-1, (uint8_t)e, "");   /* a tail (next_byte) is dropped silently */
         return;
     }
     int vi = ab_find_verb(l.verb, l.verb_len);

@@ -92,7 +92,8 @@ public:
     Session sess;
 
 private:
-    void on_line(const uint8_t *raw, size_t n);
+    void on_line(const uint8_t *raw, size_t n, bool tail);   /* tail: see next_byte() */
+    int next_byte();
     uint8_t execute(uint16_t seq, int verb, const AbLine &l, Payload *p, AbError *err);
     uint8_t hello(uint16_t seq, const AbLine &l, Payload *p, AbError *err);
     void reply(uint16_t seq, uint8_t code, uint8_t free, const char *detail, const Payload *p);
@@ -121,6 +122,11 @@ private:
     bool modbus_;
     int16_t pending_mode_;   /* -1 none, 0 line, 1..247 Modbus address */
     uint32_t mb_frames_, mb_exceptions_;
+    /* The first line since boot (link.cpp, next_byte()): its first byte not yet come,
+     * come by JOIN_US after begin() (the line may be a tail), or neither. */
+    enum { JOIN_WAIT, JOIN_TAIL, JOIN_DONE };
+    uint8_t join_;
+    uint32_t boot_us_;
 };
 
 #endif

@@ -121,6 +121,7 @@ static void latches_across_reset() {
     Rig r(EE);   /* the reset: a new board over the same EEPROM */
     CHECK(r.seen("BOOT arduino_pump 0.1.0 2 ESTOP"));
     CHECK(r.board.cal[1].adc_a == 100 && r.board.cal[1].a == -50 && r.board.cal[1].b == 1500);
+    r.run(1);   /* a line that starts a while after the boot is no tail (link.cpp next_byte) */
     CHECK(r.cmd("W 6 100 0 0 0") == "" && r.seen("ER - 2 CRC"));   /* checked with the persisted epoch */
     r.epoch = 3;
     CHECK(r.cmd("W 6 100 0 0 0") == "ER 10 NOSESSION");
@@ -201,6 +202,44 @@ static void done_across_reset_from_noinit() {
     p.seq = 20;
     std::string ok = p.hello(4, 77);
     CHECK_MSG(ok.find(" 1000 - - IDLE") != std::string::npos, "%s", ok.c_str());
+}
+
+/* The receiver comes up while a HELLO is on the wire (the host never waits for BOOT):
+ * the board gets its tail at once and drops it silently; a whole line that arrives at
+ * once runs; a damaged first line that starts later is answered ER as every line. */
+static void a_tail_at_boot_is_dropped_silently() {
+    fresh_eeprom();
+    {
+        Rig r(EE);
+        std::string hello = r.frame("1 HELLO 2 4242 1", 0);
+        r.hal.push(hello.substr(9));
+        r.run(5);
+        CHECK(r.lines().size() == 1 && !r.seen("ER"));   /* BOOT, and no answer */
+        r.seq = 1;
+        CHECK(r.hello(1) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 - - IDLE");
+        CHECK(r.cmd("PING").compare(0, strlen("OK 32"), "OK 32") == 0 && !r.seen("ER") && r.bad_lines == 0);
+    }
+    fresh_eeprom();
+    {
+        Rig r(EE);   /* a whole line at once is no tail: it runs */
+        CHECK(r.hello(1) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 - - IDLE");
+    }
+    fresh_eeprom();
+    {
+        Rig r(EE);   /* only the first line: a bad second line is answered */
+        r.hal.push("LLO 2 1 1*00000000\n");
+        r.hal.push("garbage\n");
+        r.run(5);
+        CHECK(r.seen("ER - 1 PARSE") && !r.seen("ER - 2 CRC"));
+    }
+    fresh_eeprom();
+    {
+        Rig r(EE);   /* a damaged line that starts after two byte times: answered */
+        r.run(1);
+        r.hal.push("LLO 2 1 1*00000000\n");
+        r.run(5);
+        CHECK(r.seen("ER - 2 CRC"));
+    }
 }
 
 static void bad_commands_keep_answering() {
@@ -395,6 +434,7 @@ void run_board() {
     latches_across_reset();
     latch_cell_wins_over_an_older_record();
     done_across_reset_from_noinit();
+    a_tail_at_boot_is_dropped_silently();
     bad_commands_keep_answering();
     replay_executes_once();
     end_stop_stops_that_pump();

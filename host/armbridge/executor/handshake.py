@@ -73,9 +73,10 @@ def _no_answer(arq: Arq, timeout: float) -> ArmbridgeError:
 
 
 def hello(arq: Arq, session: int, timeout: float) -> P.Ok:
-    """HELLO every 250 ms until answered; on STALE again at once with the board's
-    epoch + 1. The accepted HELLO opens its epoch in `arq`. Everything before the
-    answer is ignored except telemetry, events and BOOT (handed up by `arq`)."""
+    """HELLO every 250 ms until answered (sooner after a damaged line or a BOOT); on
+    STALE again at once with the board's epoch + 1. The accepted HELLO opens its
+    epoch in `arq`. Everything before the answer is ignored except events, BOOT and
+    (in a resync, once n is known) telemetry, handed up by `arq`."""
     epoch = arq.epoch + 1
     cmd = arq.new_hello(P.PROTOCOL_VERSION, session, epoch)
     end = arq.now() + timeout
@@ -88,8 +89,9 @@ def hello(arq: Arq, session: int, timeout: float) -> P.Ok:
             arq.abandon()
             raise _no_answer(arq, timeout)
         # Every 250 ms; at once when a damaged line arrives after our HELLO
-        # reached the board (likely our HELLO or its answer).
-        damaged = st.host_line_errors + st.board_framing_errors
+        # reached the board (likely our HELLO or its answer), or a BOOT does (the
+        # board was still booting, its receiver not yet listening: it lost our HELLO).
+        damaged = st.host_line_errors + st.board_framing_errors + st.boots
         if now >= next_send or (damaged > damaged_at_send and now >= cmd.arrive_at):
             arq.send_hello(cmd)
             damaged_at_send = damaged

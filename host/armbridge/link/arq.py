@@ -5,9 +5,10 @@ over a lossy byte link, with no knowledge of robots or plans.
 matches answers, counts credits and line statistics, and keeps the link alive.
 It is synchronous: `loop_once()` reads what has arrived (a short wait on the
 port), dispatches board lines, and sends what is due. OK and ER lines are its
-own; T, EV and BOOT lines go up to `on_line`. Every timer runs on `clock`
-(seconds): for an emulator running K times faster than the wall clock, a clock
-that does too; the port's read timeout (READ_WAIT_S, wall) only bounds a wait.
+own; T (once HELLO told n), EV and BOOT lines go up to `on_line`. Every timer
+runs on `clock` (seconds): for an emulator running K times faster than the wall
+clock, a clock that does too; the port's read timeout (READ_WAIT_S, wall)
+only bounds a wait.
 
 Reliability:
 
@@ -376,7 +377,11 @@ class Arq:
                 continue  # an empty line (the board starts its BOOT with one): not an error
             try:
                 line = P.decode(item)  # board lines: epoch 0
-                msg = P.parse_board_line(line, self.joints)
+                # A T line before HELLO's reply told n: its 3n joint columns cannot be told
+                # from the board's own columns after them (the pump's four). A whole line
+                # passed its CRC, so it is no damage; it is only not read (msg None).
+                early_t = line.verb == "T" and self.joints is None
+                msg = None if early_t else P.parse_board_line(line, self.joints)
             except P.ProtocolError as exc:
                 if _V1_FRAME.fullmatch(item):
                     st.v1_lines += 1
@@ -393,6 +398,8 @@ class Arq:
                 if 0 < gap < 1000 and not isinstance(msg, P.Boot):
                     st.board_lines_lost += gap
             self._bseq = line.seq
+            if msg is None:
+                continue
             if isinstance(msg, P.Ok):
                 if self._on_answer(msg) == "HELLO":
                     self._pending = items[k + 1:]
