@@ -28,19 +28,10 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterable
 
+from armbridge.buildcache import cache_dir
 from armbridge.errors import ArmbridgeError
 
 MODULE_SUFFIXES = (".py", ".mpy")
-ENV_CACHE = "ARMBRIDGE_CACHE"
-
-
-def cache_dir() -> Path:
-    """$ARMBRIDGE_CACHE, else $XDG_CACHE_HOME/armbridge, else ~/.cache/armbridge."""
-    env = os.environ.get(ENV_CACHE)
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "armbridge"
 
 
 def _source_path(mpy: bytes) -> Path:

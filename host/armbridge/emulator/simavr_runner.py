@@ -43,7 +43,6 @@ data addresses; `elf_inputs()` -> ({adc channel: mV}, {"C7": level});
 from __future__ import annotations
 
 import ast
-import fcntl
 import hashlib
 import os
 import re
@@ -56,6 +55,7 @@ import weakref
 from pathlib import Path
 from typing import Any, Callable
 
+from armbridge.buildcache import cache_dir, locked_build
 from armbridge.emulator.simavr.mega2560 import ElfImage, read_elf
 from armbridge.emulator.lineproc import LineProcess
 from armbridge.errors import ArmbridgeError
@@ -73,28 +73,6 @@ class FirmwareCrashed(RuntimeError):
     """The chip stopped in simavr (a crash, or sleep with interrupts off)."""
 
 
-def cache_dir() -> Path:
-    """$ARMBRIDGE_CACHE, else $XDG_CACHE_HOME/armbridge, else ~/.cache/armbridge."""
-    env = os.environ.get("ARMBRIDGE_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "armbridge"
-
-
-def _locked_make(args: list[str], lock: Path, what: str) -> None:
-    lock.parent.mkdir(parents=True, exist_ok=True)
-    with open(lock, "w") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            r = subprocess.run(args, capture_output=True, text=True, timeout=600)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            raise ArmbridgeError(f"building {what} failed: {exc}") from None
-    if r.returncode != 0:
-        tail = (r.stdout + r.stderr).strip()[-1500:]
-        raise ArmbridgeError(f"building {what} failed ({' '.join(args)}):\n{tail}")
-
-
 def harness_source() -> Path:
     return Path(__file__).resolve().parent / "simavr"
 
@@ -110,7 +88,7 @@ def harness_binary() -> Path:
     if not Path("/usr/include/simavr/sim_avr.h").is_file() or shutil.which("make") is None:
         raise ArmbridgeError(f"the simavr runner needs libsimavr-dev and make to build its harness; run "
                              f"scripts/setup.sh as root, or: {APT}")
-    _locked_make(["make", "-s", "-C", str(src), f"OUT={out}"], cache_dir() / "simavr-harness.lock",
+    locked_build(["make", "-s", "-C", str(src), f"OUT={out}"], cache_dir() / "simavr-harness.lock",
                  "the simavr harness")
     return exe
 
@@ -133,7 +111,7 @@ def firmware_elf(folder: Path, elf: str) -> Path:
         if not (copy / elf).is_file():
             shutil.copytree(folder, copy, dirs_exist_ok=True, ignore=shutil.ignore_patterns("build"))
         folder, target = copy, copy / elf
-    _locked_make(["make", "-s", "-C", str(folder)], cache_dir() / f"elf-{folder.name}.lock", f"{folder.name}")
+    locked_build(["make", "-s", "-C", str(folder)], cache_dir() / f"elf-{folder.name}.lock", f"{folder.name}")
     if not target.is_file():
         raise ArmbridgeError(f"make -C {folder} did not produce {elf}")
     return target

@@ -28,7 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 from types import ModuleType
 
-from armbridge.emulator.simavr_runner import _locked_make, cache_dir
+from armbridge.buildcache import cache_dir, locked_build
 from armbridge.errors import ArmbridgeError
 
 APT = "apt-get install -y --no-install-recommends libompl-dev"
@@ -81,7 +81,7 @@ def stride_module() -> ModuleType:
     if not so.is_file():
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / f"{NAME}.{os.getpid()}{suffix}"  # own name, then an atomic rename: races only build twice
-        _locked_make(command(tmp), cache_dir() / "ompl-stride.lock", "the OMPL STRIDE shim")
+        locked_build(command(tmp), cache_dir() / "ompl-stride.lock", "the OMPL STRIDE shim")
         tmp.replace(so)
     spec = importlib.util.spec_from_file_location(NAME, so)
     if spec is None or spec.loader is None:

@@ -1,0 +1,45 @@
+"""The cache folder, and the builds into it that processes share.
+
+What armbridge builds on first use (the simavr harness, a firmware .elf from a
+read-only folder, the OMPL STRIDE shim) and what it remembers (flash manifests,
+the source of every .mpy it compiled) lives in one folder, so the next run, a
+test worker or another interpreter finds it there. A build holds a file lock
+while it runs: processes that need the same thing at once build it one after
+the other, and the later ones find it built.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import subprocess
+from pathlib import Path
+
+from armbridge.errors import ArmbridgeError
+
+ENV_CACHE = "ARMBRIDGE_CACHE"
+BUILD_TIMEOUT_S = 600
+
+
+def cache_dir() -> Path:
+    """$ARMBRIDGE_CACHE, else $XDG_CACHE_HOME/armbridge, else ~/.cache/armbridge."""
+    env = os.environ.get(ENV_CACHE)
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "armbridge"
+
+
+def locked_build(args: list[str], lock: Path, what: str) -> None:
+    """Run the build command `args` (make, g++) holding the file lock `lock` (made
+    with its folder). A failure is one ArmbridgeError naming `what`, the command and
+    the end of its output."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            r = subprocess.run(args, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise ArmbridgeError(f"building {what} failed: {exc}") from None
+    if r.returncode != 0:
+        tail = (r.stdout + r.stderr).strip()[-1500:]
+        raise ArmbridgeError(f"building {what} failed ({' '.join(args)}):\n{tail}")
