@@ -46,6 +46,10 @@ def test_bench_smm_quick_cli_writes_json(tmp_path):
     before, after = rows["learned, before correction"], rows["learned, after correction (3)"]
     assert after["fk_error_pct"]["mean"] < before["fk_error_pct"]["mean"]
     assert 0 <= after["branch_count_mismatch_pct"] <= 100
+    by = after["mismatch_by_true_count"]
+    assert sum(v["locations"] for v in by.values()) == after["locations"]
+    assert sum(v["mismatched"] for v in by.values()) / after["locations"] * 100 == pytest.approx(
+        after["branch_count_mismatch_pct"])
     peer = rows["realtime-smm 0.1.2 (paper's code, nullspace)"]
     assert peer["locations"] == bench.QUICK.peer_locations and sum(peer["statuses"].values()) == peer["locations"]
     assert len(data["fig3"]["mean_abs_error_rad"]["planar3r"]) == len(data["fig3"]["K"])
@@ -55,6 +59,15 @@ def test_bench_smm_quick_cli_writes_json(tmp_path):
     assert {"nullspace (ours)", "learned"} <= set(sim)
     assert all(0 <= sim[k]["success"] <= sim["trials"] for k in ("nullspace (ours)", "learned"))
     assert set(data["targets"]) >= {"planar3r_fk_before_le_0.29pct", "planar3r_mismatch_le_0.7pct"}
+
+
+def test_mismatch_by_true_count_splits_the_mismatch_by_the_reference_count():
+    ref = np.array([1, 1, 2, 2, 2, 3, 3, 0])
+    got = np.array([1, 2, 2, 2, 1, 2, 2, 0])
+    by = bench.mismatch_by_count(got, ref)
+    assert by["3"] == {"locations": 2, "mismatched": 2, "mismatch_pct": 100.0, "got": {"2": 2}}
+    assert by["2"]["mismatched"] == 1 and by["2"]["got"] == {"1": 1}
+    assert by["1"]["mismatch_pct"] == 50.0 and by["0"]["mismatched"] == 0 and by["0"]["got"] == {}
 
 
 def test_bench_smm_rejects_unknown_robot(tmp_path):

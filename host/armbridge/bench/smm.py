@@ -114,8 +114,22 @@ def _row(name: str, arm: Any, x: np.ndarray, smm: Any, reference: np.ndarray | N
                            "single_ms": single_ms, "fk_error_pct": _stats(location_fk_error(arm, smm, x)),
                            "branches_mean": float(smm.count.mean()), "singular_pct": float(smm.singular.mean() * 100)}
     if reference is not None:
-        row["branch_count_mismatch_pct"] = float(np.mean(smm.count != reference[: len(smm)]) * 100)
+        ref = reference[: len(smm)]
+        row["branch_count_mismatch_pct"] = float(np.mean(smm.count != ref) * 100)
+        row["mismatch_by_true_count"] = mismatch_by_count(smm.count, ref)
     return row
+
+
+def mismatch_by_count(count: np.ndarray, reference: np.ndarray) -> dict[str, dict[str, Any]]:
+    """Per true (reference) branch count: its locations, how many got another count, and which."""
+    out = {}
+    for b in np.unique(reference):
+        got = count[reference == b]
+        wrong = got[got != b]
+        out[str(int(b))] = {"locations": int(got.size), "mismatched": int(wrong.size),
+                            "mismatch_pct": float(wrong.size / got.size * 100),
+                            "got": {str(int(k)): int(np.sum(wrong == k)) for k in np.unique(wrong)}}
+    return out
 
 
 def target_matrix(arm: Any, x: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The --ray, --workers and --checkpoint options of the sharded commands, defined once.
 
-Used by `armbridge train smm-3r|smm-4r|smm-7r|masr-iknn` and `armbridge bench masr-plan|smm`.
+Used by `armbridge train smm-3r|smm-4r|smm-7r|masr-iknn` and `armbridge bench masr-plan|smm|wjrrt`.
 """
 from __future__ import annotations
 

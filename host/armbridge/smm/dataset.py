@@ -419,12 +419,14 @@ def add_boundary(
     progress: Progress | None = None,
     seed: int = 0,
     runner: Runner | None = None,
+    job: str = "smm-boundary",
     **nullspace_options: Any,
 ) -> Build:
     """`build` with per_cell uniform random points in every boundary cell as classifier-only samples.
 
     Each point's branch count comes from the nullspace method (its branches
-    are not kept) and its label from automaton.nearest_cluster.
+    are not kept) and its label from automaton.nearest_cluster. `job`: the
+    name of the sharded job that traces them.
     """
     if not isinstance(per_cell, (int, np.integer)) or per_cell < 0:
         raise ArmbridgeError(f"per_cell (boundary points per cell) must be an integer >= 0, got {per_cell!r}")
@@ -434,7 +436,7 @@ def add_boundary(
     offset = np.random.default_rng([seed, 1]).uniform(-0.5, 0.5, (cells.size * per_cell, len(g.shape)))
     at = np.repeat(automaton.cell_indices(g.shape)[cells], per_cell, axis=0) + offset
     canon = np.asarray(g.lo) + (at + 0.5) * size
-    count = compute_smms(arm, canon, 16, batch, progress, runner, "smm-boundary", seed=seed, **nullspace_options).count
+    count = compute_smms(arm, canon, 16, batch, progress, runner, job, seed=seed, **nullspace_options).count
     label = automaton.nearest_cluster(build.clusters, at, count, LABEL_REACH)
     return replace(build, dataset=replace(build.dataset, boundary_canon=canon, boundary_label=label))
 

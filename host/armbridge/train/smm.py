@@ -420,14 +420,17 @@ def grid_for(arm: SmmArm, text: str) -> GridSpec:
 
 def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int, progress: bool,
                   log: Log | None, per_cell: int = 4, sing_tol: float = 0.02,
-                  runner: Runner | None = None) -> tuple[SmmDataset, dict[str, Any]]:
+                  runner: Runner | None = None, refine: int = 0) -> tuple[SmmDataset, dict[str, Any]]:
     """The data set at `path`, or a new one built over --grid and saved there; and its card entry.
 
-    The SMMs are traced in shards where `runner` says (armbridge.shards; None:
-    here, serially), with one progress bar per sharded job; their checkpoints
-    are deleted once the data set is saved.
+    refine > 1: the grid is refined that many times per axis where its cells
+    cannot be labelled (armbridge.smm.refine). The SMMs are traced in shards
+    where `runner` says (armbridge.shards; None: here, serially), with one
+    progress bar per sharded job; their checkpoints are deleted once the data
+    set is saved.
     """
     from armbridge.shards import Runner
+    from armbridge.smm import refine as rf
     from armbridge.smm.dataset import build_dataset
 
     if path.exists():
@@ -438,16 +441,24 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     t0 = time.perf_counter()
     runner = runner or Runner(progress=progress)
     build = build_dataset(arm, g, K=K, N=N, seed=seed, per_cell=per_cell, sing_tol=sing_tol, runner=runner)
+    ds, parts = build.dataset, list[rf.Patch]()
+    if refine:
+        ds, parts = rf.refine(arm, build, refine, per_cell=per_cell, runner=runner, sing_tol=sing_tol, seed=seed)
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
-    build.dataset.save(path)
-    for job in ("smm-grid", "smm-boundary"):  # the data set holds what their shards did
+    ds.save(path)
+    jobs = ["smm-grid", "smm-boundary"] + [f"smm-patch-{i}{end}" for i in range(len(parts)) for end in ("", "-boundary")]
+    for job in jobs:  # the data set holds what their shards did
         runner.discard(job)
     if log:
-        log(f"data set: {g.size} cells in {seconds:.1f} s -> {path}")
-    return build.dataset, {"built": "armbridge.smm.dataset.build_dataset", "grid_lo": list(g.lo), "grid_hi": list(g.hi),
-                           "grid_shape": list(g.shape), "boundary_points_per_cell": per_cell, "sing_tol": sing_tol,
-                           "seconds": round(seconds, 1), "seed": seed, "shards": runner.backend}
+        log(f"data set: {g.size} cells + {sum(p.grid.size for p in parts)} in {len(parts)} refined patches, "
+            f"{len(ds.canon)} rows in {seconds:.1f} s -> {path}")
+    info = {"built": "armbridge.smm.dataset.build_dataset", "grid_lo": list(g.lo), "grid_hi": list(g.hi),
+            "grid_shape": list(g.shape), "boundary_points_per_cell": per_cell, "sing_tol": sing_tol,
+            "seconds": round(seconds, 1), "seed": seed, "shards": runner.backend}
+    if refine:
+        info["refine"] = {"factor": refine, "how": "armbridge.smm.refine", "patches": rf.summary(parts)}
+    return ds, info
 
 
 # ------------------------------------------------------------------ pipeline
