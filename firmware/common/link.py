@@ -53,7 +53,9 @@ Rules the link keeps for every board:
     only CLR releases them, never a HELLO;
   * the watchdog (RUN/HOLD only) is fed only by lines answered OK;
   * the persist record is `AB2 session epoch hello_seq done latch reason [extra]`
-    (extra: the board's persist_extra()); anything else reads as power on.
+    (extra: the board's persist_extra()); anything else reads as power on;
+  * the first line since boot is dropped without ER when it fails its framing
+    or CRC and may be the tail of a line the receiver came up in (_joining).
 """
 
 try:
@@ -81,6 +83,12 @@ DRIVE = const(2)
 
 TICKS_MASK = P.TICKS_PERIOD - 1   # ticks_ms wraps at 2**30, so do board times
 _PERSIST_TAG = "AB2"
+
+# The first line since boot (BoardLink._joining): come and no tail; no byte read
+# yet, the window still open; its bytes have come and it may be a tail.
+_JOINED = const(0)
+_JOIN_WAIT = const(1)
+_JOIN_TAIL = const(2)
 
 
 def wid(x: int):
@@ -173,6 +181,9 @@ class BoardLink:
         now = hal.ticks_ms()
         self.last_ok = now
         self.next_tick = now
+        self._join = _JOIN_WAIT
+        self._join_us = 2 * 10 * 1000000 // cfg.UART_BAUD   # two byte times at 8N1
+        self._boot_us = hal.ticks_us()
         hal.outputs_off()
         restore = getattr(board, "restore", None)
         if restore is not None:
@@ -187,15 +198,20 @@ class BoardLink:
     def poll(self) -> bool:
         """UART bytes in, lines handled, control period if due. -> True if bytes came."""
         data = self.hal.uart_read()
+        tail = self._join != _JOINED and self._joining(data)   # the first line may be a tail
         if data:
             for item in self.reader.feed(data):
                 kind = item[0]
                 if kind == "estop":
                     self.estop()
                 elif kind == "error":
-                    self._send(self.session.er("-", item[1]))
+                    if not tail:
+                        self._send(self.session.er("-", item[1]))
                 else:
-                    self._on_line(item[1])
+                    self._on_line(item[1], tail)
+                if tail:                  # its first item ends the first line
+                    tail = False
+                    self._join = _JOINED
         now = self.hal.ticks_ms()
         late = self.hal.ticks_diff(now, self.next_tick)
         if late >= 0:
@@ -205,6 +221,24 @@ class BoardLink:
                 self.next_tick = (self.next_tick + self.period_ms) & TICKS_MASK
             self.tick()
         return bool(data)
+
+    def _joining(self, data) -> bool:
+        """-> True while the first line since boot may be the tail of a line the
+        receiver came up in (docs/protocol.md section 8: the host never waits for
+        BOOT). Such a line that fails its framing or CRC is dropped without ER. The
+        HAL opens the UART before the link starts, and this board reads it in
+        pieces: a byte counts as come within two byte times of the link starting
+        unless a read found nothing after those had passed. poll() calls this only
+        until the first line's first item, then clears _join."""
+        if self._join == _JOIN_TAIL:
+            return True
+        if data:
+            self._join = _JOIN_TAIL
+            return True
+        hal = self.hal
+        if hal.ticks_diff(hal.ticks_us(), self._boot_us) > self._join_us:
+            self._join = _JOINED          # nothing in time: the first line starts later
+        return False
 
     def tick(self) -> None:
         """One control period: watchdog, the board's control, telemetry."""
@@ -256,12 +290,13 @@ class BoardLink:
 
     # ------------------------------------------------------------ lines
 
-    def _on_line(self, raw) -> None:
+    def _on_line(self, raw, tail=False) -> None:
         s = self.session
         try:
             seq, verb, args = proto.decode(raw, P.MAX_HOST_LINE, s.epoch)
         except proto.ProtocolError as e:
-            self._send(s.er("-", e.code))
+            if not tail:                  # a tail at boot (_joining) is dropped silently
+                self._send(s.er("-", e.code))
             return
         self._in_command = True
         if verb == "HELLO":
