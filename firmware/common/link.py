@@ -35,7 +35,8 @@ The board object gives the link:
                             joint angles); restore(token or None) is called with it
                             at boot, before hold_here()
 
-and calls back:
+The config (cfg) gives it FW_NAME, FW_VERSION, PERIOD_MS, TELEMETRY_HZ, WDOG_MS
+and UART_BAUD (the first line's window, _joining). The board calls back:
   link.event(kind, args)    an event: sent after the reply of the command that
                             caused it, at once otherwise
   link.completed(wid)       a waypoint completed (the last one of a tick): the
