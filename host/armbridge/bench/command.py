@@ -322,16 +322,20 @@ def smm_cmd(
         table = Table(title=f"Table III protocol, {t['robot']}: {t['locations']} random locations {t['where']} "
                             f"(paper: {t['paper']['fk_before_pct']} % / {t['paper']['fk_after_pct']} %, "
                             f"mismatch {t['paper']['mismatch_pct']} %)")
-        for col in ("method", "ms/location batched", "ms single", "FK error % mean +- std", "branch mismatch %"):
-            table.add_column(col, justify="left" if col == "method" else "right")
+        for col in ("method", "ms/location batched", "ms single", "FK error % mean +- std", "branch mismatch %",
+                    "mismatched / locations by true count"):
+            table.add_column(col, justify="left" if col in ("method", "mismatched / locations by true count")
+                             else "right")
         for r in t["rows"]:
             if "missing" in r:
-                table.add_row(r["method"], r["missing"], "", "", "")
+                table.add_row(r["method"], r["missing"], "", "", "", "")
                 continue
             fk = r["fk_error_pct"]
+            by = r.get("mismatch_by_true_count") or {}
             table.add_row(f"{r['method']} ({r['locations']})", num(r["batched_ms_per_location"], ".3f"),
                           num(r["single_ms"], ".2f"), f"{fk['mean']:.3g} +- {fk['std']:.2g}" if fk else "-",
-                          num(r.get("branch_count_mismatch_pct"), ".2f"))
+                          num(r.get("branch_count_mismatch_pct"), ".2f"),
+                          ", ".join(f"{b}: {v['mismatched']}/{v['locations']}" for b, v in by.items()))
         console.print(table)
     f3 = result["fig3"]
     table = Table(title="Fig. 3: mean |joint error| (rad) after keeping K Fourier components")
