@@ -3,10 +3,14 @@ against a scripted board (tests/session_peer.py) on a fake clock: lost lines,
 lost and held answers, epochs, STALE, PROTO, FAULT. No sleeping, no threads."""
 from __future__ import annotations
 
+import os
+import signal
+
 import pytest
 
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient
+from armbridge.executor.signals import Stopped, stop_on_signals
 from armbridge.executor.stream import Stream
 from armbridge.link import protocol as P
 from armbridge.link.arq import MIN_WINDOW, Arq, Cmd
@@ -55,6 +59,67 @@ def test_a_line_cut_by_opening_the_port_is_not_a_damaged_line():
     peer.rx += whole[:-3] + b"00\n"  # a damaged CRC field
     c.drain(0.05)
     assert c.stats.host_line_errors == 1
+
+
+def _telemetry(peer: Peer, k: int) -> list[bytes]:
+    """k T lines the board sends next (board times 1000, 1001, ...)."""
+    out = []
+    for i in range(k):
+        out.append(P.encode(peer.bseq % P.SEQ_MOD, "T", 1000 + i, "IDLE", "-", 8, 1571, -1571, 0, 1571, -1571, 0,
+                            0, 0, 0))
+        peer.bseq += 1
+    return out
+
+
+def test_a_stop_signal_as_the_port_hands_over_bytes_loses_none():
+    """A stop signal is an exception between any two bytecodes (executor/signals.py).
+    One that arrives as the port returns half a line must not lose those bytes: the
+    e-stop's drain reads on, and the line they began is whole, not a damaged line
+    (the read and the split run under the client's `holding`)."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    seen: list[int] = []
+    c = client_for(peer, on_telemetry=lambda t, m: seen.append(m.ms))
+    tel = _telemetry(peer, 3)
+    half = len(tel[0]) // 2
+    peer.rx += tel[0][:half]
+    read = peer.read
+
+    def read_then_signal(n: int = 1) -> bytes:
+        data = read(n)
+        if data:
+            os.kill(os.getpid(), signal.SIGTERM)  # Python runs the handler at the next bytecode
+        return data
+
+    peer.read = read_then_signal  # type: ignore[method-assign]
+    with stop_on_signals():
+        with pytest.raises(Stopped):
+            c.drain(0.05)
+        peer.read = read  # type: ignore[method-assign]
+        peer.rx += tel[0][half:] + tel[1] + tel[2]
+        c.drain(0.05)
+    assert c.stats.host_line_errors == 0 and seen == [1000, 1001, 1002]
+
+
+def test_an_exception_in_a_callback_leaves_the_later_lines_for_the_next_read():
+    """Lines split from one read are dispatched one at a time: a callback that raises
+    (a stop signal in the recording) loses only its own line's remaining work."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    seen: list[int] = []
+
+    def on_telemetry(t, m) -> None:
+        seen.append(m.ms)
+        if m.ms == 1001 and seen.count(1001) == 1:
+            raise KeyboardInterrupt
+
+    c = client_for(peer, on_telemetry=on_telemetry)
+    peer.rx += b"".join(_telemetry(peer, 4))
+    with pytest.raises(KeyboardInterrupt):
+        c.drain(0.05)
+    assert seen == [1000, 1001]
+    c.drain(0.05)
+    assert seen == [1000, 1001, 1002, 1003] and c.stats.host_line_errors == 0
 
 
 def test_a_t_line_with_the_boards_own_columns_before_hello_is_not_a_damaged_line():

@@ -39,6 +39,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from armbridge.errors import ArmbridgeError
+from armbridge.executor.signals import holding
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
 from armbridge.executor.stream import Stream
 from armbridge.link import protocol as P
@@ -90,7 +91,7 @@ class BoardClient:
         self.on_error = on_error
         self.connect_timeout = connect_timeout
         self.arq = Arq(port, clock=clock, baud=baud, on_line=self._on_line, on_note=lambda text: self._error(None, text),
-                       silence_timeout=silence_timeout, max_epoch_commands=max_epoch_commands)
+                       silence_timeout=silence_timeout, max_epoch_commands=max_epoch_commands, guard=holding)
         self.board_clock = BoardClock()
         self.info: BoardInfo | None = None
         self.state: str | None = None  # last state seen (HELLO, BOOT, telemetry, STAT, events)

@@ -47,12 +47,21 @@ Reliability:
   only: it checks another epoch), a board expecting a seq that is not in
   flight, a full epoch. The
   handshake (executor/handshake.py) acts on them.
+* Interruptions: a stop signal reaches the executor as an exception that may
+  come between any two bytecodes (executor/signals.py), and the e-stop's drain
+  then reads on. Bytes read but not split would be lost, and the line they
+  belong to would read as damaged, so the read and the split, and each write,
+  run under `guard` (the executor's `holding`: a signal waits for the block's
+  end). Split lines wait in a queue and are dispatched one at a time, so an
+  exception from a callback leaves the lines after it for the next `pump`.
 """
 from __future__ import annotations
 
 import math
 import re
+from collections import deque
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
@@ -108,6 +117,7 @@ class Arq:
         on_note: Callable[[str], None] | None = None,
         silence_timeout: float | None = None,
         max_epoch_commands: int = P.MAX_EPOCH_COMMANDS,
+        guard: Callable[[], AbstractContextManager] = nullcontext,
     ) -> None:
         if not 2 <= max_epoch_commands <= P.MAX_EPOCH_COMMANDS:
             raise ValueError(f"max_epoch_commands {max_epoch_commands} outside 2..{P.MAX_EPOCH_COMMANDS}")
@@ -117,6 +127,7 @@ class Arq:
         self.now = clock
         self.on_line = on_line
         self.on_note = on_note
+        self.guard = guard
         self.max_epoch_commands = max_epoch_commands
         baud = baud or int(getattr(port, "baudrate", 0) or getattr(port, "baud", 0) or 115200)
         self.byte_time = 10.0 / baud  # clock seconds per byte (8N1)
@@ -155,14 +166,15 @@ class Arq:
         self._credit = 0  # FREE of that OK
         self._w_sent_n: list[int] = []  # command numbers of W lines after _credit_n
         self._answers: dict[int, P.Ok | P.Er] = {}  # answers of keep commands
-        self._pending: list = []  # split lines not yet dispatched (after a HELLO answer)
+        self._pending: deque = deque()  # split lines not yet dispatched (after a HELLO answer, an exception)
         self._sent_wp: set[int] = set()  # waypoint keys sent / answered OK at least once
         self._acked_wp: set[int] = set()
 
     # ------------------------------------------------------------------ byte I/O
     def write(self, data: bytes) -> None:
         try:
-            self.port.write(data)
+            with self.guard():  # a line is written whole or not at all
+                self.port.write(data)
         except OSError as exc:  # serial.SerialException is an OSError
             raise ArmbridgeError(f"cannot write to the port: {exc}") from None
 
@@ -356,17 +368,18 @@ class Arq:
 
         Dispatch stops after the answer to a HELLO: the lines after it (a DONE
         the board sent right after its reply) wait for the next call, so the
-        handshake judges the reply's `done` before it learns of later news."""
-        if self._pending:
-            items, self._pending = self._pending, []
-        else:
-            data = self._read_some(timeout)
-            if not data:
-                return
-            self._last_bytes = self.now()
-            items = self._splitter.feed(data)
+        handshake judges the reply's `done` before it learns of later news.
+        Lines wait in `_pending` until dispatched (see Interruptions above)."""
+        pending = self._pending
+        if not pending:
+            with self.guard():  # no exception between the bytes read and their split
+                data = self._read_some(timeout)
+                if data:
+                    self._last_bytes = self.now()
+                    pending.extend(self._splitter.feed(data))
         st = self.stats
-        for k, item in enumerate(items):
+        while pending:
+            item = pending.popleft()
             first, self._first_piece = self._first_piece, False
             if isinstance(item, P.ProtocolError):
                 st.host_line_errors += 1
@@ -402,7 +415,6 @@ class Arq:
                 continue
             if isinstance(msg, P.Ok):
                 if self._on_answer(msg) == "HELLO":
-                    self._pending = items[k + 1:]
                     return
             elif isinstance(msg, P.Er):
                 self._on_er(msg)
