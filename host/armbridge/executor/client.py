@@ -41,7 +41,7 @@ from collections.abc import Callable, Sequence
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.signals import holding
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
-from armbridge.executor.stream import Stream
+from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
 from armbridge.link.arq import RENEWAL, Arq
 from armbridge.link.stats import LinkStats
@@ -51,7 +51,7 @@ from armbridge.link.protodef import LATCHED_STATES
 __all__ = ["BoardClient", "BoardInfo", "BoardClock", "LinkStats", "LATCHED_STATES"]
 
 
-class BoardClient:
+class BoardClient(Streaming):
     """A protocol v2 session with one board over `port` (read(n), write(b), in_waiting).
 
     `robot` None: no plan (the board console): connect() checks the protocol
@@ -110,18 +110,6 @@ class BoardClient:
     @property
     def connected(self) -> bool:
         return self.arq.live
-
-    @property
-    def done_index(self) -> int:
-        return self._stream.done if self._stream is not None else -1
-
-    @property
-    def done_times(self) -> dict[int, float]:
-        return self._stream.done_times if self._stream is not None else {}
-
-    @property
-    def start_times(self) -> dict[int, float]:
-        return self._stream.start_times if self._stream is not None else {}
 
     def _error(self, t: float | None, text: str) -> None:
         if self.on_error is not None:

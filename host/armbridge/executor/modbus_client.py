@@ -28,7 +28,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits
-from armbridge.executor.stream import Stream
+from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
 from armbridge.link.boardclock import BoardClock
 from armbridge.link.modbus import ModbusError, RtuMaster, to_i16
@@ -52,7 +52,7 @@ def latch_text(code: int) -> str | None:
                                                   f"reason {code}")
 
 
-class ModbusClient:
+class ModbusClient(Streaming):
     """A plan runner over Modbus RTU to one board, with BoardClient's public surface."""
 
     speed = 1.0
@@ -90,18 +90,6 @@ class ModbusClient:
     @property
     def connected(self) -> bool:
         return self._live
-
-    @property
-    def done_index(self) -> int:
-        return self._stream.done if self._stream is not None else -1
-
-    @property
-    def done_times(self) -> dict[int, float]:
-        return self._stream.done_times if self._stream is not None else {}
-
-    @property
-    def start_times(self) -> dict[int, float]:
-        return self._stream.start_times if self._stream is not None else {}
 
     # ------------------------------------------------------------------ reads
     def _read_input(self, address: int, count: int) -> list[int]:

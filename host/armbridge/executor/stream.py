@@ -171,3 +171,22 @@ class Stream:
             f"the board refused {what}: {er.code} {er.name}{' ' + detail if detail else ''}"
             f"{' (' + why + ')' if why else ''}; {self.progress()}"
         )
+
+
+class Streaming:
+    """A client's view of the plan it streams, the same for every client: `_stream`
+    is the current (or last) plan's Stream, None before the first."""
+
+    _stream: Stream | None = None
+
+    @property
+    def done_index(self) -> int:
+        return self._stream.done if self._stream is not None else -1
+
+    @property
+    def done_times(self) -> dict[int, float]:
+        return self._stream.done_times if self._stream is not None else {}
+
+    @property
+    def start_times(self) -> dict[int, float]:
+        return self._stream.start_times if self._stream is not None else {}
