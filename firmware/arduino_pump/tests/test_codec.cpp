@@ -1,6 +1,7 @@
 /* The codec against every case of the shared vectors (tests/vectors/lines.json, as
  * converted by tools/vectors2txt.py), mirroring tests/firmware/test_fw_proto.py,
  * plus the codec's own edge cases. */
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -214,6 +215,28 @@ static void edges() {
     w.num(-2147483647 - 1);
     d = w.finish(&n);
     CHECK(std::string((const char *)d, n - 10) == "7 -2147483648");
+    /* num(): every digit count and the powers of ten at its edges, as printf writes them */
+    static const int64_t nums[] = {0, 1, 9, 10, 11, 99, 100, 101, 999, 1000, 9999, 10000, 65535, 65536, 99999,
+                                   100000, 999999, 1000000, 9999999, 10000000, 99999999, 100000000, 999999999,
+                                   1000000000, 1999999999, 2000000000, 2147483647, -1, -9, -10, -65535,
+                                   -1000000000, -2147483647, -2147483648LL};
+    for (int64_t v : nums) {
+        w.begin(0);
+        w.num((int32_t)v);
+        d = w.finish(&n);
+        char want[24];
+        snprintf(want, sizeof want, "0 %lld", (long long)v);
+        CHECK(std::string((const char *)d, n - 10) == want);
+    }
+    /* ab_parse_int: saturates at 2^31 - 1 exactly where the value passes it */
+    static const char *ints[] = {"214748364", "2147483646", "2147483647", "2147483648", "2147483649",
+                                 "2147483650", "21474836470", "4294967295", "4294967296", "-2147483647",
+                                 "-2147483649", "999999999", "1000000000", "7", "-7"};
+    for (const char *t : ints) {
+        long long ref = strtoll(t, nullptr, 10);
+        long long cap = ref > 2147483647LL ? 2147483647LL : ref < -2147483647LL ? -2147483647LL : ref;
+        CHECK(ab_parse_int(t, strlen(t), &x) && x == cap);
+    }
 }
 
 void run_codec(const char *path) {
