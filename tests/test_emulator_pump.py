@@ -146,6 +146,49 @@ def test_the_sketch_reads_the_plants_sensors_and_end_stops(sketch):
     assert abs(adc - (205 + 0.5 * (716 - 205) / 1.047)) <= 2   # the firmware's calibration reads 0.5 rad
 
 
+def test_the_chips_bytes_reach_the_host_at_the_chips_own_rate(sketch):
+    """The Arduino core's 115200 is UBRR 16 with U2X at 16 MHz: 117,647 baud, a 10-bit
+    frame per 1360 cycles (85 us), 2.1 % faster than the lane's nominal 86.8 us. The
+    sketch echoes 88-character lines (95 bytes out, 8.075 ms of the chip's UART) sent
+    one per 8.1 ms: its transmitter is busy all the time for 1.2 s (simavr raises UDRE a
+    frame after each UDR0 write, so the next byte follows after the ISR's few cycles). Every line end
+    reaches the host one byte time after the chip wrote it to UDR0 (within the tick at
+    which the emulator reads the host side); a lane paced at 86.8 us would queue each
+    echo 0.15 ms later than the one before (22 ms after 150 lines)."""
+    wait_text(sketch, b"BOOT sketch")
+    sketch.advance(0.01)
+    sketch.read_output()
+    chip_byte_s = 1360 / 16e6
+    assert sketch.uart.tx.byte_time == pytest.approx(chip_byte_s, rel=1e-9)
+    assert sketch.uart.rx.byte_time == pytest.approx(10 / 115200)   # the host's side stays at its baud
+    written: list[float] = []                   # sim time of each line end's UDR0 write
+    sketch.on_line = lambda t, line: written.append(t)
+    arrived: list[float] = []                   # sim time each line end reached the host
+    seen = bytearray()
+    period, lines = 0.0081, 150
+    t0 = sketch.now()
+
+    def collect(until):
+        def due():
+            out = sketch.read_output()
+            seen.extend(out)
+            arrived.extend([sketch.now()] * out.count(b"\n"))
+            return sketch.now() >= until
+        assert sketch.run_until(due, until - sketch.now() + 0.01)
+
+    for k in range(lines):
+        collect(t0 + k * period)
+        sketch.inject(b"%02d" % (k % 100) + b"x" * 86 + b"\n")
+    collect(sketch.now() + 0.05)
+    assert seen == b"".join(b"ECHO %02d" % (k % 100) + b"x" * 86 + b"\r\n" for k in range(lines))
+    assert len(written) == len(arrived) == lines
+    busy = (written[-1] - written[0]) / (lines - 1)           # the chip's time per echo
+    assert 0.99 < 95 * chip_byte_s / busy <= 1.0               # its transmitter (nearly) never idle
+    lag = [a - w for a, w in zip(arrived, written)]
+    assert min(lag) >= chip_byte_s - 1e-6                      # not before the chip sent the byte
+    assert max(lag) <= chip_byte_s + sketch.tick_us / 1e6 + 1e-6, max(lag)
+
+
 def test_a_reset_keeps_the_eeprom_and_the_plant(sketch):
     wait_text(sketch, b"BOOT sketch")
     sketch.inject(b"W 42\n")

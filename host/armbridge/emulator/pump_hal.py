@@ -166,6 +166,11 @@ class PumpSimHal(SimHal):
             elif len(self._line) < 512:
                 self._line.append(b)
 
+    def uart_tx_byte_time(self, seconds: float) -> None:
+        """The chip's UART sends a byte per `seconds` (its baud divisor and frame, as the
+        harness reports them): the tx lane paces its bytes so, not at the nominal baud."""
+        self.uart.tx.set_byte_time(seconds)
+
     def uart_read(self) -> bytes | None:
         raise ArmbridgeError("the pump board's UART is the chip's: simavr_runner feeds it (uart_read_timed)")
 

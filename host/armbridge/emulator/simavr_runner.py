@@ -13,7 +13,11 @@ process driven over pipes. The emulator keeps everything else (sim clock,
   2. the HAL's sensor values (ADC millivolts per channel, levels of the input
      pins it drives) are held for the slice; the harness runs the chip up to
      the tick's cycle;
-  3. the bytes the chip wrote to UDR0 go into the tx lane at their cycles, and
+  3. the bytes the chip wrote to UDR0 go into the tx lane at their cycles,
+     paced at the chip's own byte time (the harness reports the cycles a frame
+     takes from the UBRR, U2X and frame format the firmware programmed: 85 us
+     for the Arduino core's 115200, really 117,647 baud, not the lane's nominal
+     86.8 us, which would queue a back-to-back stream ever later), and
      every change of the watched registers (the HAL's output pins: port, DDR,
      timer) goes to the HAL at its own time, which decodes it (duty from OCRnx
      and COMnx1) and drives the plant.
@@ -38,7 +42,7 @@ completed ids).
 HAL methods the board calls (pump_hal.PumpSimHal has them): `elf_watch()` ->
 data addresses; `elf_inputs()` -> ({adc channel: mV}, {"C7": level});
 `elf_outputs(t, regs)`; `uart_read_timed(until)` -> [(t, byte)];
-`uart_write_at(t, data)`; `load_persist()` / `save_persist(data)`.
+`uart_write_at(t, data)`; `uart_tx_byte_time(seconds)`; `load_persist()` / `save_persist(data)`.
 """
 from __future__ import annotations
 
@@ -217,6 +221,7 @@ class SimavrBoard:
         self.cycle0 = self.cycle = h.cycle
         self.us0 = hal.clock.us
         self.byte_s = 10.0 / float(getattr(hal.uart, "baud", 115200))
+        self.tx_cycles = 0      # the chip's UART frame in cycles (harness), 0 while its transmitter is off
         self._rx = bytearray()
         self._tx = bytearray()
         self._pending: dict[str, tuple[str, list[str]]] = {}   # host seq -> (verb, args) of lines fed
@@ -242,7 +247,7 @@ class SimavrBoard:
             until, uart or "-", ",".join(f"{c}:{int(mv)}" for c, mv in adc.items()) or "-",
             ",".join(f"{p}:{int(v)}" for p, v in pins.items()) or "-"))
         f = answer.split()
-        if len(f) != 9 or f[0] != "DONE":
+        if len(f) != 10 or f[0] != "DONE":
             raise ArmbridgeError(f"the simavr harness answered {answer[:200]!r}")
         self.cycle = int(f[1])
         for _, b in fed:
@@ -253,6 +258,10 @@ class SimavrBoard:
             for rec in f[4].split(";"):
                 c, vals = rec.split(":")
                 hal.elf_outputs(self.t_of(int(c)), dict(zip(watch, (int(v, 16) for v in vals.split(".")))))
+        tx_cycles = int(f[9])
+        if tx_cycles and tx_cycles != self.tx_cycles:
+            self.tx_cycles = tx_cycles
+            hal.uart_tx_byte_time(tx_cycles / h.hz)
         if f[3] != "-":
             for item in f[3].split(","):
                 c, b = item.split(":")

@@ -6,7 +6,9 @@ Two lanes, each a FIFO on the emulator's clock (seconds):
   readable by the firmware at ``max(t, previous byte's time) + 1/B`` where
   B = baud / 10 bytes/s (8N1: start + 8 data + stop bits; 11,520 bytes/s at 115200).
 * ``tx``: firmware -> host. A byte the firmware writes at t leaves the board at
-  the same pace, ``max(t, previous) + 1/B``.
+  the same pace, ``max(t, previous) + 1/B``. A board whose chip is simulated
+  (simavr) sets this lane's byte time to the chip's own (`Lane.set_byte_time`):
+  its UART runs at the rate its baud divisor gives, not exactly at `baud`.
 
 Faults (`LinkFaults`) are applied per byte as it enters a lane, in this order:
 drop (the byte vanishes), corrupt (ONE random bit of the byte is flipped, a
@@ -59,6 +61,12 @@ class Lane:
         self._q: deque[tuple[float, int]] = deque()
         self._last = float("-inf")
         self.counters = {"bytes": 0, "drop": 0, "corrupt": 0, "dup": 0, "delay": 0}
+
+    def set_byte_time(self, seconds: float) -> None:
+        """Pace the bytes that enter from now on at `seconds` a byte (those queued keep their times)."""
+        if not seconds > 0:
+            raise ValueError(f"byte time {seconds} is not positive")
+        self.byte_time = float(seconds)
 
     def push(self, data: bytes, t: float) -> None:
         """Bytes that enter the lane at time t (s)."""

@@ -23,7 +23,7 @@
  *         uart  c:hh,c:hh,...  a byte for UART0 at cycle c (given in order)
  *         adc   ch:mv,...      ADC channel ch at mv millivolts (held)
  *         pins  Pb:l,...       pin b of port P (A..L) driven at level l (held)
- *       -> DONE <cycle> <state> <tx> <watch> <probes> <minsp> <ee> <lost>
+ *       -> DONE <cycle> <state> <tx> <watch> <probes> <minsp> <ee> <lost> <txbyte>
  *         tx     c:hh,...      UART0 output bytes, cycle of the UDR0 write
  *         watch  c:v.v.v;...   after a change: the cycle and every watched byte
  *                              (the first record of a slice is its start state)
@@ -31,6 +31,9 @@
  *         minsp  lowest SP seen in the slice
  *         ee     1 when the EEPROM changed in the slice (then written to the file)
  *         lost   UART0 input bytes the full receive FIFO refused in the slice
+ *         txbyte cycles one UART0 frame takes at the end of the slice (from
+ *                UBRR, U2X and the frame format the firmware programmed, as
+ *                fix_uart_timing sets it), 0 while the transmitter is off
  *         state  simavr's cpu state: 2 running, 3 sleeping, 7 done, 8 crashed
  *     RESET                  the chip's reset pin: registers and I/O reset,
  *                            SRAM, EEPROM and flash kept                -> OK <cycle>
@@ -209,6 +212,15 @@ static void fix_uart_timing(void)
 	avr_cycle_count_t want = bit * (avr_cycle_count_t)(1 + db + parity + sb);
 	if (p->cycles_per_byte != want)
 		p->cycles_per_byte = want;
+}
+
+/* The byte time the chip transmits at (cycles), 0 while TXEN0 is clear. */
+static avr_cycle_count_t uart_tx_cycles(void)
+{
+	if (!uart0 || !uart0->ubrrl.reg || !avr_regbit_get(avr, uart0->txen))
+		return 0;
+	fix_uart_timing();
+	return uart0->cycles_per_byte;
 }
 
 static void raise_pins(int force)
@@ -522,10 +534,10 @@ static void do_run(char *args)
 		avr_raise_irq(in, feed[fi].b);
 	int ee = ee_changed();
 	out_len = 0;
-	append(&out, &out_len, &out_cap, "DONE %llu %d %s %s %s %u %d %lu\n",
+	append(&out, &out_len, &out_cap, "DONE %llu %d %s %s %s %u %d %lu %llu\n",
 	       (unsigned long long)avr->cycle, state,
 	       tx_len ? tx_buf : "-", watch_len ? watch_buf : "-", probe_len ? probe_buf : "-",
-	       minsp, ee, lost);
+	       minsp, ee, lost, (unsigned long long)uart_tx_cycles());
 	fwrite(out, 1, out_len, proto);
 }
 
