@@ -39,8 +39,8 @@ import time
 from collections.abc import Callable, Sequence
 
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.signals import holding
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
+from armbridge.executor.signals import holding
 from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
 from armbridge.link.arq import RENEWAL, Arq

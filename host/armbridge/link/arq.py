@@ -50,10 +50,12 @@ Reliability:
 * Interruptions: a stop signal reaches the executor as an exception that may
   come between any two bytecodes (executor/signals.py), and the e-stop's drain
   then reads on. Bytes read but not split would be lost, and the line they
-  belong to would read as damaged, so the read and the split, and each write,
-  run under `guard` (the executor's `holding`: a signal waits for the block's
-  end). Split lines wait in a queue and are dispatched one at a time, so an
-  exception from a callback leaves the lines after it for the next `pump`.
+  belong to would read as damaged, so the read (bounded by READ_WAIT_S) and
+  the split run under `guard` (the executor's `holding`: a signal waits for
+  the block's end). Split lines wait in a queue and are dispatched one at a
+  time, so an exception from a callback leaves the lines after it for the next
+  `pump`. Writes are not guarded: one can block on a full device, and a line
+  cut short is dropped by the board at the e-stop byte that follows it.
 """
 from __future__ import annotations
 
@@ -173,8 +175,7 @@ class Arq:
     # ------------------------------------------------------------------ byte I/O
     def write(self, data: bytes) -> None:
         try:
-            with self.guard():  # a line is written whole or not at all
-                self.port.write(data)
+            self.port.write(data)  # unguarded: a write may block (a full device), a stop must not wait
         except OSError as exc:  # serial.SerialException is an OSError
             raise ArmbridgeError(f"cannot write to the port: {exc}") from None
 
