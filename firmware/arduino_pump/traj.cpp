@@ -48,6 +48,7 @@ void Traj::set_range(uint8_t j, int32_t lo_, int32_t hi_, int32_t vmax_) {
     if (slower && active_id >= 0) {   /* re-plan from where the set point is */
         for (uint8_t k = 0; k < N_JOINTS; k++) start_[k] = sp[k];
         plan(dur_ - t_);
+        for (uint8_t k = 0; k < N_JOINTS; k++) vel[k] = (end_[k] - start_[k]) * scale_;
     }
 }
 
@@ -152,24 +153,42 @@ void Traj::begin(TrajEvent *ev, uint8_t *ne) {
     if (worst >= 0) add(ev, ne, TE_SLOW, w.id, worst + 1);
 }
 
+/* The time a move of a mrad needs at vmax, ceil(a * 1000 / vmax) in float, when it is
+ * longer than dur ms, else 0. The float formula costs a division (and conversions) per
+ * joint; where a is a whole number below 8388 (a * 1000 < 2^23, exact in float) and
+ * 0 < vmax < 2^24 its result is ceil(N / vmax) of the integers N = a * 1000 and vmax
+ * exactly (a quotient k + r/vmax, r > 0, lies more than an ulp of it above k), so "not
+ * longer" is the integer test N <= dur * vmax, one 32-bit multiply (a product that wraps
+ * is smaller than the true one: it can only send a move to the float formula). The rest
+ * (a move from a set point between whole mrad: a re-plan, a move from rest; a move longer
+ * than dur) takes the float formula itself. */
+static uint32_t need_ms(float a, int32_t vmax, uint32_t dur) {
+    if (a < 8388.0f && vmax > 0 && vmax < (1L << 24)) {
+        uint16_t ai = (uint16_t)a;
+        if ((float)ai == a && dur * (uint32_t)vmax >= (uint32_t)ai * 1000u) return 0;
+    }
+    float need = a * 1000.0f / (float)vmax;
+    uint32_t ms = (uint32_t)need;
+    if ((float)ms < need) ms++;
+    return ms > dur ? ms : 0;
+}
+
+/* Sets dur_ (stretched to the joints' vmax), scale_ = 1000 / dur_ and t_ = 0. Not vel:
+ * step() sets it after begin() (interpolate() or DONE), set_range() after its re-plan. */
 int Traj::plan(uint32_t dur) {
     int worst = -1;
     for (uint8_t j = 0; j < N_JOINTS; j++) {
         float d = end_[j] - start_[j];
-        if (d < 0) d = -d;
-        float need = d * 1000.0f / (float)vmax[j];
-        uint32_t need_ms = (uint32_t)need;
-        if ((float)need_ms < need) need_ms++;
-        if (need_ms > dur) {
-            dur = need_ms;
+        uint32_t need = need_ms(d < 0 ? -d : d, vmax[j], dur);
+        if (need) {
+            dur = need;
             worst = j;
         }
     }
     if (dur < 1) dur = 1;
+    if (dur != dur_) scale_ = 1000.0f / (float)dur;   /* else scale_ = 1000 / dur_ from the last plan */
     dur_ = dur;
     t_ = 0;
-    scale_ = 1000.0f / (float)dur;
-    for (uint8_t j = 0; j < N_JOINTS; j++) vel[j] = (end_[j] - start_[j]) * scale_;
     return worst;
 }
 

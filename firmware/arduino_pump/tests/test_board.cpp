@@ -9,6 +9,7 @@
 #include "control.h"
 #include "modbus.h"
 #include "rig.h"
+#include "traj_ref.h"
 
 static uint8_t EE[EE_SIZE];
 
@@ -426,6 +427,140 @@ static void modbus_frame_across_a_stall() {
     CHECK(mb_stats()->frames == 1 && mb_stats()->crc_errors == 0);
 }
 
+/* Traj against RefTraj (tests/traj_ref.h: the generator before plan() lost its float
+ * divisions) on the same random calls: waypoints from whole-mrad set points (plan's
+ * integer path) with steps at and one mrad past what the duration allows at vmax (N ==
+ * dur * vmax, the ceiling's edge), long and huge moves, durations 0..65535, vmax from 1
+ * to 2^25, re-plans from a set point between whole mrad (SETLIM slower), set points,
+ * ranges that ramp, hold. Tolerance: none; after every call the set points, velocities,
+ * active id and events must be the same bit for bit. */
+static uint32_t rng_state = 12345u;
+static uint32_t rnd() {   /* xorshift32 */
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 17;
+    rng_state ^= rng_state << 5;
+    return rng_state;
+}
+static int32_t rnd_in(int32_t lo, int32_t hi) { return lo + (int32_t)(rnd() % (uint32_t)(hi - lo + 1)); }
+
+static bool same_traj(const Traj &a, const RefTraj &b) {
+    return memcmp(a.sp, b.sp, sizeof a.sp) == 0 && memcmp(a.vel, b.vel, sizeof a.vel) == 0 &&
+           a.active_id == b.active_id;
+}
+
+static int32_t rnd_vmax() {
+    switch (rnd() % 6) {
+        case 0: return 500;
+        case 1: return rnd_in(1, 20);
+        case 2: return rnd_in(1, 2000);
+        case 3: return (int32_t)(1000 * rnd_in(1, 9));
+        case 4: return rnd_in((1L << 24) - 2, (1L << 24) + 2);
+        default: return rnd_in(1, 1L << 25);
+    }
+}
+
+static void traj_matches_the_float_formula() {
+    const int trials = 400, calls = 600;
+    long steps = 0, edge = 0, near = 0, slow = 0, mismatches = 0;
+    for (int trial = 0; trial < trials && mismatches == 0; trial++) {
+        int32_t vmax[N_JOINTS];
+        for (int j = 0; j < N_JOINTS; j++) vmax[j] = rnd_vmax();
+        Traj t;
+        RefTraj r;
+        t.init(vmax);
+        r.init(vmax);
+        int32_t last[N_JOINTS] = {0, 0, 0};
+        uint16_t id = 0;
+        for (int c = 0; c < calls && mismatches == 0; c++) {
+            TrajEvent ea[TRAJ_MAX_EVENTS], eb[TRAJ_MAX_EVENTS];
+            uint32_t op = rnd() % 100;
+            if (op < 45) {                       /* a waypoint */
+                uint16_t dur;
+                switch (rnd() % 5) {
+                    case 0: dur = 2; break;
+                    case 1: dur = (uint16_t)rnd_in(0, 3); break;
+                    case 2: dur = (uint16_t)rnd_in(0, 300); break;
+                    case 3: dur = (uint16_t)rnd_in(250, 260); break;
+                    default: dur = (uint16_t)rnd_in(0, 65535); break;
+                }
+                int32_t q[N_JOINTS], prev0 = last[0];
+                bool at_edge = false;
+                for (int j = 0; j < N_JOINTS; j++) {
+                    int32_t d;
+                    uint32_t kind = rnd() % 8;
+                    int64_t allow = (int64_t)dur * r.vmax[j];   /* N allowed: dur * vmax */
+                    if (kind < 3 && allow % 1000 == 0 && allow / 1000 < 9000) {
+                        d = (int32_t)(allow / 1000) + (int32_t)(kind == 2);   /* at the edge, one past */
+                        at_edge = at_edge || kind < 2;
+                    } else if (kind < 5) {
+                        d = rnd_in(0, 12);
+                    } else if (kind < 7) {
+                        d = rnd_in(0, 9000);
+                    } else {
+                        d = rnd_in(0, 1L << 22);
+                    }
+                    if (rnd() & 1) d = -d;
+                    q[j] = last[j] + d;
+                    if (q[j] > (1L << 23) || q[j] < -(1L << 23)) q[j] = last[j] - d;
+                    last[j] = q[j];
+                }
+                if (rnd() % 3 == 0) {            /* dur at joint 1's need, or 1 ms short of it */
+                    int64_t n = (int64_t)(q[0] > prev0 ? q[0] - prev0 : prev0 - q[0]) * 1000, v = r.vmax[0];
+                    int64_t need = (n + v - 1) / v - (int64_t)(rnd() & 1);
+                    if (need >= 0 && need <= 65535) { dur = (uint16_t)need; near++; }
+                }
+                if (at_edge) edge++;
+                bool pa = t.push(id, dur, q), pb = r.push(id, dur, q);
+                CHECK(pa == pb);
+                id++;
+            } else if (op < 88) {                /* a control period (or a few ms of one) */
+                uint16_t dt = (rnd() & 1) ? (uint16_t)PERIOD_MS : (uint16_t)rnd_in(0, 30);
+                uint8_t na = t.step(dt, ea), nb = r.step(dt, eb);
+                steps++;
+                CHECK(na == nb);
+                bool ev_same = na == nb;
+                for (uint8_t i = 0; ev_same && i < na; i++) {
+                    ev_same = ea[i].kind == eb[i].kind && ea[i].a == eb[i].a && ea[i].b == eb[i].b;
+                    if (eb[i].kind == TE_SLOW) slow++;
+                }
+                CHECK(ev_same);
+                if (!ev_same) mismatches++;
+            } else if (op < 93) {                /* SETLIM: a slower vmax re-plans from the set point */
+                uint8_t j = (uint8_t)(rnd() % N_JOINTS);
+                int32_t lo = rnd_in(-(1L << 23), 0), hi = rnd_in(0, 1L << 23);
+                if (rnd() % 4 == 0) { lo = rnd_in(-3000, 3000); hi = lo + rnd_in(0, 3000); }
+                int32_t v = (rnd() & 1) ? r.vmax[j] / rnd_in(1, 5) + (int32_t)(r.vmax[j] < 5) : rnd_vmax();
+                t.set_range(j, lo, hi, v);
+                r.set_range(j, lo, hi, v);
+            } else if (op < 96) {                /* a set point, whole mrad or between */
+                float q[N_JOINTS];
+                for (int j = 0; j < N_JOINTS; j++) {
+                    q[j] = (float)rnd_in(-5000, 5000);
+                    if (rnd() & 1) q[j] += (float)rnd_in(1, 999) / 1000.0f;
+                    last[j] = (int32_t)q[j];
+                }
+                t.set_point(q);
+                r.set_point(q);
+            } else if (op < 98) {
+                t.hold = r.hold = !r.hold;
+            } else {
+                t.flush();
+                r.flush();
+            }
+            bool same = same_traj(t, r);
+            CHECK_MSG(same, "trial %d call %d: sp %.9g/%.9g vel %.9g/%.9g id %ld/%ld", trial, c,
+                      (double)t.sp[0], (double)r.sp[0], (double)t.vel[0], (double)r.vel[0],
+                      (long)t.active_id, (long)r.active_id);
+            if (!same) mismatches++;
+        }
+    }
+    /* the cases that matter occurred, many times */
+    CHECK_MSG(steps > 50000 && edge > 5000 && near > 5000 && slow > 5000, "steps %ld edge %ld near %ld slow %ld",
+              steps, edge, near, slow);
+    printf("traj vs reference: %ld steps, %ld waypoints at the vmax edge, %ld at joint 1's need, %ld SLOW\n",
+           steps, edge, near, slow);
+}
+
 void run_board() {
     boot_and_hello();
     waypoints_to_done();
@@ -443,4 +578,5 @@ void run_board() {
     modbus_switch();
     modbus_frame_across_a_stall();
     hello_on_a_straight_arm_is_no_limit();
+    traj_matches_the_float_formula();
 }
