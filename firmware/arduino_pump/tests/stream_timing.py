@@ -9,10 +9,9 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 import armbridge.emulator.simavr_runner as SR
 from armbridge.bench import link as L
+from armbridge.emulator.pump_hal import _spread, pump_timing
 
 ELF = Path(sys.argv[1]).resolve()
 n = int(sys.argv[2]) if len(sys.argv) > 2 else 1500
@@ -36,30 +35,20 @@ try:
     t0 = client.now()
     client.execute([2] * n, q.tolist())
     t1 = client.now()
-    hz = float(emu.runner.harness.hz)
-    pr = emu.runner.stats["probes"]
+    timing = pump_timing(emu, window=(t0, t1))  # the period, the control function, RAM: the stream's alone
+    us = 1e6 / timing["hz"]
 
-    def win(name):
-        return [(t, d) for t, d in pr.get(name, []) if t0 <= t <= t1]
-    ctl = win("control")
-    ent = [t for t, _ in ctl]
-    per = np.diff(ent) * 1e6
-    cus = np.array([d for _, d in ctl]) / hz * 1e6
-    plan = np.array([d for _, d in win("plan")]) / hz * 1e6
-    parse = np.array([d for _, d in win("parse")]) / hz * 1e6
-    crc = np.array([d for _, d in win("crc")]) / hz * 1e6
+    def per_call(name: str) -> dict:
+        """A probe's calls in the stream, in us, and how many a control period."""
+        calls = _spread([d * us for t, d in emu.runner.stats["probes"].get(name, []) if t0 <= t <= t1])
+        return dict(calls, per_period=calls["n"] / max(1, timing["control_cycles"]["n"]))
+
+    control = {k: v * us for k, v in timing["control_cycles"].items() if k in ("mean", "min", "max")}
     out = {"elf": str(ELF), "waypoints": n, "stream_s": t1 - t0, "wp_per_s": n / (t1 - t0),
-           "period_us": {"n": int(per.size), "mean": per.mean(), "min": per.min(), "max": per.max(),
-                         "jitter": per.max() - per.min()},
-           "control_us": {"n": int(cus.size), "mean": cus.mean(), "max": cus.max(),
-                          "max_cycles": int(max(d for _, d in ctl))},
-           "plan_us": {"n": int(plan.size), "mean": plan.mean(), "max": plan.max(), "min": plan.min(),
-                       "per_period": plan.size / max(1, cus.size)},
-           "parse_us": {"n": int(parse.size), "mean": parse.mean(), "max": parse.max()},
-           "crc_us": {"n": int(crc.size), "mean": crc.mean(), "max": crc.max()},
-           "extra_us": {k: (lambda a: {"n": int(a.size), "per_period": a.size / max(1, cus.size), "mean": float(a.mean()) if a.size else None, "max": float(a.max()) if a.size else None})(np.array([d for _, d in win(k)]) / hz * 1e6) for k in EXTRA},
-           "flash_bytes": emu.runner.elf.flash_bytes, "static_ram_bytes": emu.runner.elf.static_ram_bytes,
-           "free_ram_bytes": (emu.runner.stats["min_sp"] or 0) - emu.runner.elf.ram_end_of_statics}
+           "period_us": dict(timing["control_period_us"], jitter=timing["control_jitter_us"]),
+           "control_us": dict(control, max_cycles=int(timing["control_cycles"]["max"])),
+           **{f"{name}_us": per_call(name) for name in ("plan", "parse", "crc", *EXTRA)},
+           **{k: timing[k] for k in ("flash_bytes", "static_ram_bytes", "free_ram_bytes")}}
     print(json.dumps(out, indent=1, default=float))
 finally:
     port.close()

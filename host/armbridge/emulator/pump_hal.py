@@ -20,6 +20,8 @@ the firmware starts: the control loop's sampling instants).
 """
 from __future__ import annotations
 
+import math
+
 from collections import deque
 from typing import Any, Callable, cast
 
@@ -206,8 +208,9 @@ def _spread(xs: list[float]) -> dict[str, float]:
             "std": float(a.std())}
 
 
-def pump_timing(emu: Any) -> dict[str, Any]:
-    """The board's timing in simulated cycles (a simavr-run EmulatedBoard after a run).
+def pump_timing(emu: Any, window: tuple[float, float] | None = None) -> dict[str, Any]:
+    """The board's timing in simulated cycles (a simavr-run EmulatedBoard after a run);
+    `window` (t0, t1) in sim seconds: only what happened in it (a stream, not its set-up).
 
     control_period_us: between successive entries of the control period's work
       (PumpBoard::control); jitter = max - min. sample_period_us: the same between
@@ -219,11 +222,12 @@ def pump_timing(emu: Any) -> dict[str, Any]:
       pin off, and the cycles of the same.
     free_ram_bytes: lowest stack pointer seen minus the end of .data/.bss/.noinit."""
     runner, hal, cfg = emu.runner, emu.hal, emu.cfg
+    lo, hi = window if window is not None else (-math.inf, math.inf)
     hz = float(runner.harness.hz)
     ch0 = int(cfg.PIN_BEND[0])
-    starts = [t for t, ch in hal.adc_starts if ch == ch0]
+    starts = [t for t, ch in hal.adc_starts if ch == ch0 and lo <= t <= hi]
     sample = [(b - a) * 1e6 for a, b in zip(starts, starts[1:])]
-    probes = runner.stats["probes"]
+    probes = {name: [r for r in recs if lo <= r[0] <= hi] for name, recs in runner.stats["probes"].items()}
     entries = [t for t, _ in probes.get("control", [])]
     period = [(b - a) * 1e6 for a, b in zip(entries, entries[1:])]
     control = [d for _, d in probes.get("control", [])]
@@ -233,7 +237,7 @@ def pump_timing(emu: Any) -> dict[str, Any]:
         before = [c for c in crcs if c[0] <= t]
         lines.append(d + (before[-1][1] if before else 0))
     latency = []
-    for t in hal.estop_byte_at:
+    for t in (t for t in hal.estop_byte_at if lo <= t <= hi):
         off = [x for x in hal.outputs_off_at if x >= t - 1e-6]
         if off:
             latency.append((off[0] - t) * 1e6)
