@@ -13,10 +13,12 @@ have left the board to the host, and integrates the plant.
 Clock modes (`speed`):
   1.0   paced to the wall clock (default). Between ticks the loop waits in
         `select` on the pty master, so a byte from the host is taken in with
-        sub-millisecond latency.
+        sub-millisecond latency; while it catches up with the wall clock it
+        still reads the host's bytes every tick.
   K>0   sim time runs K times faster (or slower) than wall time. When the
-        machine cannot keep up, sim time runs slower and `counters["overruns"]`
-        counts the catch-ups given up.
+        machine cannot keep up, sim time runs slower, `counters["overruns"]`
+        counts the catch-ups given up, and the emulator says so (`on_note`,
+        `notes`, `pace()`).
   0     lockstep: no wall clock. Without `start()`, the caller drives it:
         `step(n)` advances n control periods (10 ms each), `run_for(s)`,
         `run_until(pred)`, with `inject(bytes)` / `read_output()` standing for
@@ -55,6 +57,7 @@ import numpy as np
 
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.plant import PlantParams
+from armbridge.emulator.pace import PaceLog
 from armbridge.emulator.pty import Pty, open_pty
 from armbridge.emulator.boardfs import BoardFs
 from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware, board_spec
@@ -75,7 +78,8 @@ class EmulatedBoard:
     pty.py). interpreter: the firmware runner ("cpython", "micropython"; None:
     the spec's default). q0, plant_params: override the spec's. on_line(t, line):
     called with every line the firmware writes (sim seconds, bytes without LF),
-    before link faults.
+    before link faults. on_note(text): what the emulator has to say while it runs
+    (a paced one that cannot keep the wall clock says so; also kept in `notes`).
     """
 
     MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
@@ -97,6 +101,7 @@ class EmulatedBoard:
         boot_ms: float = 250.0,
         on_line: Callable[[float, bytes], None] | None = None,
         fs_dir: str | os.PathLike | None = None,
+        on_note: Callable[[str], None] | None = None,
     ) -> None:
         spec = board_spec(device)
         self.spec = spec
@@ -109,6 +114,7 @@ class EmulatedBoard:
         self.link = link
         self.boot_ms = boot_ms
         self.on_line = on_line
+        self.on_note = on_note
         self.tick_us = int(spec.tick_us)   # one iteration of the emulator (1 ms of sim time)
         root = Path(firmware_root) if firmware_root is not None else firmware_dir()
         self.runner = make_runner(spec, interpreter, root)
@@ -160,6 +166,8 @@ class EmulatedBoard:
         self._host_us = 0.0  # latest host_time(), us: it never runs backwards
         self._coupled = False  # a host in this process reads the pty (lockstep waits for it)
         self._host_read_us = 0  # sim time of the coupled host's latest read
+        self._pace_log = PaceLog(self.device)
+        self.notes: list[str] = []  # what the emulator had to say while running (pace_note)
 
         self.board: Any = None
         self._boot()
@@ -225,17 +233,15 @@ class EmulatedBoard:
             self.on_line(t, line)
 
     # ------------------------------------------------------------ one tick
-    def _tick(self, dus: int, read_host: bool = True) -> None:
-        """Advance the sim clock by dus microseconds and run one pass of the board.
-
-        read_host=False leaves the pty unread (while a paced loop catches up with
-        the wall clock, so host bytes are not stamped with a past sim time)."""
+    def _tick(self, dus: int) -> None:
+        """Advance the sim clock by dus microseconds and run one pass of the board; the
+        host's bytes read from the pty now arrive at the board now."""
         self.clock.advance_us(dus)
         now = self.clock.t
         if self._reset_times and self._reset_times[0] <= now:
             self._reset_times.pop(0)
             self._begin_reset()
-        if self._pty is not None and read_host:
+        if self._pty is not None:
             data = self._pty.read()
             if data and self.console is not None:
                 data = self.console.from_host(data, now)
@@ -509,6 +515,13 @@ class EmulatedBoard:
             time.sleep(0)  # let other threads run
 
     def _run_paced(self) -> None:
+        """Sim time follows the wall clock times `speed`. Every pass reads the host's bytes
+        (stamped with the sim time of the tick that reads them, which is the time a coupled
+        host's clock shows: `host_time` never runs more than a tick ahead of the board), so
+        a host's line is never held back while the loop catches up. A backlog over
+        MAX_CATCHUP_S is given up (the board's time slips behind the wall clock) and said
+        (`pace_note`): on a pty, a host on the wall clock would otherwise find the board
+        slow without being told."""
         assert self._pty is not None
         master = self._pty.master
         tick = self.tick_us
@@ -516,19 +529,23 @@ class EmulatedBoard:
         wall0 = time.monotonic()
         sim0 = self.clock.us
         self._pace = (wall0, sim0, rate)
+        self._pace_log.start(wall0, sim0)
         while not self._stop.is_set():
-            target = sim0 + int((time.monotonic() - wall0) * rate)  # sim time of the wall clock now
-            if target - self.clock.us > self.MAX_CATCHUP_S * 1e6:  # cannot keep up: give the backlog up
+            now = time.monotonic()
+            target = sim0 + int((now - wall0) * rate)  # sim time of the wall clock now
+            behind = target - self.clock.us
+            self._pace_log.lag(behind / 1e6)
+            if behind > self.MAX_CATCHUP_S * 1e6:  # cannot keep up: give the backlog up
                 self._counters["overruns"] += 1
-                wall0 = time.monotonic()
-                sim0 = self.clock.us
+                self._pace_log.slipped(now, self.clock.us, behind / 1e6, self._say)
+                wall0, sim0 = now, self.clock.us
                 self._pace = (wall0, sim0, rate)
                 continue
             with self._lock:
                 due = self._next_due(self.clock.us + tick)
                 n = 0
                 while due <= target and n < 50:  # catch up with the wall clock
-                    self._tick(due - self.clock.us, read_host=target - due < tick)
+                    self._tick(due - self.clock.us)
                     due = self._next_due(self.clock.us + tick)
                     n += 1
             if n:
@@ -541,8 +558,20 @@ class EmulatedBoard:
             if r:  # bytes from the host: take them in at the sim time of their arrival
                 target = sim0 + int((time.monotonic() - wall0) * rate)
                 with self._lock:
-                    # A wake-up late by more than a tick (a starved CPU) catches
-                    # up in ticks, so the firmware never sees its clock jump.
+                    # A wake-up late by more than a tick (a starved CPU) catches up in
+                    # ticks (reading the pty in each), so the firmware never sees its
+                    # clock jump.
                     while target - self.clock.us > tick:
-                        self._tick(self._next_due(self.clock.us + tick) - self.clock.us, read_host=False)
+                        self._tick(self._next_due(self.clock.us + tick) - self.clock.us)
                     self._tick(max(1, target - self.clock.us))
+
+    def _say(self, text: str) -> None:
+        self.notes.append(text)
+        if self.on_note is not None:
+            self.on_note(text)
+
+    def pace(self) -> dict:
+        """How well a paced emulator kept the wall clock (docs/emulator.md, "Pace"): the
+        speed asked, the speed achieved (sim over wall time since start), the largest lag
+        behind the wall clock seen (s), and how often and how much of a backlog it gave up."""
+        return self._pace_log.report(self.speed, time.monotonic(), self.clock.us)

@@ -70,7 +70,6 @@ class PumpSimHal(SimHal):
         self.adc_starts: deque[tuple[float, int]] = deque(maxlen=max_log)
         self._pins: tuple | None = None
         self._duties = (0.0,) * plant.n
-        self._adsc = 0
 
     # the firmware's pins (config.h) -----------------------------------------
     def _pinmap(self) -> tuple:
@@ -91,12 +90,19 @@ class PumpSimHal(SimHal):
             for p in en:
                 if p.timer is None:
                     raise ArmbridgeError(f"EN pin {p.number} has no timer PWM on the Mega")
-            watch = sorted({a for p in (*en, *in1, *in2) for a in p.watch()} | {mega.ADCSRA, mega.ADMUX})
+            watch = sorted({a for p in (*en, *in1, *in2) for a in p.watch()})
             self._pins = (en, in1, in2, ret, ext, adc, watch)
         return self._pins
 
     def elf_watch(self) -> list[int]:
         return list(self._pinmap()[6])
+
+    def elf_adc(self) -> tuple[int, int, int]:
+        """ADCSRA, its ADSC bit and ADMUX: the harness logs each conversion the firmware starts."""
+        return mega.ADCSRA, mega.ADSC, mega.ADMUX
+
+    def elf_adc_start(self, t: float, channel: int) -> None:
+        self.adc_starts.append((t, channel))
 
     def elf_inputs(self) -> tuple[dict[int, int], dict[str, int]]:
         """Sensors as they are now (the plant is not advanced: the slice runs on them)."""
@@ -112,10 +118,6 @@ class PumpSimHal(SimHal):
     def elf_outputs(self, t: float, regs: dict[int, int]) -> None:
         """A change of the watched registers at sim time t: new duties from then on."""
         en, in1, in2, _r, _e, _a, _w = self._pinmap()
-        adsc = (regs[mega.ADCSRA] >> 6) & 1
-        if adsc and not self._adsc:
-            self.adc_starts.append((t, regs[mega.ADMUX] & 0x1F))
-        self._adsc = adsc
         duties = []
         for k in range(self.pump.n):
             d = en[k].duty(regs)

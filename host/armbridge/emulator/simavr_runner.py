@@ -40,8 +40,9 @@ or a new session flush the queue; `CLR` and a new session also forget the
 completed ids).
 
 HAL methods the board calls (pump_hal.PumpSimHal has them): `elf_watch()` ->
-data addresses; `elf_inputs()` -> ({adc channel: mV}, {"C7": level});
-`elf_outputs(t, regs)`; `uart_read_timed(until)` -> [(t, byte)];
+data addresses; `elf_adc()` -> (ADCSRA, ADSC bit, ADMUX) or None, whose
+conversion starts come to `elf_adc_start(t, channel)`; `elf_inputs()` ->
+({adc channel: mV}, {"C7": level}); `elf_outputs(t, regs)`; `uart_read_timed(until)` -> [(t, byte)];
 `uart_write_at(t, data)`; `uart_tx_byte_time(seconds)`; `load_persist()` / `save_persist(data)`.
 """
 from __future__ import annotations
@@ -190,6 +191,9 @@ class SimavrRunner:
             self._state["harness"] = h
             h.call("WATCH " + " ".join(str(a) for a in hal.elf_watch()))
             h.call("PROBE " + " ".join(map(str, self.probes.values())))
+            adc = hal.elf_adc()
+            if adc is not None:
+                h.call("ADCSTART %d %d %d" % adc)
         self._state["stopped"] = False
         return SimavrBoard(self, h, hal, int(cfg.N_JOINTS))
 
@@ -247,7 +251,7 @@ class SimavrBoard:
             until, uart or "-", ",".join(f"{c}:{int(mv)}" for c, mv in adc.items()) or "-",
             ",".join(f"{p}:{int(v)}" for p, v in pins.items()) or "-"))
         f = answer.split()
-        if len(f) != 10 or f[0] != "DONE":
+        if len(f) != 11 or f[0] != "DONE":
             raise ArmbridgeError(f"the simavr harness answered {answer[:200]!r}")
         self.cycle = int(f[1])
         for _, b in fed:
@@ -272,6 +276,10 @@ class SimavrBoard:
             for item in f[5].split(","):
                 i, c0, d = map(int, item.split(":"))
                 stats["probes"][names[i]].append((self.t_of(c0), d))
+        if f[10] != "-":
+            for item in f[10].split(","):
+                c, ch = item.split(":")
+                hal.elf_adc_start(self.t_of(int(c)), int(ch))
         sp = int(f[6])
         stats["min_sp"] = sp if stats["min_sp"] is None else min(stats["min_sp"], sp)
         stats["lost"] += int(f[8])

@@ -19,11 +19,14 @@
  * then answers:
  *     WATCH a1 a2 ...        data-space addresses to watch (<= 64)      -> OK <n>
  *     PROBE p1 p2 ...        flash byte addresses to time (<= 16)       -> OK <n>
+ *     ADCSTART csra bit mux  log ADC conversion starts: the store that sets bit
+ *                            `bit` of the byte at `csra`, with the channel (low
+ *                            five bits) of the byte at `mux`             -> OK
  *     RUN <until> <uart> <adc> <pins>
  *         uart  c:hh,c:hh,...  a byte for UART0 at cycle c (given in order)
  *         adc   ch:mv,...      ADC channel ch at mv millivolts (held)
  *         pins  Pb:l,...       pin b of port P (A..L) driven at level l (held)
- *       -> DONE <cycle> <state> <tx> <watch> <probes> <minsp> <ee> <lost> <txbyte>
+ *       -> DONE <cycle> <state> <tx> <watch> <probes> <minsp> <ee> <lost> <txbyte> <adc>
  *         tx     c:hh,...      UART0 output bytes, cycle of the UDR0 write
  *         watch  c:v.v.v;...   after a change: the cycle and every watched byte
  *                              (the first record of a slice is its start state)
@@ -34,6 +37,7 @@
  *         txbyte cycles one UART0 frame takes at the end of the slice (from
  *                UBRR, U2X and the frame format the firmware programmed, as
  *                fix_uart_timing sets it), 0 while the transmitter is off
+ *         adc    c:ch,...      ADC conversions started (ADCSTART), cycle and channel
  *         state  simavr's cpu state: 2 running, 3 sleeping, 7 done, 8 crashed
  *     RESET                  the chip's reset pin: registers and I/O reset,
  *                            SRAM, EEPROM and flash kept                -> OK <cycle>
@@ -50,6 +54,11 @@
  * IN_OPEN on the slave) by nobody else, as DTR does on a real Mega (raised by
  * the first open, dropped by the last close), so avrdude catches the
  * bootloader's window. SIGTERM/SIGINT sync the flash and the EEPROM and exit.
+ *
+ * Cost: the watch is compared after store instructions only (every watched byte is
+ * one the CPU writes) and a probe's entry is one bitmap load, so the slice's work is
+ * simavr's own plus little; a conversion start is one record, not three watch
+ * records (ADSC set, ADSC cleared, ADMUX changed).
  *
  * What the harness fixes in simavr 1.6 (docs/emulator.md, toolchain notes):
  * vcc/avcc/aref 5000 mV; external interrupts not strictly level triggered
@@ -118,6 +127,11 @@ static int n_watch;
 
 static uint32_t probe_pc[MAX_PROBE];
 static int n_probe;
+static int probe_open;                  /* probed calls not yet returned */
+#define PROBE_MAP_WORDS (1u << 17)      /* 256 KiB of flash, in words */
+static uint8_t probe_map[PROBE_MAP_WORDS / 8];
+static uint16_t adc_csra, adc_mux;      /* ADCSTART: ADCSRA and ADMUX addresses (0: off) */
+static uint8_t adc_start_bit;
 static struct { avr_cycle_count_t at; uint16_t sp; } probe_stack[MAX_PROBE][PROBE_DEPTH];
 static int probe_depth[MAX_PROBE];
 
@@ -128,8 +142,8 @@ static uint8_t pin_mask[N_PORTS], pin_value[N_PORTS];   /* pins the parent drive
 /* output of one slice, grown as needed */
 static char *out;
 static size_t out_len, out_cap;
-static char *tx_buf, *watch_buf, *probe_buf;
-static size_t tx_len, tx_cap, watch_len, watch_cap, probe_len, probe_cap;
+static char *tx_buf, *watch_buf, *probe_buf, *adc_buf;
+static size_t tx_len, tx_cap, watch_len, watch_cap, probe_len, probe_cap, adc_len, adc_cap;
 static unsigned long lost;
 
 static void die(const char *msg)
@@ -293,6 +307,7 @@ static void setup_chip(void)
 			raise_adc(ch, 1);
 	for (int i = 0; i < n_probe; i++)
 		probe_depth[i] = 0;
+	probe_open = 0;
 	ee_busy = 0;    /* a reset clears EECR */
 	avr_cycle_timer_cancel(avr, ee_ready, NULL);
 	ee_mpe_at = 0;
@@ -401,11 +416,18 @@ static void record_watch(void)
 		append(&watch_buf, &watch_len, &watch_cap, i ? ".%x" : "%x", watch_val[i]);
 }
 
-static inline void sample(uint16_t *minsp)
+/* Whether the instruction word `op` stores to the data space: OUT, SBI/CBI, STS, ST
+ * X/Y/Z (with PUSH and the rest of 1001 001x), ST/STD Y+q/Z+q. Only such an instruction
+ * can change a watched register (they are all written by the CPU alone: ports, DDRs,
+ * timer set-up and compare registers), so the watch is scanned after these only. */
+static inline int is_store(uint16_t op)
 {
-	uint16_t sp = sp_now();
-	if (sp < *minsp)
-		*minsp = sp;
+	return (op & 0xF800) == 0xB800 || (op & 0xFD00) == 0x9800 || (op & 0xFE00) == 0x9200
+	       || (op & 0xD200) == 0x8200;
+}
+
+static inline void scan_watch(void)
+{
 	int changed = 0;
 	for (int i = 0; i < n_watch; i++) {
 		uint8_t v = avr->data[watch_addr[i]];
@@ -416,20 +438,59 @@ static inline void sample(uint16_t *minsp)
 	}
 	if (changed)
 		record_watch();
-	for (int i = 0; i < n_probe; i++) {
-		int d = probe_depth[i];
-		if (d && sp > probe_stack[i][d - 1].sp) {     /* returned */
-			d = --probe_depth[i];
-			append(&probe_buf, &probe_len, &probe_cap, "%s%d:%llu:%llu", probe_len ? "," : "", i,
-			       (unsigned long long)probe_stack[i][d].at,
-			       (unsigned long long)(avr->cycle - probe_stack[i][d].at));
-		}
-		if (avr->pc == probe_pc[i] && probe_depth[i] < PROBE_DEPTH) {
-			probe_stack[i][probe_depth[i]].at = avr->cycle;
-			probe_stack[i][probe_depth[i]].sp = sp;
-			probe_depth[i]++;
+}
+
+/* Probes: a bitmap of the probed entry addresses (one bit a flash word) keeps the
+ * per-instruction test to one load while no probed call is open. */
+static inline void probe_step(uint16_t sp)
+{
+	if (probe_open) {
+		for (int i = 0; i < n_probe; i++) {
+			int d = probe_depth[i];
+			if (d && sp > probe_stack[i][d - 1].sp) {     /* returned */
+				d = --probe_depth[i];
+				probe_open--;
+				append(&probe_buf, &probe_len, &probe_cap, "%s%d:%llu:%llu", probe_len ? "," : "", i,
+				       (unsigned long long)probe_stack[i][d].at,
+				       (unsigned long long)(avr->cycle - probe_stack[i][d].at));
+			}
 		}
 	}
+	uint32_t w = avr->pc >> 1;
+	if (w < PROBE_MAP_WORDS && (probe_map[w >> 3] >> (w & 7)) & 1) {
+		for (int i = 0; i < n_probe; i++) {
+			if (avr->pc == probe_pc[i] && probe_depth[i] < PROBE_DEPTH) {
+				probe_stack[i][probe_depth[i]].at = avr->cycle;
+				probe_stack[i][probe_depth[i]].sp = sp;
+				probe_depth[i]++;
+				probe_open++;
+			}
+		}
+	}
+}
+
+/* One instruction (or a sleeping stretch up to the next event) and what it did to
+ * the watched state: outputs after a store, an ADC conversion it started (ADSC
+ * rising by this store), probe entries and returns, the lowest SP. */
+static inline int step(uint16_t *minsp)
+{
+	uint32_t pc = avr->pc;
+	uint16_t op = pc + 1 < avr->flashend ? (uint16_t)(avr->flash[pc] | (avr->flash[pc + 1] << 8)) : 0;
+	int store = avr->state == cpu_Running && is_store(op);
+	uint8_t adsc = store && adc_csra ? avr->data[adc_csra] & adc_start_bit : 0;
+	int state = avr_run(avr);
+	uint16_t sp = sp_now();
+	if (sp < *minsp)
+		*minsp = sp;
+	if (store) {
+		scan_watch();
+		if (adc_csra && !adsc && (avr->data[adc_csra] & adc_start_bit))
+			append(&adc_buf, &adc_len, &adc_cap, "%s%llu:%u", adc_len ? "," : "",
+			       (unsigned long long)avr->cycle, (unsigned)(avr->data[adc_mux] & 0x1F));
+	}
+	if (n_probe)
+		probe_step(sp);
+	return state;
 }
 
 /* ------------------------------------------------------------- requests */
@@ -505,7 +566,7 @@ static void do_run(char *args)
 		fprintf(proto, "ERR bad RUN request\n");
 		return;
 	}
-	tx_len = watch_len = probe_len = 0;
+	tx_len = watch_len = probe_len = adc_len = 0;
 	lost = 0;
 	uint16_t minsp = sp_now();
 	fix_uart_timing();
@@ -527,17 +588,16 @@ static void do_run(char *args)
 		}
 		if (fi == 0 && n_feed && feed[0].at > avr->cycle)
 			avr_cycle_timer_register(avr, feed[0].at - avr->cycle, wake, &wake_feed);
-		state = avr_run(avr);
-		sample(&minsp);
+		state = step(&minsp);
 	}
 	for (; fi < n_feed; fi++)   /* a chip that stopped still "receives" them */
 		avr_raise_irq(in, feed[fi].b);
 	int ee = ee_changed();
 	out_len = 0;
-	append(&out, &out_len, &out_cap, "DONE %llu %d %s %s %s %u %d %lu %llu\n",
+	append(&out, &out_len, &out_cap, "DONE %llu %d %s %s %s %u %d %lu %llu %s\n",
 	       (unsigned long long)avr->cycle, state,
 	       tx_len ? tx_buf : "-", watch_len ? watch_buf : "-", probe_len ? probe_buf : "-",
-	       minsp, ee, lost, (unsigned long long)uart_tx_cycles());
+	       minsp, ee, lost, (unsigned long long)uart_tx_cycles(), adc_len ? adc_buf : "-");
 	fwrite(out, 1, out_len, proto);
 }
 
@@ -561,10 +621,18 @@ static void do_list(char *args, int probe)
 		}
 		n++;
 	}
-	if (probe)
+	if (probe) {
 		n_probe = n;
-	else
+		probe_open = 0;
+		memset(probe_map, 0, sizeof probe_map);
+		for (int i = 0; i < n; i++) {
+			uint32_t w = probe_pc[i] >> 1;
+			if (w < PROBE_MAP_WORDS)
+				probe_map[w >> 3] |= (uint8_t)(1u << (w & 7));
+		}
+	} else {
 		n_watch = n;
+	}
 	fprintf(proto, "OK %d\n", n);
 }
 
@@ -773,6 +841,16 @@ int main(int argc, char **argv)
 			do_list(line + 5, 0);
 		} else if (!strncmp(line, "PROBE", 5)) {
 			do_list(line + 5, 1);
+		} else if (!strncmp(line, "ADCSTART", 8)) {
+			unsigned a = 0, b = 0, m = 0;
+			if (sscanf(line + 8, "%u %u %u", &a, &b, &m) != 3 || a > avr->ramend || m > avr->ramend || b > 7) {
+				fprintf(proto, "ERR ADCSTART wants the ADCSRA address, the ADSC bit and the ADMUX address\n");
+			} else {
+				adc_csra = (uint16_t)a;
+				adc_start_bit = (uint8_t)(1u << b);
+				adc_mux = (uint16_t)m;
+				fprintf(proto, "OK\n");
+			}
 		} else if (!strncmp(line, "RESET", 5)) {
 			chip_reset();
 			avr->state = cpu_Running;

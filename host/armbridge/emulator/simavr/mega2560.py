@@ -38,6 +38,7 @@ _TIMERS = {
 _COM1_BIT = {"A": 7, "B": 5, "C": 3}
 ADC_PINS = range(54, 70)     # A0..A15
 ADCSRA, ADMUX, ADCSRB = 0x7A, 0x7C, 0x7B
+ADSC = 6                     # ADCSRA's start-conversion bit
 RAM_START = 0x200            # first SRAM byte after the extended I/O space
 DATA_VMA = 0x800000          # avr-gcc's offset of the data space in ELF addresses
 
