@@ -70,14 +70,15 @@ def encode(seq, verb: str, args=(), epoch: int = 0) -> bytes:
 def _canonical_int(s: str, base: int = 10):
     """int(s) when s is exactly how the protocol writes that number (decimal:
     no "+", no leading zeros, no "-0", no spaces or "_"; hex: 8 upper-case
-    digits), else None. The round trip through C's int() and str() replaces a
-    Python loop over the characters (the hot path of every line)."""
+    digits, no sign: "-2363E02" is PARSE, docs/protocol.md section 1), else
+    None. The round trip through C's int() and str() replaces a Python loop
+    over the characters (the hot path of every line)."""
     try:
         v = int(s, base)
     except ValueError:
         return None
     if base == 16:
-        return v if "%08X" % v == s else None
+        return v if v >= 0 and "%08X" % v == s else None
     return v if str(v) == s else None
 
 
