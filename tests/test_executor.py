@@ -99,6 +99,8 @@ def test_plan_error_follows_the_linear_path():
     assert err.shape == (5, 3) and np.abs(err).max() < 1e-12
     # Segment 0 (from wherever the arm was) and segments with no known start are skipped.
     assert plan_error(plan, t, want, np.array([0, 0, 3, 2, 2]), {1: 10.0}).shape == (0, 3)
+    # Segments before `first` (a MASR run's setup, ahead of the plan's own steps) are left out.
+    assert plan_error(plan, t, want, seg, {1: 10.0, 2: 10.1}, first=2).shape == (3, 3)
 
 
 # ---------------------------------------------------------------- on the emulator

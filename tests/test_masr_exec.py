@@ -75,6 +75,43 @@ def assert_each_action_once(emu, commands) -> None:
     assert [tuple(args) for _, _, args in emu.executed] == [tuple(a) for _, a in commands]
 
 
+def assert_like_with_like(s, mp, emu) -> None:
+    """The summary compares the plan with the same actions executed; the setup (HOME, the joints to
+    the plan's start, the MV to its start d) is reported apart, and d's figures are in mm, not mrad."""
+    setup = len(masr_commands(mp, home=True)[1]) - len(mp.steps())
+    assert s.setup_steps == setup == 2 + mp.arm.n
+    done_s = [ms / 1000.0 for ms, _, _ in emu.executed]                   # the board's own DONE times
+    assert s.planned_duration_s == pytest.approx(mp.total_time)
+    assert s.measured_duration_s == pytest.approx(done_s[-1] - done_s[setup - 1], abs=0.011)
+    assert s.measured_duration_s == pytest.approx(s.masr["executed_s"])
+    assert 0.99 <= s.measured_duration_s / s.planned_duration_s <= 1.0 + TIME_TOL
+    assert 0 < s.setup_duration_s <= done_s[setup - 1] + 0.011
+    # tracking: the plan's own actions only (the setup's turns are up to 1.7 rad off the plan's path)
+    run_s = s.measured_duration_s + 0.1
+    assert all(0 < tr.samples <= run_s * 50 for tr in s.tracking_plan.values())   # 50 Hz telemetry
+    assert all(0 < tr.samples <= run_s * 50 for tr in s.tracking_setpoint.values())
+    assert max(tr.max for name, tr in s.tracking_plan.items() if name != "d") < 0.05
+    assert s.joint_units == {**{f"theta_{j}": "rad" for j in range(1, mp.arm.n + 1)}, "d": "m"}
+    table = render(s.table())
+    assert re.search(r"tracking d \(rms / max\) .*set point [\d.]+ / [\d.]+; plan [\d.]+ / [\d.]+ mm", table)
+    assert re.search(r"tracking theta_1 \(rms / max\) .*mrad", table) and "mrad" not in _row(table, "tracking d")
+    assert re.search(rf"setup before the plan \(apart\) .*{setup} actions, {s.setup_duration_s:.3f} s", table)
+    assert re.search(rf"duration planned / measured .*{s.planned_duration_s:.3f} s / {s.measured_duration_s:.3f} s",
+                     table)
+
+
+def render(table) -> str:
+    from rich.console import Console
+
+    console = Console(width=240, record=True, file=open(os.devnull, "w"))
+    console.print(table)
+    return console.export_text()
+
+
+def _row(table: str, start: str) -> str:
+    return next(ln for ln in table.splitlines() if start in ln)
+
+
 def one_error_line(proc) -> str:
     err = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(err) == 1 and err[0].startswith("error: "), proc.stderr
@@ -104,6 +141,7 @@ def test_a_full_plan_reaches_the_goal_within_the_time(name, tmp_path, ports):  #
     assert 0.99 <= m["time_ratio"] <= 1.0 + TIME_TOL, m
     # the summary is the board's own estimate: close to the truth, but not the truth
     assert m["dp_mm"] <= mp.env.e_p * 1000.0 and m["dphi_deg"] <= np.degrees(mp.env.e_phi)
+    assert_like_with_like(s, mp, emu)
     # the recording: the arm and the MA over time, the obstacles, the MA's series
     data = read(rrd)
     n = s.telemetry_samples
@@ -327,6 +365,13 @@ def test_the_masr_demo_plans_and_runs_on_the_emulated_ma(tmp_path):
     executed, tau = (float(x) for x in re.search(r"executed / planned tau\).*?([\d.]+) s / ([\d.]+) s",
                                                  out).groups())
     assert tau <= executed <= (1.0 + TIME_TOL) * tau
+    # the run's own duration row compares the same: the plan's actions, the setup apart, d in mm
+    planned, measured = (float(x) for x in re.search(
+        r"duration planned / measured.*?([\d.]+) s / ([\d.]+) s", out).groups())
+    assert planned == pytest.approx(tau, abs=0.01) and measured == pytest.approx(executed, abs=0.01)
+    assert re.search(r"setup before the plan \(apart\).*7 actions, [\d.]+ s", out)
+    d_row = out[out.index("tracking d (rms / max)"):out.index("MA pose error")]     # may wrap in 80 columns
+    assert d_row.rstrip(" │\n").endswith("mm") and "mrad" not in d_row
     assert read(rrd)["/world/obstacles"]["static_rows"] == 1
 
 

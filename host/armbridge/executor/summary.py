@@ -16,8 +16,8 @@ from armbridge.plans.format import Plan
 
 @dataclass
 class JointTracking:
-    rms: float = math.nan  # rad
-    max: float = math.nan  # rad, largest |error|
+    rms: float = math.nan  # the joint's unit (rad, or m)
+    max: float = math.nan  # the joint's unit, largest |error|
     samples: int = 0
 
 
@@ -35,7 +35,8 @@ class JointSettle:
 
 @dataclass
 class Summary:
-    """What a run did. Errors are in rad; times in s of board time."""
+    """What a run did. Errors are in each joint's unit (`joint_units`: rad, or m for a MASR's
+    d); times in s of board time."""
 
     plan: str
     port: str
@@ -55,8 +56,11 @@ class Summary:
     slow_events: int = 0
     telemetry_samples: int = 0
     events: int = 0
-    planned_duration_s: float = math.nan
-    measured_duration_s: float = math.nan
+    planned_duration_s: float = math.nan  # a MASR plan: tau, its own actions' time
+    measured_duration_s: float = math.nan  # a MASR plan: its own actions, the setup apart
+    setup_steps: int = 0  # a MASR plan run with --home: the setup's actions ahead of the plan's own
+    setup_duration_s: float = math.nan  # ... and their board time (START of the first to DONE of the last)
+    joint_units: dict[str, str] = field(default_factory=dict)  # the robot's unit per joint: "rad" or "m"
     tracking_setpoint: dict[str, JointTracking] = field(default_factory=dict)  # q vs board set point, RUN
     tracking_plan: dict[str, JointTracking] = field(default_factory=dict)  # q vs the plan's linear path
     final_state: str | None = None
@@ -122,16 +126,20 @@ class Summary:
         t.add_row("resyncs", str(self.resyncs))
         if self.slow_events:
             t.add_row("segments slowed by the board", str(self.slow_events))
+        if self.setup_steps:  # a MASR run's setup: not part of the plan, kept out of the rows below
+            t.add_row("setup before the plan (apart)", f"{self.setup_steps} actions, {_f(self.setup_duration_s, 3)} s")
         t.add_row("duration planned / measured", f"{_f(self.planned_duration_s, 3)} s / {_f(self.measured_duration_s, 3)} s")
         for name, tr in self.tracking_setpoint.items():
             tp = self.tracking_plan.get(name, JointTracking())
+            unit = _milli_unit(self.joint_units.get(name, "rad"))
             t.add_row(
                 f"tracking {name} (rms / max)",
-                f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} mrad",
+                f"set point {_mrad(tr.rms)} / {_mrad(tr.max)}; plan {_mrad(tp.rms)} / {_mrad(tp.max)} {unit}",
             )
         for name, st in self.settle.items():
             tol = self.settle_tolerance.get(name, math.nan)
-            t.add_row(f"settle {name} (mean / max, within {_mrad(tol)} mrad)",
+            unit = _milli_unit(self.joint_units.get(name, "rad"))
+            t.add_row(f"settle {name} (mean / max, within {_mrad(tol)} {unit})",
                       f"{_f(st.mean_s, 3)} / {_f(st.max_s, 3)} s; {st.unsettled} of {st.waypoints} never settled")
         if self.pen:
             t.add_row("pen", "pen-lift servo (PEN)" if self.pen == "servo" else "no pen-lift servo: pen-up moves marked")
@@ -161,7 +169,26 @@ def _f(x: float, nd: int) -> str:
 
 
 def _mrad(x: float) -> str:
+    """x in milli-units of its joint (mrad for rad, mm for m)."""
     return "-" if x is None or not math.isfinite(x) else f"{x * 1000:.1f}"
+
+
+MILLI_UNITS = {"rad": "mrad", "m": "mm"}
+
+
+def _milli_unit(unit: str) -> str:
+    """The table's unit for a joint in `unit` (robots/base.py UNITS): its thousandth."""
+    return MILLI_UNITS.get(unit, "m" + unit)
+
+
+def setup_steps(plan: Plan) -> int:
+    """How many of the plan's waypoints are set-up, not plan: the actions a MASR run with
+    --home puts ahead of the plan's own (executor/masr.py masr_commands: HOME, a ROT per
+    joint to its start angle, the MV to the start d; provenance masr_plan.setup); 0 for any
+    other plan."""
+    prov = plan.provenance if isinstance(plan.provenance, dict) else {}
+    masr = prov.get("masr_plan")
+    return int(masr.get("setup", 0)) if isinstance(masr, dict) else 0
 
 
 def _tracking(err: np.ndarray, names: list[str]) -> dict[str, JointTracking]:
@@ -175,9 +202,10 @@ def _tracking(err: np.ndarray, names: list[str]) -> dict[str, JointTracking]:
     return out
 
 
-def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_start: dict[int, float]) -> np.ndarray:
-    """q minus the plan's piecewise-linear path, for samples in segments >= 1 whose
-    start on the board's clock is known; rows of other samples are dropped.
+def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_start: dict[int, float],
+               first: int = 1) -> np.ndarray:
+    """q minus the plan's piecewise-linear path, for samples in segments >= `first` (>= 1)
+    whose start on the board's clock is known; rows of other samples are dropped.
 
     seg[s]: the plan index of the segment active at sample s. seg_start[i]: board
     time at which segment i began (the DONE of waypoint i-1, else the START of i;
@@ -189,7 +217,7 @@ def plan_error(plan: Plan, t: np.ndarray, q: np.ndarray, seg: np.ndarray, seg_st
     rows = []
     for s in range(len(t)):
         i = int(seg[s])
-        if i < 1 or i >= plan.k or i not in seg_start:
+        if i < max(1, first) or i >= plan.k or i not in seg_start:
             continue
         f = min(1.0, max(0.0, (t[s] - seg_start[i]) / plan.durations[i]))
         want = plan.q[i - 1] + f * (plan.q[i] - plan.q[i - 1])
@@ -278,16 +306,29 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
     summary.resyncs = s.resyncs
     summary.slow_events = s.slow_events
     summary.telemetry_samples = len(samples)
-    # Duration on the board's clock: START of waypoint 0 to DONE of the last one.
+    summary.joint_units = dict(zip(names, getattr(plan.robot, "joint_units", ("rad",) * len(names))))
+    # Planned against executed, like with like: a MASR run's setup (HOME, the joints to the
+    # plan's start, the MV to its start d: no part of the plan) is reported apart, and the
+    # duration and the tracking are the plan's own steps (waypoints setup .. k-1).
+    setup = setup_steps(plan)
+    summary.setup_steps = setup
+    done, start = client.done_times, client.start_times
+    if setup and 0 in start and setup - 1 in done:
+        summary.setup_duration_s = float(done[setup - 1] - start[0])
+    # Duration on the board's clock: START of the plan's first step (the DONE of the setup's
+    # last: the board goes straight on) to DONE of the last one.
     last = plan.k - 1
-    t0 = client.start_times.get(0)
-    if t0 is None and client.done_times:  # START 0 was lost: back from the first DONE seen
-        i = min(client.done_times)
-        t0 = client.done_times[i] - float(np.sum(plan.durations[: i + 1]))
-    t1 = client.done_times.get(last) if client.done_index >= last else None
+    t0 = done.get(setup - 1) if setup else None
+    if t0 is None:
+        t0 = start.get(setup)
+    later = [i for i in done if i >= setup]
+    if t0 is None and later:  # its START was lost: back from the first DONE seen
+        i = min(later)
+        t0 = done[i] - float(np.sum(plan.durations[setup: i + 1]))
+    t1 = done.get(last) if client.done_index >= last else None
     if t0 is not None and t1 is not None:
         summary.measured_duration_s = float(t1 - t0)
-    run = [x for x in samples if x[1] == "RUN"]
+    run = [x for x in samples if x[1] == "RUN" and x[4] >= setup]
     if run:
         t = np.array([x[0] for x in run])
         q = np.stack([x[2] for x in run])
@@ -301,7 +342,7 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
             ts = client.start_times.get(i + 1)
             if ts is None or ts - td <= 0.011:
                 seg_start[i + 1] = td
-        summary.tracking_plan = _tracking(plan_error(plan, t, q, seg, seg_start), names)
+        summary.tracking_plan = _tracking(plan_error(plan, t, q, seg, seg_start, first=setup), names)
     else:
         summary.tracking_setpoint = _tracking(np.zeros((0, len(names))), names)
         summary.tracking_plan = _tracking(np.zeros((0, len(names))), names)
