@@ -262,3 +262,130 @@ def test_elf_loses_no_reply_while_its_control_loop_runs() -> None:
         missing("the pump firmware is missing")
     r = modbus_round_trip("modbus:emu:arduino_pump?addr=1&speed=0", 100)
     assert r["retries"] == 0 and r["timeouts"] == 0, r
+
+
+# ---------------------------------------------------------------------- the first write after a reset
+def _crc16(data: bytes) -> bytes:
+    """CRC-16/MODBUS bit by bit (independent of pymodbus and of the firmware), low byte first."""
+    c = 0xFFFF
+    for b in data:
+        c ^= b
+        for _ in range(8):
+            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
+    return bytes([c & 0xFF, c >> 8])
+
+
+def _elf_board():
+    """The .elf in simavr in lockstep, or a skip with the reason."""
+    from armbridge.resources import firmware_dir
+
+    if not (firmware_dir() / "arduino_pump" / "Makefile").is_file():
+        missing("the pump firmware is missing")
+    from armbridge.emulator import EmulatedBoard
+
+    try:
+        return EmulatedBoard("arduino_pump", speed=0)
+    except ArmbridgeError as exc:
+        missing(f"the pump board does not run in simavr here ({exc})")
+
+
+@pytest.fixture
+def reset_in_modbus():
+    """The probe of issue 21: HELLO, MODBUS 1, 0.4 s (the EEPROM takes the address), a
+    reset: the board boots speaking Modbus with its outputs closed (no HELLO yet)."""
+    from test_emulator import Lockstep
+
+    emu = _elf_board()
+    try:
+        h = Lockstep(emu)
+        h.wait("BOOT")
+        assert h.hello(5)[1] == "OK" and h.request("MODBUS", 1)[1] == "OK"
+        emu.advance(0.4)
+        emu.reset()
+        emu.advance(0.5)
+        emu.read_output()
+        yield emu
+    finally:
+        emu.stop()
+
+
+def _rtu(emu, pdu: bytes) -> bytes:
+    """One request frame; the board's reply (after t3.5 of silence on both sides)."""
+    emu.advance(0.005)
+    emu.read_output()
+    emu.inject(pdu + _crc16(pdu))
+    emu.advance(0.03)
+    return emu.read_output()
+
+
+def _inputs(emu, addr: int, n: int) -> list[int]:
+    r = _rtu(emu, bytes([1, 4, addr >> 8, addr & 0xFF, 0, n]))
+    assert r[:3] == bytes([1, 4, 2 * n]) and _crc16(r[:-2]) == r[-2:], r.hex()
+    return [r[3 + 2 * i] << 8 | r[4 + 2 * i] for i in range(n)]
+
+
+def test_the_first_window_write_after_a_reset_runs(reset_in_modbus) -> None:
+    """docs/modbus.md: the first write answered without an exception opens the outputs as
+    HELLO does. Before: opening held the arm where it was and flushed the queue, so the
+    waypoint just acknowledged (input 19 read 777) never ran (done 0xFFFF, free 32)."""
+    emu = reset_in_modbus
+    frame = bytes.fromhex("01 10 00 64 00 05 0a 03 09 01 90 00 64 00 00 00 00 de 0e")   # W 777 400 100 0 0
+    assert frame[-2:] == _crc16(frame[:-2])
+    emu.inject(frame)
+    emu.advance(0.03)
+    assert emu.read_output() == bytes.fromhex("01 10 00 64 00 05 41 d5")
+    assert _inputs(emu, 19, 1) == [777]
+    emu.advance(1.0)
+    r = _inputs(emu, 0, 20)
+    assert r[14] == 777 and r[15] == 32 and r[12] == 0   # done, the queue empty again, IDLE
+    assert r[3] == 100   # the set point reached the waypoint's target
+
+
+def test_the_first_set_point_write_after_a_reset_runs(reset_in_modbus) -> None:
+    """The same for an FC6 set point (register 0): a waypoint at vmax with the reserved id."""
+    emu = reset_in_modbus
+    req = bytes([1, 6, 0, 0, 0, 120])
+    assert _rtu(emu, req) == req + _crc16(req)   # FC6 echoes the request
+    emu.advance(1.0)
+    r = _inputs(emu, 0, 20)
+    assert r[3] == 120 and r[15] == 32 and r[12] == 0
+
+
+def test_a_run_over_modbus_after_a_reset_runs_its_first_waypoint(tmp_path, monkeypatch) -> None:
+    """`armbridge run` over modbus: after such a reset: every waypoint runs, the first too
+    (before: "completed", 4/4 done, while waypoint 0 never ran)."""
+    import armbridge.link.transport as transport
+    from armbridge.executor.modbus_client import ModbusClient
+    from armbridge.executor.run import run_plan
+
+    _elf_board().stop()   # skips with the reason where simavr cannot run the .elf
+    real_open = transport.open_port
+
+    def open_then_reset(url, *a, **kw):
+        port = real_open(url, *a, **kw)
+        if not str(url).startswith("modbus:"):
+            return port   # the emulator's own port, opened inside the modbus: one
+        emu = port.emulator
+        t0 = emu.now()
+        while emu.now() < t0 + 0.4:   # the EEPROM takes the Modbus address meanwhile
+            port.master.read_input(12, 1)
+        emu.reset()
+        return port
+
+    set_points: list[np.ndarray] = []
+    real_poll = ModbusClient.poll
+
+    def poll(self):
+        msg = real_poll(self)
+        set_points.append(msg.target.copy())
+        return msg
+
+    monkeypatch.setattr(transport, "open_port", open_then_reset)
+    monkeypatch.setattr(ModbusClient, "poll", poll)
+    q = np.array([[0.3, 0.3, 0.3], [0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.1, 0.1, 0.1]])
+    plan = make_plan(get_robot("soft3"), q, 1.0, {"tool": "armbridge tests", "shape": "steps"})
+    summary = run_plan(plan, "modbus:emu:arduino_pump?addr=1&speed=0", tmp_path / "run.rrd", progress=False,
+                       timeout=120)
+    assert summary.completed and summary.waypoints_done == 4
+    # waypoint 0 ran: the set point went past 0.2 rad, the highest of the others (polled at 50 Hz)
+    assert max(sp[0] for sp in set_points) > 0.28

@@ -8,6 +8,10 @@
  *
  * Under Modbus there is no HELLO: the first write answered without exception
  * opens the outputs (as an accepted HELLO does), unless a latch holds (then CLR).
+ * Opening holds the arm where it is (hold_here: the queue emptied, the set point
+ * the measured angle), so a move opens the outputs before it is queued, never
+ * after (issue 21: the first waypoint after a reset was acknowledged and then
+ * dropped), and a refused move closes them again: as if it had not come.
  * A set-point write (0..2) is a waypoint from the last queued target to the new
  * value at the joint's vmax, with the reserved id 65535 (done reads 0xFFFF then).
  */
@@ -32,6 +36,29 @@ static void opened() {
 }
 
 static int16_t s16(uint16_t v) { return (int16_t)v; }
+
+/* A move (the window, or a set point when `only` is 0..2: t[only] = val, the other
+ * joints at the last queued target), queued with the outputs opened first. */
+static int queue_move(uint16_t id, uint16_t dur, int32_t *t, int8_t only, uint16_t val) {
+    PumpBoard &b = *g_pump;
+    if (latched_now()) return MB_EX_DEVICE_FAILURE;
+    bool was_open = b.link.outputs_allowed;
+    opened();
+    if (only >= 0) {
+        float last[N_JOINTS];
+        b.traj.last_target(last);
+        for (uint8_t j = 0; j < N_JOINTS; j++) t[j] = (int32_t)(last[j] < 0 ? last[j] - 0.5f : last[j] + 0.5f);
+        t[only] = s16(val);
+    }
+    AbError err;
+    int code = b.queue(id, dur, t, &err);
+    if (code) {
+        b.link.outputs_allowed = was_open;   /* refused: nothing opened (the queue was empty) */
+        return code == AB_ERR_FULL ? MB_EX_BUSY : MB_EX_ILLEGAL_VALUE;
+    }
+    if (b.link.state == ST_IDLE) b.link.state = ST_RUN;
+    return 0;
+}
 
 int mb_read_holding(uint16_t addr, uint16_t *val) {
     PumpBoard &b = *g_pump;
@@ -79,19 +106,9 @@ int mb_read_holding(uint16_t addr, uint16_t *val) {
 
 static int write_holding(uint16_t addr, uint16_t val) {
     PumpBoard &b = *g_pump;
-    AbError err;
-    err.code = 0;
     if (addr < MB_HR_KP) {
-        if (latched_now()) return MB_EX_DEVICE_FAILURE;
-        float last[N_JOINTS];
         int32_t t[N_JOINTS];
-        b.traj.last_target(last);
-        for (uint8_t j = 0; j < N_JOINTS; j++) t[j] = (int32_t)(last[j] < 0 ? last[j] - 0.5f : last[j] + 0.5f);
-        t[addr] = s16(val);
-        int code = b.queue(SETPOINT_ID, 1, t, &err);
-        if (code == AB_ERR_FULL) return MB_EX_BUSY;
-        if (code) return MB_EX_ILLEGAL_VALUE;
-        if (b.link.state == ST_IDLE) b.link.state = ST_RUN;
+        return queue_move(SETPOINT_ID, 1, t, (int8_t)addr, val);
     } else if (addr < MB_HR_KI) {
         b.gain[addr - MB_HR_KP].kp = val;
     } else if (addr < MB_HR_KD) {
@@ -160,13 +177,7 @@ int mb_write_window(const uint16_t *regs, uint16_t count) {
     if (regs[1] < 1 || regs[1] > 60000) return MB_EX_ILLEGAL_VALUE;
     int32_t t[N_JOINTS];
     for (uint8_t j = 0; j < N_JOINTS; j++) t[j] = s16(regs[2 + j]);
-    AbError err;
-    int code = g_pump->queue(regs[0], regs[1], t, &err);
-    if (code == AB_ERR_FULL) return MB_EX_BUSY;
-    if (code) return MB_EX_ILLEGAL_VALUE;
-    opened();
-    if (g_pump->link.state == ST_IDLE) g_pump->link.state = ST_RUN;
-    return 0;
+    return queue_move(regs[0], regs[1], t, -1, 0);
 }
 
 static uint16_t latch_code() {
