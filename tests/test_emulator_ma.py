@@ -291,3 +291,103 @@ def test_a_reset_mid_move_leaves_unhomed_and_home_recovers():
     assert ma.q[5] * 1000 <= 1.0
     ma.done("MV", 6, 250)
     assert abs(ma.q[5] * 1000 - 250) <= ma.mv_mm
+
+
+# ---------------------------------------------------------------- limits held in every verb (issue 21)
+
+def _watch_d_reference(ma, until, max_s=30.0):
+    """Run until `until()`; -> the largest |d reference speed| (mm/s) the firmware's
+    ramp had at any period, and the d references it went through."""
+    peak = [0.0]
+    refs = []
+
+    def check():
+        b = ma.emu.board
+        if b is not None:
+            peak[0] = max(peak[0], abs(b.loco.ramp.v))
+            refs.append(b.loco.ramp.x)
+        ma.h.find("EV")       # reads the board's lines; PINGs keep the watchdog fed
+        return until()
+
+    assert ma.emu.run_until(check, max_s), ma.h.lines[-5:]
+    return peak[0], refs
+
+
+def test_rot_drives_onto_its_magnet_within_a_narrowed_speed():
+    """docs/protocol.md §11: every set-point change obeys the speed limits. With d's vmax
+    at 20 mm/s the approach onto joint 3's magnet crept at MAG_MM_S = 40 mm/s (twice the
+    limit) and the MA faulted FOLLOW:6; it now creeps at the limit and the ROT completes."""
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)
+    ma.done("MV", 2, 480)
+    assert ma.h.request("SETLIM", 6, 0, 800, 20)[1] == "OK"
+    ma.h.lines.clear()
+    assert ma.h.request("ROT", 3, 3, -100)[1] == "OK"
+    ended = lambda: any(v == "EV" and a[1] in ("DONE", "FAULT") for _, v, a in ma.h.lines)   # noqa: E731
+    peak, _ = _watch_d_reference(ma, ended, max_s=30.0)
+    ev = next(a for _, v, a in ma.h.lines if v == "EV" and a[1] in ("DONE", "FAULT"))
+    assert ev[1:3] == ["DONE", "3"], (ev, ma.stat())
+    assert peak <= 20.0 + 1e-9, peak
+    assert abs(ma.q[2] * 1000 + 100) <= ma.emu.cfg.BACKLASH_MRAD + ma.emu.cfg.ROT_TOL_MRAD
+
+
+def test_home_obeys_a_narrowed_speed():
+    """HOME ignores a narrowed d range (it must reach the base), not the speed limit."""
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)
+    ma.done("MV", 2, 150)
+    assert ma.h.request("SETLIM", 6, 100, 800, 25)[1] == "OK"
+    ma.h.lines.clear()
+    assert ma.h.request("HOME", 3)[1] == "OK"
+    done = lambda: any(v == "EV" and a[1:3] == ["DONE", "3"] for _, v, a in ma.h.lines)   # noqa: E731
+    peak, _ = _watch_d_reference(ma, done)
+    assert peak <= 25.0 + 1e-9 and ma.q[5] * 1000 <= 1.0
+
+
+def test_setlim_moves_d_into_a_narrowed_range_at_vmax():
+    """§11 and §3.2: a SETLIM that leaves d's set point outside the new range moves it
+    into the range at no more than vmax, with one EV LIMIT (before: OK and nothing)."""
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)
+    ma.done("MV", 2, 400)
+    ma.h.lines.clear()
+    assert ma.h.request("SETLIM", 6, 500, 800, 100)[1] == "OK"
+    limits = lambda: [a for _, v, a in ma.h.lines if v == "EV" and a[1] == "LIMIT"]   # noqa: E731
+    assert ma.emu.run_until(lambda: (ma.h.find("EV"), limits())[1] != [], 0.1)
+    assert limits()[0][2:] == ["6"]
+    assert ma.stat()[2] == "RUN"                      # moving: the watchdog guards it
+    at_rest = lambda: ma.emu.board.busy() is False and ma.stat()[2] == "IDLE"   # noqa: E731
+    peak, refs = _watch_d_reference(ma, at_rest, max_s=10.0)
+    assert peak <= 100.0 + 1e-9 and max(refs) <= 500.0
+    assert abs(ma.q[5] * 1000 - 500) <= ma.mv_mm
+    assert len(limits()) == 1
+    assert not any(v == "EV" and a[1] in ("START", "DONE", "FAULT") for _, v, a in ma.h.lines)
+    ma.done("MV", 3, 600)                             # the range in force: MV inside it runs ...
+    er = ma.h.request("MV", 4, 450)
+    assert er[1] == "ER" and er[2][1:] == ["6", "RANGE", "d"]   # ... outside it is refused
+
+
+def test_setlim_inside_the_range_moves_nothing():
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)
+    ma.done("MV", 2, 400)
+    ma.h.lines.clear()
+    assert ma.h.request("SETLIM", 6, 300, 800, 100)[1] == "OK"
+    assert not ma.emu.run_until(lambda: ma.h.find("EV", lambda a: a[1] == "LIMIT") is not None, 0.3)
+    assert not any(v == "EV" and a[1] == "LIMIT" for _, v, a in ma.h.lines) and ma.stat()[2] == "IDLE"
+
+
+def test_setlim_that_strands_a_joint_is_refused():
+    """The MA turns a joint only by driving to it: a SETLIM that would leave joint 3's
+    angle outside its range is refused RANGE 3, unless a ROT of joint 3 (inside the new
+    range: the rule for queued targets) is queued or running to turn it in."""
+    ma = Ma(seed=1)
+    ma.done("HOME", 1)
+    ma.done("ROT", 2, 3, 300)
+    er = ma.h.request("SETLIM", 3, -873, 200, 280)
+    assert er[1] == "ER" and er[2][1:] == ["6", "RANGE", "3"]
+    assert ma.h.request("LIM", 3)[2][2:] == ["3", "-873", "873", "280"]   # unchanged
+    assert ma.h.request("ROT", 3, 3, 100)[1] == "OK"
+    assert ma.h.request("SETLIM", 3, -873, 200, 280)[1] == "OK"
+    ma.h.wait("EV", lambda a: a[1:3] == ["DONE", "3"], max_s=10.0)
+    assert not any(v == "EV" and a[1] == "LIMIT" for _, v, a in ma.h.lines)

@@ -6,10 +6,12 @@ controller that uses the encoder information").
 
 Ramp: a 1-D reference (x, v) that moves toward a target at no more than vmax,
 accelerating and braking at `accel` (v <= sqrt(2 accel |target - x|)), never
-below `vmin` until it gets there (the creep onto a target or a magnet), and
-lands on the target exactly. hold: it brakes to rest at `accel` and waits.
-`dir` remembers which way it last moved (kept across resets): the side of a
-magnet the MA stopped short of (ma_act's seek).
+below `vmin` until it gets there (the creep onto a target or a magnet; a vmin
+above vmax creeps at vmax: docs/protocol.md section 11, every set-point change
+obeys the speed limit), and lands on the target exactly; under a vmax lowered
+while it moves faster it brakes at `accel` down to it. hold: it brakes to rest
+at `accel` and waits. `dir` remembers which way it last moved (kept across
+resets): the side of a magnet the MA stopped short of (ma_act's seek).
 
 Loco: effort u = PID(v_cmd - v) + kff (v_cmd + kaff a), v_cmd = ramp.v +
 kpos (ramp.x - d): the speed loop, with the position it has fallen behind added
@@ -55,10 +57,10 @@ class Ramp:
         a = abs(rem) - early
         h = 0.5 * accel * dt       # the discrete braking curve: lands at rest, on time
         vd = (h * h + 2.0 * accel * a) ** 0.5 - h if a > 0.0 else 0.0
-        if vd > vmax:
-            vd = vmax
         if vd < vmin:
             vd = vmin
+        if vd > vmax:
+            vd = vmax
         if rem < 0:
             vd = -vd
         dv = accel * dt

@@ -9,7 +9,17 @@ common verbs) is firmware/common/link.py's BoardLink, as for the arm
 Verbs (docs/protocol.md section 3, "MASR actuator"): the actions MV id d,
 ROT id j angle, GRIP id open and HOME id, queued with credits and completed
 with the link's DONE; GAIN j kp ki kd (j < n: joint j's angle loop, j = n: the
-speed loop) and SETLIM j min max vmax (narrows as on the arm).
+speed loop) and SETLIM j min max vmax (narrows as on the arm, section 11).
+
+SETLIM, as the arm's: refused RANGE (detail j) when it would leave the target
+of a queued or running action outside. d (j = n) known and farther outside
+the new range than STOP_TOL_MM with no action under way: the board moves it
+to the range's nearer end at vmax before the next action (ma_act's LIMIT
+move: EV LIMIT n when it begins, state RUN meanwhile, no START or DONE); the
+same after CLR or a new session (hold_here). A joint angle outside the new
+range by more than ROT_TOL_MRAD is refused RANGE unless a ROT of that joint
+is queued or running: the MA turns a joint only by driving to it, which is
+the host's to plan (a ROT first), not a side effect of a limit.
 
 Actions, one at a time, in order:
   MV    the speed loop drives to d along a ramped reference; done once within
@@ -70,6 +80,7 @@ class Board(L.LinkedBoard):
         self.held = False
         self.queue: list = []            # actions not begun: (id, verb, args)
         self.act = None                  # the action under way: [id, verb, args, phase, t_ms, travel0]
+        self.limit_to = None             # d to move to before the next action (a narrowed range)
         self._k = cfg.SPEED_TICKS
         self._hist = [0] * self._k
         self._hi = 0
@@ -160,9 +171,11 @@ class Board(L.LinkedBoard):
         RANGE (detail: j) when a queued or running action would leave it."""
         j, lo, hi, vmax = v
         hard = self.hard[j - 1]
-        if lo < hard[0] or hi > hard[1] or vmax > hard[2] or self._excludes(j, lo, hi):
+        if lo < hard[0] or hi > hard[1] or vmax > hard[2] or self._excludes(j, lo, hi) or self._strands(j, lo, hi):
             raise proto.ProtocolError(P.RANGE, "", str(j))
         self.lim[j - 1] = [lo, hi, vmax]
+        if j == self.n:
+            self._limit_d()
         return []
 
     def _excludes(self, j: int, lo: int, hi: int) -> bool:
@@ -170,7 +183,7 @@ class Board(L.LinkedBoard):
         if self.act is not None:
             acts.append(self.act)
         for a in acts:
-            if a[1] == MV and j == self.n and not lo <= a[2][0] <= hi:
+            if (a[1] == MV or a[1] == A.LIMIT) and j == self.n and not lo <= a[2][0] <= hi:
                 return True
             if a[1] == ROT:
                 if a[2][0] == j and not lo <= a[2][1] <= hi:
@@ -179,17 +192,42 @@ class Board(L.LinkedBoard):
                     return True
         return False
 
+    def _strands(self, j: int, lo: int, hi: int) -> bool:
+        """A joint angle the new range would leave outside, with no ROT of that
+        joint queued or running to turn it in (the module docstring)."""
+        if j == self.n:
+            return False              # d: moved into the range instead (_limit_d)
+        tol = self.cfg.ROT_TOL_MRAD
+        if lo - tol <= self.theta[j - 1] <= hi + tol:
+            return False
+        acts = list(self.queue)
+        if self.act is not None:
+            acts.append(self.act)
+        for a in acts:
+            if a[1] == ROT and a[2][0] == j:
+                return False
+        return True
+
+    def _limit_d(self) -> None:
+        """At rest with d known and outside its range: the LIMIT move is due."""
+        lo, hi = self.lim[self.n - 1][0], self.lim[self.n - 1][1]
+        d = self.loc.d()
+        tol = self.cfg.STOP_TOL_MM
+        if self.act is None and self.loc.known and not lo - tol <= d <= hi + tol:
+            self.limit_to = lo if d < lo else hi
+
     # ------------------------------------------------------------ BoardLink interface
 
     def free(self) -> int:
         return self.qsize - len(self.queue)
 
     def busy(self) -> bool:
-        return self.act is not None or len(self.queue) > 0
+        return self.act is not None or len(self.queue) > 0 or self.limit_to is not None
 
     def halt(self) -> None:
         self.queue = []
         self.act = None
+        self.limit_to = None
         self.held = False
         self.loco.ramp.v = 0.0
         self.rot.ramp.v = 0.0
@@ -205,6 +243,7 @@ class Board(L.LinkedBoard):
         self._still = 0
         self._still_rot = 0
         self._fe = 0
+        self._limit_d()
 
     def set_hold(self, on: bool) -> None:
         self.held = on
@@ -213,7 +252,7 @@ class Board(L.LinkedBoard):
         if not self._sense(mode == L.DRIVE):
             return                                   # a localisation FAULT latched
         if mode == L.DRIVE:
-            if self.act is None and self.queue and not self.held:
+            if self.act is None and (self.queue or self.limit_to is not None) and not self.held:
                 A.begin(self)
             if self.act is not None:
                 A.advance(self)

@@ -23,6 +23,11 @@ t0_ms, aux]`:
   HOME  go -> push               go (d known): ramp to 0 arriving at creep;
         push: toward the base at creep (HOME_MM_S when d is unknown), effort
         at most HOME_EFFORT, until the wheel stops on magnet 1.
+  LIMIT go                       the board's own move of d into a range a
+        SETLIM narrowed (ma.py `limit_to`; id -1: no START or DONE, EV LIMIT n
+        when it begins): MV's ramp to the range's nearer end.
+Every ramp runs at the d (or joint) vmax in force, HOME's too, and a creep
+speed above it creeps at vmax (docs/protocol.md section 11).
 
 Why the seek creeps only the last w + 0.5 mm (not the whole window): the edge
 comes where the MA truly is w short of the magnet, which the estimate puts
@@ -38,16 +43,24 @@ MV = "MV"
 ROT = "ROT"
 GRIP = "GRIP"
 HOME = "HOME"
+LIMIT = "LIMIT"
 
 
 def begin(b) -> None:
-    wid, verb, args = b.queue.pop(0)
     now = b.hal.ticks_ms()
-    act = [wid, verb, args, "go", now, 0]
+    if b.limit_to is not None:       # the move into a narrowed range goes first
+        act = [-1, LIMIT, [b.limit_to], "go", now, 0]
+        b.limit_to = None
+        b.link.event("LIMIT", [b.n])
+    else:
+        wid, verb, args = b.queue.pop(0)
+        act = [wid, verb, args, "go", now, 0]
+        b.link.event("START", [wid])
+    verb = act[1]
+    args = act[2]
     b.act = act
     b._fe = 0
     b._settle = 0
-    b.link.event("START", [wid])
     if verb == GRIP:
         b.hal.grip(args[0] == 1)
         act[3] = "wait"
@@ -115,10 +128,10 @@ def advance(b) -> None:
             b.rot.effort(dt, b.theta[act[2][0] - 1])
         else:
             b.loco.ramp.brake(dt, c.LOCO_ACCEL_MM_S2)
-            b.loco.effort(dt, b.loc.d(), b.speed, b.hard[b.n - 1][2],
+            b.loco.effort(dt, b.loc.d(), b.speed, b.lim[b.n - 1][2],
                           c.HOME_EFFORT if phase == "push" else 1.0)
         return
-    if verb == MV:
+    if verb == MV or verb == LIMIT:
         if phase == "go":
             _mv(b, act)
         elif _seek(b, act, _magnet(b, act)):
@@ -217,7 +230,7 @@ def _home(b, act) -> None:
     c = b.cfg
     loc = b.loc
     ramp = b.loco.ramp
-    vmax = b.hard[b.n - 1][2]
+    vmax = b.lim[b.n - 1][2]          # the range HOME ignores; the speed limit it keeps
     if act[3] == "go":
         if ramp.step(b.dt, 0.0, vmax, c.LOCO_ACCEL_MM_S2, c.LOCO_CREEP_MM_S):
             act[3] = "push"
@@ -225,7 +238,7 @@ def _home(b, act) -> None:
         b.loco.effort(b.dt, loc.d(), b.speed, vmax)
         return
     v = c.LOCO_CREEP_MM_S if loc.known else c.HOME_MM_S
-    ramp.step(b.dt, ramp.x - 1000.0, v, c.LOCO_ACCEL_MM_S2)
+    ramp.step(b.dt, ramp.x - 1000.0, v if v < vmax else vmax, c.LOCO_ACCEL_MM_S2)
     b.loco.effort(b.dt, loc.d(), b.speed, vmax, c.HOME_EFFORT)
     if b._still >= c.HOME_STOP_MS and b._level == 1:
         loc.home(b._c)
@@ -242,9 +255,10 @@ def _finish(b) -> None:
     args = b.act[2]
     b.act = None
     b._fe = 0
-    if b.on_done is not None:   # the emulator's log of executed actions, with their arguments
-        b.on_done(wid, list(args))
-    b.link.completed(wid)
+    if wid >= 0:                # not the board's own LIMIT move
+        if b.on_done is not None:   # the emulator's log of executed actions, with their arguments
+            b.on_done(wid, list(args))
+        b.link.completed(wid)
     if b.queue and not b.held:
         begin(b)                # the next one in this period: a plan's actions run back to back
 
