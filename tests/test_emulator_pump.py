@@ -37,6 +37,7 @@ from armbridge.emulator.simavr_runner import Harness  # noqa: E402
 from armbridge.resources import firmware_dir  # noqa: E402
 from armbridge.robots import SOFT3  # noqa: E402
 from emu_host import Codec  # noqa: E402
+from rtu_raw import crc16, inputs, rtu  # noqa: E402
 from test_emulator import Lockstep  # noqa: E402
 
 SKETCH = Path(__file__).parent / "simavr_sketch"
@@ -330,6 +331,30 @@ def test_a_reset_5_ms_after_the_estop_boots_estop(pump):
     assert h.hello(6)[2][-1] == "ESTOP" and h.request("W", 2, 1000, 100, 100, 100)[2][1] == "9"   # LATCHED
     pump.advance(0.3)
     assert pump.hal.duties == (0.0, 0.0, 0.0)
+
+
+def test_an_estop_over_a_latch_keeps_its_first_cause(pump):
+    """docs/protocol.md §9: an e-stop while WDOG (or FAULT) latches ESTOP, the outputs
+    off, and STAT's reason keeps the first cause (before: "-"), across a reset (EEPROM);
+    Modbus input 13 names it too; CLR releases both."""
+    h = Lockstep(pump, keepalive=False)
+    h.wait("BOOT")
+    assert h.hello(5)[1] == "OK"
+    assert h.request("W", 1, 5000, 400, 700, 800)[1] == "OK"
+    h.wait("EV", lambda a: a[1] == "WDOG", max_s=2.0)       # no keep-alive: the watchdog fires
+    pump.inject(bytes([0x98]))
+    h.wait("EV", lambda a: a[1] == "ESTOP")
+    st = h.request("STAT")[2]
+    assert st[2] == "ESTOP" and st[6] == "WDOG", st
+    pump.advance(0.3)                                         # the record reaches the EEPROM
+    h.lines.clear()
+    pump.reset()
+    h.wait("BOOT", lambda a: a[-1] == "ESTOP", max_s=2.0)
+    assert h.hello(5)[2][-1] == "ESTOP" and h.request("STAT")[2][6] == "WDOG"
+    assert h.request("MODBUS", 1)[1] == "OK"
+    assert inputs(pump, 12, 2) == [3, 2]                     # state ESTOP, latch reason watchdog
+    clr = bytes([1, 6, 0, 36, 0, 3])                          # the command register: CLR
+    assert rtu(pump, clr) == clr + crc16(clr) and inputs(pump, 12, 2) == [0, 0]
 
 
 def test_hello_on_a_straight_arm_sends_no_limit_event():

@@ -22,6 +22,7 @@ from armbridge.robots.catalog import get_robot
 from cli_procs import ARMBRIDGE
 from modbus_peer import NONE, QSIZE, Peer, PumpModel
 from require import missing
+from rtu_raw import crc16, inputs, rtu
 
 ADDR = 3
 
@@ -88,7 +89,7 @@ def test_reads_and_writes(peer, port) -> None:
     assert m.read_input(14, 1) == [NONE] and m.read_input(15, 1) == [QSIZE]
 
 
-def test_request_frames_are_rtu(peer, port) -> None:
+def test_request_frames_arertu(peer, port) -> None:
     """What goes on the wire: address, PDU, CRC-16/MODBUS low byte first (the spec's example)."""
     port.master.addr = 1
     peer.requests.clear()
@@ -265,16 +266,6 @@ def test_elf_loses_no_reply_while_its_control_loop_runs() -> None:
 
 
 # ---------------------------------------------------------------------- the first write after a reset
-def _crc16(data: bytes) -> bytes:
-    """CRC-16/MODBUS bit by bit (independent of pymodbus and of the firmware), low byte first."""
-    c = 0xFFFF
-    for b in data:
-        c ^= b
-        for _ in range(8):
-            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
-    return bytes([c & 0xFF, c >> 8])
-
-
 def _elf_board():
     """The .elf in simavr in lockstep, or a skip with the reason."""
     from armbridge.resources import firmware_dir
@@ -309,34 +300,19 @@ def reset_in_modbus():
         emu.stop()
 
 
-def _rtu(emu, pdu: bytes) -> bytes:
-    """One request frame; the board's reply (after t3.5 of silence on both sides)."""
-    emu.advance(0.005)
-    emu.read_output()
-    emu.inject(pdu + _crc16(pdu))
-    emu.advance(0.03)
-    return emu.read_output()
-
-
-def _inputs(emu, addr: int, n: int) -> list[int]:
-    r = _rtu(emu, bytes([1, 4, addr >> 8, addr & 0xFF, 0, n]))
-    assert r[:3] == bytes([1, 4, 2 * n]) and _crc16(r[:-2]) == r[-2:], r.hex()
-    return [r[3 + 2 * i] << 8 | r[4 + 2 * i] for i in range(n)]
-
-
 def test_the_first_window_write_after_a_reset_runs(reset_in_modbus) -> None:
     """docs/modbus.md: the first write answered without an exception opens the outputs as
     HELLO does. Before: opening held the arm where it was and flushed the queue, so the
     waypoint just acknowledged (input 19 read 777) never ran (done 0xFFFF, free 32)."""
     emu = reset_in_modbus
     frame = bytes.fromhex("01 10 00 64 00 05 0a 03 09 01 90 00 64 00 00 00 00 de 0e")   # W 777 400 100 0 0
-    assert frame[-2:] == _crc16(frame[:-2])
+    assert frame[-2:] == crc16(frame[:-2])
     emu.inject(frame)
     emu.advance(0.03)
     assert emu.read_output() == bytes.fromhex("01 10 00 64 00 05 41 d5")
-    assert _inputs(emu, 19, 1) == [777]
+    assert inputs(emu, 19, 1) == [777]
     emu.advance(1.0)
-    r = _inputs(emu, 0, 20)
+    r = inputs(emu, 0, 20)
     assert r[14] == 777 and r[15] == 32 and r[12] == 0   # done, the queue empty again, IDLE
     assert r[3] == 100   # the set point reached the waypoint's target
 
@@ -345,9 +321,9 @@ def test_the_first_set_point_write_after_a_reset_runs(reset_in_modbus) -> None:
     """The same for an FC6 set point (register 0): a waypoint at vmax with the reserved id."""
     emu = reset_in_modbus
     req = bytes([1, 6, 0, 0, 0, 120])
-    assert _rtu(emu, req) == req + _crc16(req)   # FC6 echoes the request
+    assert rtu(emu, req) == req + crc16(req)   # FC6 echoes the request
     emu.advance(1.0)
-    r = _inputs(emu, 0, 20)
+    r = inputs(emu, 0, 20)
     assert r[3] == 120 and r[15] == 32 and r[12] == 0
 
 

@@ -255,10 +255,14 @@ void Link::tick() {
     telemetry(now);
 }
 
+/* Over a latch the e-stop keeps the first cause as the reason (docs/protocol.md §9):
+ * FAULT's reason, or WDOG; ESTOP is the state (outputs off, where WDOG writes zero). */
 void Link::estop() {
     hal_->outputs_off();
     board_->halt();
-    latch(ST_ESTOP, "-");
+    char why[LINK_REASON_MAX] = "-";
+    if (latched(state)) strcpy(why, strcmp(reason, "-") || state == ST_ESTOP ? reason : STATE_NAMES[state]);
+    latch(ST_ESTOP, why);
     hal_->clear_estop();   /* latched now: control(OFF) writes nothing until CLR */
     event("ESTOP", 0);
 }

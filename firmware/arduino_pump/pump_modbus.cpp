@@ -180,12 +180,14 @@ int mb_write_window(const uint16_t *regs, uint16_t count) {
     return queue_move(regs[0], regs[1], t, -1, 0);
 }
 
+/* The latch's first cause (docs/protocol.md §9): an e-stop over WDOG or FAULT keeps
+ * theirs as the reason, and input 13 names it. */
 static uint16_t latch_code() {
     const Link &l = g_pump->link;
+    if (!latched_now()) return MB_LATCH_NONE;
+    if (strncmp(l.reason, "FOLLOW:", 7) == 0) return (uint16_t)(MB_LATCH_FOLLOW + (l.reason[7] - '0'));
+    if (l.state == ST_WDOG || strcmp(l.reason, "WDOG") == 0) return MB_LATCH_WDOG;
     if (l.state == ST_ESTOP) return MB_LATCH_ESTOP;
-    if (l.state == ST_WDOG) return MB_LATCH_WDOG;
-    if (l.state == ST_FAULT && strncmp(l.reason, "FOLLOW:", 7) == 0)
-        return (uint16_t)(MB_LATCH_FOLLOW + (l.reason[7] - '0'));
     return MB_LATCH_NONE;
 }
 

@@ -97,6 +97,16 @@ def wid(x: int):
     return "-" if x < 0 else x
 
 
+def first_cause(state: str, reason: str) -> str:
+    """The reason an e-stop latches with in `state` (docs/protocol.md section 9):
+    "-" from an unlatched state; over a latch its own reason, or its name (WDOG)."""
+    if state not in LATCHED_STATES:
+        return "-"
+    if reason != "-" or state == ESTOP:
+        return reason
+    return state
+
+
 def _int_or_none(s: str) -> int:
     return -1 if s == "-" else int(s)
 
@@ -261,10 +271,13 @@ class BoardLink:
         self._telemetry(now)
 
     def estop(self) -> None:
-        """E-stop byte: outputs off, motion dropped, ESTOP latched, at once."""
+        """E-stop byte: outputs off, motion dropped, ESTOP latched, at once. Over
+        a latch it keeps the first cause as the reason (docs/protocol.md section
+        9): FAULT's reason, or WDOG; ESTOP is the state (outputs off, where WDOG
+        only writes zero effort)."""
         self.hal.outputs_off()
         self.board.halt()
-        self._latch(ESTOP, "-")
+        self._latch(ESTOP, first_cause(self.state, self.reason))
         self._send(self.session.ev(self.ms(), ESTOP))
 
     # ------------------------------------------------------------ board callbacks

@@ -197,6 +197,28 @@ def test_fault_reason_in_stat_and_persisted():
     assert host2.answer(4, "STAT")[2][6] == "-"
 
 
+def test_an_estop_over_a_latch_keeps_its_first_cause():
+    """docs/protocol.md §9: an e-stop while FAULT or WDOG latches ESTOP (outputs off) and
+    STAT's reason keeps the first cause (before: FAULT's FOLLOW:1 was replaced by "-");
+    persisted; CLR releases both."""
+    for make, first, seq in ((_latch_fault, "FOLLOW:1", 15), (_latch_wdog, "WDOG", 3)):
+        hal, board, host = _session()
+        make(board, hal, host)
+        hal.take()
+        _latch_estop(board, hal, host)
+        assert len(events(hal.take(), "ESTOP")) == 1      # the byte confirmed
+        st = host.answer(seq, "STAT")[2]
+        assert st[2] == "ESTOP" and st[6] == first, st
+        _latch_estop(board, hal, host)                      # a second e-stop keeps it too
+        assert host.answer(seq + 1, "STAT")[2][6] == first
+        hal2, board2, boot = _reset(hal)
+        host2 = Host(hal2, board2)
+        host2.hello(1, 4242, 2)
+        assert host2.answer(2, "STAT")[2][2::4] == ["ESTOP", first]
+        host2.answer(3, "CLR")
+        assert host2.answer(4, "STAT")[2][2::4] == ["IDLE", "-"]
+
+
 def test_done_id_and_session_persist_across_reset():
     hal, board, host = _session(555, epoch=3)
     host.answer(2, "W", 31, 100, 1100, -1000, 0)
