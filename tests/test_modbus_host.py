@@ -89,7 +89,7 @@ def test_reads_and_writes(peer, port) -> None:
     assert m.read_input(14, 1) == [NONE] and m.read_input(15, 1) == [QSIZE]
 
 
-def test_request_frames_arertu(peer, port) -> None:
+def test_request_frames_are_rtu(peer, port) -> None:
     """What goes on the wire: address, PDU, CRC-16/MODBUS low byte first (the spec's example)."""
     port.master.addr = 1
     peer.requests.clear()
