@@ -53,6 +53,31 @@ def opened_ports() -> Iterator[list]:
             p.close()
 
 
+@contextmanager
+def lockstep_ports() -> Iterator[list]:
+    """As `opened_ports`, but every `emu:` url (speed 0) opens as a lockstep port
+    (emulator/lockstep.py: host and board take turns in one thread), so a run repeats
+    bit for bit and a fault can be timed from an earlier run of the same plan and seed."""
+    from armbridge.emulator.lockstep import open_lockstep_port
+
+    opened: list = []
+    real = transport.open_port
+
+    def lockstep(url, *a, **kw):
+        port = open_lockstep_port(url) if url.startswith("emu:") else real(url, *a, **kw)
+        opened.append(port)
+        return port
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(transport, "open_port", lockstep)
+    try:
+        yield opened
+    finally:
+        mp.undo()
+        for p in opened:
+            p.close()
+
+
 @pytest.fixture
 def ports():
     """Record the ports run_plan opens, so a test can look at the emulator afterwards."""

@@ -40,7 +40,7 @@ from armbridge.planning.command import resolve_goal_ik
 from armbridge.planning.masr.environment import load_environment
 from armbridge.planning.masr.plan_file import load_masr_plan, save_masr_plan
 from armbridge.planning.masr.rrt_star import plan as plan_rrt
-from plan_runs import ports, wave_plan  # noqa: F401 - the fixture
+from plan_runs import lockstep_ports, ports, wave_plan  # noqa: F401 - the fixture
 from test_emulator import Lockstep
 from test_recording import read
 
@@ -100,6 +100,19 @@ def assert_like_with_like(s, mp, emu) -> None:
                      table)
 
 
+def assert_dead_reckoning_reported(s, emu) -> None:
+    """The summary's dead reckoning is the board's own (the magnet it re-anchored at last, the wheel's travel
+    since) and, with no slip beyond the model, the bound holds the truth."""
+    m, loc, cfg = s.masr, emu.board.loc, emu.cfg
+    assert m["last_magnet"] == loc.mag == emu.hal.hall_log[-1][1]
+    travel = loc.travel * loc.q                                   # the board's: since its last re-anchor
+    assert abs(travel - m["dead_reckoning_mm"]) <= cfg.HALL_WINDOW_MM + 1.0   # it re-anchors w before the magnet
+    assert m["slip_bound"] == cfg.SLIP_MAX
+    assert m["d_bound_mm"] == pytest.approx(loc.err() + (cfg.STOP_TOL_MM if m["dead_reckoning_mm"] > 0 else 0.0),
+                                            abs=cfg.SLIP_MAX * (cfg.HALL_WINDOW_MM + 1.0))
+    assert abs(emu.plant.d * 1000.0 - loc.d()) <= m["d_bound_mm"]   # the truth, within the board's bound
+
+
 def render(table) -> str:
     from rich.console import Console
 
@@ -142,6 +155,7 @@ def test_a_full_plan_reaches_the_goal_within_the_time(name, tmp_path, ports):  #
     # the summary is the board's own estimate: close to the truth, but not the truth
     assert m["dp_mm"] <= mp.env.e_p * 1000.0 and m["dphi_deg"] <= np.degrees(mp.env.e_phi)
     assert_like_with_like(s, mp, emu)
+    assert_dead_reckoning_reported(s, emu)
     # the recording: the arm and the MA over time, the obstacles, the MA's series
     data = read(rrd)
     n = s.telemetry_samples
@@ -156,6 +170,74 @@ def test_a_full_plan_reaches_the_goal_within_the_time(name, tmp_path, ports):  #
     assert 0.095 <= np.max(np.abs(speed)) <= 0.11                                # 100 mm/s, the plan's speed
     links = {int(x) for x in np.asarray(data["/ma/link"]["columns"]["Scalars:scalars"]).ravel()}
     assert links <= set(range(1, mp.arm.n + 1)) and len(links) >= 2
+
+
+# ---------------------------------------------------------------- a wheel slip after the last magnet
+
+
+def line_plan(tmp_path: Path) -> Path:
+    """Onto joint 2, turn it, then 150 mm along link 2 to the goal: the last leg passes no magnet."""
+    from dataclasses import replace
+
+    env0 = load_environment("E2")
+    q0, q1 = np.array([0, 0, 0, 0, 0, 0.1]), np.array([0, 0.3, 0, 0, 0, 0.35])
+    env = replace(env0, name="line", obstacles=[], start=q0, goal_pose=np.asarray(env0.arm.fk(q1)), goal_q=q1)
+    return save_masr_plan(env, np.array([q0, q1]), tmp_path / "line.json", {"tool": "tests"})
+
+
+def test_a_slip_after_the_last_magnet_is_reported_as_dead_reckoning(tmp_path):
+    """Between its last magnet and its stop the MA knows d from its wheel alone: a slip there is seen by
+    nothing the board senses (the board reports its bound under the 1 % slip model, and the run completes).
+    The summary says so: the distance the final d rests on dead reckoning, since which magnet, and the bound
+    that holds only within the slip model. The truth (the plant) shows the bound holding without the burst
+    and broken by it, and the summary the same either way: it never claims what no magnet checked."""
+    path = line_plan(tmp_path)
+    url = "emu:masr_ma?speed=0&seed=3"
+    with lockstep_ports() as opened:                       # lockstep: the burst lands where it is timed
+        clean = run_plan(path, url, tmp_path / "a.rrd", progress=False, home=True, session=7)
+        emu = opened[0].emulator
+        assert clean.completed and abs(emu.plant.d * 1000.0 - emu.board.loc.d()) <= clean.masr["d_bound_mm"]
+        assert_dead_reckoning_reported(clean, emu)
+        last_start = emu.executed[-2][0] / 1000.0         # the final MV begins where the ROT ends
+        burst = f"&slip={last_start + 0.25:.3f}:0.5:0.3"   # 30 % for 0.5 s on the last leg: ~15 mm short
+        slipped = run_plan(path, url + burst, tmp_path / "b.rrd", progress=False, home=True, session=7)
+        emu = opened[1].emulator
+    m = slipped.masr
+    assert slipped.completed and emu.board.loc.known                       # the board saw nothing
+    assert [k for _, k, _ in emu.hal.faults_applied] == ["slip", "slip"]
+    assert emu.hal.hall_log[-1][0] < last_start                            # no magnet after the burst
+    off = abs(emu.plant.d * 1000.0 - emu.board.loc.d())
+    assert off > 10.0 and off > m["d_bound_mm"]                            # the truth: outside the model's bound
+    assert (m["last_magnet"], round(m["dead_reckoning_mm"]), m["slip_bound"]) == (2, 150, 0.01)
+    assert m["d_bound_mm"] == clean.masr["d_bound_mm"] == pytest.approx(1.5 + 0.05 + 1.5 + 0.5)
+    table = render(slipped.table())
+    assert re.search(r"MA d at the end: dead reckoning .*150 mm since magnet 2: within 3\.55 mm if the wheel "
+                     r"slipped <= 1 % \(a slip there is not seen\)", table)
+
+
+def test_a_slip_before_a_magnet_faults_at_it():
+    """The same slip on a move that a joint action follows: the ROT re-anchors on its magnet first, and the
+    magnet is not where the wheel says: a MAGNET fault before the joint turns (the MA is off its magnet),
+    ahead of the MA (the estimate passes it with no edge: MISSED) or behind it (the edge comes too early:
+    SPURIOUS)."""
+    from test_emulator_ma import Ma
+
+    from armbridge.emulator.faults import Faults
+
+    for joint, reason in ((3, "MAGNET:MISSED"), (2, "MAGNET:SPURIOUS")):
+        probe = Ma(seed=4)
+        probe.done("HOME", 1)
+        probe.done("MV", 2, 200)
+        t0 = probe.emu.now()
+        ma = Ma(seed=4, faults=Faults(slip=((t0 + 0.3, 0.5, 0.3),)))     # the same run, the burst after magnet 2
+        ma.done("HOME", 1)
+        ma.done("MV", 2, 200)
+        ma.done("MV", 3, 350)                                    # the board cannot tell: done, 15 mm short
+        assert ma.emu.plant.d * 1000.0 < 340 and ma.stat()[2] == "IDLE"
+        theta = ma.q[joint - 1]
+        _, ev = ma.act("ROT", 4, joint, 300)
+        assert ev[2][1] == "FAULT" and ma.stat()[6] == reason, (joint, ev, ma.stat())
+        assert ma.q[joint - 1] == theta and not ma.emu.hal.outputs_enabled      # never turned off its magnet
 
 
 # ---------------------------------------------------------------- link faults and resets

@@ -24,6 +24,15 @@ within STOP_TOL_MM = 0.5 mm of its target on the estimate, so the MA ends within
 wheel travel, so back-and-forth moves on one link without a magnet grow it (the
 bound is reported, `err()`, never assumed).
 
+What the bound rests on: s is a model of the wheel on the link, not something
+the MA measures. Its only position references are the magnets, so a slip beyond
+s (a burst: dirt, oil) shows at the next magnet, where the edge is not where the
+count says (MISSED or SPURIOUS below: every ROT, and every MV onto a joint,
+re-anchors on its magnet first, so no joint is turned with the MA off it); after
+the last magnet before a stop nothing the MA senses shows it, and e(T) is then a
+bound only under the model. The host reports that leg as dead reckoning
+(executor/masr.py `dead_reckoning`, the run summary's `masr` section).
+
 Faults, never silently wrong (the board stops and latches FAULT):
   * MISSED k: the estimate is on the far side of magnet k by more than w + e,
     coming from the anchor's side, and no edge came (the encoder says the MA

@@ -13,7 +13,13 @@ as for a servo arm. The board, not the host, times the steps (its speeds are
 its limits), so the Plan's durations are the plan's model, eq. (7)-(8).
 
 `masr_report` is the summary's `masr` section: the MA's final pose against
-the plan's goal (eq. 9) and the executed action time against tau.
+the plan's goal (eq. 9), the executed action time against tau, and how far the
+MA's last position rests on dead reckoning (`dead_reckoning`): the board knows
+d from its wheel encoder, re-anchored at every magnet it passes, so after the
+plan's last magnet nothing it senses shows a wheel slip; the summary says over
+how many mm, and the bound the board's model gives there (firmware/masr_ma/loc.py:
+hall window + one count + the slip bound times the travel, + MV's stop
+tolerance), which holds only while the wheel slips no more than that bound.
 """
 from __future__ import annotations
 
@@ -94,11 +100,61 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     return plan, commands
 
 
+BOARD_OF_MASR = "masr_ma"  # the firmware that drives a MASR's MA (executor.handshake.FIRMWARE_OF)
+
+
+def board_localisation(fw: str = BOARD_OF_MASR) -> dict[str, float]:
+    """The MA board's localisation constants from its firmware config (mm): the hall window
+    `w`, the wheel encoder's quantum `q`, the slip bound `s` (a fraction of the wheel's
+    travel) and MV's stop tolerance `stop` (loc.py's bound e(T) = w + q + s T)."""
+    from armbridge.resources import firmware_dir
+
+    path = firmware_dir() / fw / "config.py"
+    ns: dict[str, Any] = {}
+    exec(compile(path.read_text(encoding="utf-8"), str(path), "exec"), ns)  # noqa: S102 - our own data module
+    return {"w": float(ns["HALL_WINDOW_MM"]), "q": float(ns["WHEEL_MM_PER_COUNT"]), "s": float(ns["SLIP_MAX"]),
+            "stop": float(ns["STOP_TOL_MM"])}
+
+
+def dead_reckoning(mp) -> tuple[int | None, float | None, bool]:
+    """(the joint whose magnet the MA passed last, the MA's travel since it in mm, whether the
+    plan ends with a move that stops off a magnet), along the plan's own steps: a rotation
+    stands on its joint's magnet, a move passes every magnet between its ends (the board
+    re-anchors d at each, loc.py) and stops on one when it ends there. (None, None, ...) when
+    the plan's steps pass no magnet."""
+    r = [float(x) for x in mp.arm.r[: mp.arm.n]]  # magnet j (1-based) at r_j
+    last: int | None = None
+    since: float | None = None
+    off = False
+    for st in mp.steps():
+        if st["op"] == "rotate":
+            last, since, off = int(st["joint"]), 0.0, False
+            continue
+        a, b = float(st["d_from"]), float(st["d_to"])
+        lo, hi = min(a, b) - 1e-9, max(a, b) + 1e-9
+        passed = [j for j in range(1, len(r) + 1) if lo <= r[j - 1] <= hi]
+        if passed:
+            last = min(passed, key=lambda j: abs(b - r[j - 1]))  # the one passed last: nearest the end
+            since = abs(b - r[last - 1])
+        elif since is not None:
+            since += abs(b - a)
+        off = since is not None and since > 1e-9
+    return last, (None if since is None else since * 1000.0), off
+
+
 def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, Any]:
-    """The MA's final pose error (dp in mm, dphi in deg) against the plan's goal, and the
-    executed action time against the planned tau (s)."""
+    """The MA's final pose error (dp in mm, dphi in deg) against the plan's goal, the
+    executed action time against the planned tau (s), and the dead reckoning the final d
+    rests on (`dead_reckoning`): `dead_reckoning_mm` since the magnet of joint `last_magnet`,
+    and `d_bound_mm`, the board's bound there under its slip model (`board_localisation`);
+    a slip beyond that model after the last magnet is not seen by the board."""
     out: dict[str, Any] = {"tau_s": mp.total_time, "executed_s": executed_s,
                            "time_ratio": executed_s / mp.total_time if mp.total_time > 0 else None}
+    last, since, off = dead_reckoning(mp)
+    loc = board_localisation()
+    out.update(last_magnet=last, dead_reckoning_mm=since, slip_bound=loc["s"],
+               d_bound_mm=None if since is None else
+               loc["w"] + loc["q"] + loc["s"] * since + (loc["stop"] if off else 0.0))
     if mp.env is not None:
         out.update(e_p_mm=mp.env.e_p * 1000.0, e_phi_deg=float(np.degrees(mp.env.e_phi)))
     if final_q is None:

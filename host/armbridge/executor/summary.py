@@ -150,6 +150,11 @@ class Summary:
             t.add_row("MA pose error at the end (dp / dphi)", f"{_f(m.get('dp_mm'), 2)} mm / {_f(m.get('dphi_deg'), 2)} deg")
             t.add_row("action time (executed / planned tau)",
                       f"{_f(m.get('executed_s'), 2)} s / {_f(m.get('tau_s'), 2)} s")
+            if m.get("dead_reckoning_mm") is not None:  # what no magnet checked (executor/masr.py)
+                t.add_row("MA d at the end: dead reckoning",
+                          f"{m['dead_reckoning_mm']:.0f} mm since magnet {m['last_magnet']}: within "
+                          f"{_f(m.get('d_bound_mm'), 2)} mm if the wheel slipped <= {100 * m['slip_bound']:g} % "
+                          "(a slip there is not seen)")
         if self.drawing:
             d = self.drawing
             t.add_row("drawing error, trace from strokes (mean / max)",
