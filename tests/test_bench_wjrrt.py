@@ -30,9 +30,20 @@ def small_scene():
     return scene_from_dict(doc, "test")
 
 
+# The runs' wall-clock budget T, here only a guard against a hang: every run of these small scenes ends
+# by success or at its iteration budget in tens of milliseconds, so what the tests compare never depends
+# on how fast the machine is (with T = 3 s, a loaded machine once stopped a run by its budget: 4.2 s).
+T = 60.0
+
+
+def ended_by_itself(run: dict, budget: int) -> bool:
+    """The run stopped on its own (a path, or its iteration budget), not on the clock."""
+    return run["success"] or run["iterations"] == budget
+
+
 @pytest.fixture(scope="module")
 def result():
-    return wjrrt.run(wjrrt.WjrrtBenchSize(seeds=2, time_limit=3.0), [small_scene(), horn_scene(5)])
+    return wjrrt.run(wjrrt.WjrrtBenchSize(seeds=2, time_limit=T), [small_scene(), horn_scene(5)])
 
 
 def test_every_planner_every_column(result):
@@ -85,14 +96,15 @@ def test_shard_records_round_trip_and_equal_the_plain_loop(result):
 
     scene = small_scene()
     for seed in (0, 1):
-        recs = [wjrrt.one_run(scene, pl, seed, 3.0, None, EDGE_RES) for pl in ("wjrrt", "birrt", "RRTConnect")]
+        recs = [wjrrt.one_run(scene, pl, seed, T, None, EDGE_RES) for pl in ("wjrrt", "birrt", "RRTConnect")]
         back = decode_runs(**encode_runs(recs))
         assert back == recs and [list(r) for r in back] == [list(r) for r in recs]
         assert [[type(v) for v in r.values()] for r in back] == [[type(v) for v in r.values()] for r in recs]
         assert "status" in back[2] and back[0]["recheck"] is None
         for pl, rec in zip(("wjrrt", "birrt"), recs):
             swept = result["scenes"]["test-two"]["planners"][pl]["runs"][seed]
-            assert swept["time_s"] < 3.0 and {**swept, "time_s": 0} == {**rec, "time_s": 0}
+            assert ended_by_itself(swept, 300) and ended_by_itself(rec, 300)  # scene params: 300 iterations
+            assert {**swept, "time_s": 0} == {**rec, "time_s": 0}
     with pytest.raises(ValueError, match="FIELDS"):
         encode_runs([{**recs[0], "path_length": 1.0}])
     with pytest.raises(ValueError, match="expected int"):

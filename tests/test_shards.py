@@ -141,7 +141,9 @@ def test_smm_data_job_on_ray_equals_serial(cluster, serial_smm, tmp_path):
     same_dataset(got, serial_smm)
     log = [json.loads(x) for x in (tmp_path / "smm-grid" / DONE_LOG).read_text().splitlines()]
     assert sorted(r["shard"] for r in log) == list(range(16))
-    assert len({r["pid"] for r in log}) >= 2 and os.getpid() not in {r["pid"] for r in log}  # both workers
+    # on Ray's workers, not here (which worker takes which shard is Ray's scheduling: on a loaded machine
+    # one worker may take them all before the other has started, so the test does not count them)
+    assert os.getpid() not in {r["pid"] for r in log}
 
 
 def test_planning_sweep_on_ray_equals_serial(cluster):
@@ -173,7 +175,9 @@ def test_wjrrt_sweep_on_ray_equals_serial_and_resumes(cluster, tmp_path):
 
     if ompl_bridge.available():
         missing(f"the ompl Python wheel is needed: {ompl_bridge.available()}")
-    size, scenes, planners = wjrrt.WjrrtBenchSize(seeds=3, time_limit=2.0), ("two-arm", "three-arm"), \
+    # T only guards against a hang: every run here ends by success or its iteration budget in well under a
+    # second, so the records do not depend on the machine's speed (test_bench_wjrrt.py, T)
+    size, scenes, planners = wjrrt.WjrrtBenchSize(seeds=3, time_limit=60.0), ("two-arm", "three-arm"), \
         ("wjrrt", "jt-rrt", "birrt", "RRTConnect")
     serial = wjrrt.run(size, scenes, planners)
     on_ray = wjrrt.run(size, scenes, planners, runner=Runner(ray=cluster, checkpoint=tmp_path))
@@ -182,7 +186,8 @@ def test_wjrrt_sweep_on_ray_equals_serial_and_resumes(cluster, tmp_path):
         got = on_ray["scenes"][name]["planners"]
         for pl in wjrrt.OURS:
             runs = sc["planners"][pl]["runs"] + got[pl]["runs"]
-            assert all(r["time_s"] < size.time_limit for r in runs)  # the budget stopped none: no race with it
+            budget = sc["iterations_budget"]
+            assert all(r["success"] or r["iterations"] == budget for r in runs)  # none stopped by the clock
             assert no_times(got[pl]) == no_times(sc["planners"][pl])
             assert [r["seed"] for r in got[pl]["runs"]] == [0, 1, 2]
         ompl = got["RRTConnect"]["runs"]
@@ -194,7 +199,7 @@ def test_wjrrt_sweep_on_ray_equals_serial_and_resumes(cluster, tmp_path):
     pids = {json.loads(x)["pid"] for x in before.splitlines()}
     assert len(before.splitlines()) == 6 and os.getpid() not in pids
     out = tmp_path / "again.json"
-    res = CliRunner().invoke(bench_app, ["wjrrt", "--seeds", "3", "--time-limit", "2", "--scenes", ",".join(scenes),
+    res = CliRunner().invoke(bench_app, ["wjrrt", "--seeds", "3", "--time-limit", "60", "--scenes", ",".join(scenes),
                                          "--planners", ",".join(planners), "--ray", cluster, "--checkpoint",
                                          str(tmp_path), "--no-progress", "--json", str(out)])
     assert res.exit_code == 0, res.output
