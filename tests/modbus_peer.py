@@ -219,8 +219,9 @@ class Peer:
             self._loop = asyncio.get_running_loop()
             self._server = ModbusSerialServer(self.device(), framer=FramerType.RTU, port=self.board_pty.name,
                                               baudrate=115200, broadcast_enable=True, ignore_missing_devices=True)
+            await self._server.serve_forever(background=True)  # returns once it listens on its port
             self._started.set()
-            await self._server.serve_forever()
+            await self._server.serving
 
         asyncio.run(main())
 
@@ -260,8 +261,8 @@ class Peer:
     def __enter__(self) -> "Peer":
         for t in self._threads:
             t.start()
-        self._started.wait(5)
-        time.sleep(0.2)  # the server opens its port
+        if not self._started.wait(60):  # the server listens on its port (a hang guard: it is at once)
+            raise RuntimeError("the Modbus peer's server did not start")
         return self
 
     def __exit__(self, *exc: object) -> None:
