@@ -159,7 +159,7 @@ class Peer:
         proto, session, epoch = args
         if proto != self.proto:
             self._answer("ER", seq, P.PROTO, "PROTO", self.proto)
-        elif epoch > self.epoch:
+        elif epoch == self.epoch + 1:   # only the next epoch opens (docs/protocol.md §6)
             if session != self.session:
                 self.session, self.queue, self.done = session, [], None
             self.epoch, self.hello_seq, self.expect = epoch, seq, (seq + 1) % P.SEQ_MOD

@@ -268,8 +268,9 @@ def test_hello_through_the_pty():
         codec = Codec()
         with serial.Serial(emu.port, 115200, timeout=0.2) as s:
             got = []
+            hello = codec.hello(9)    # one attempt: its copies keep seq and epoch (docs/protocol.md §8)
             for _ in range(50):       # the BOOT banner went out before the port opened: handshake actively
-                s.write(codec.hello(9))
+                s.write(hello)
                 got += codec.feed(s.read(4096))
                 if any(l[1] == "OK" for l in got):
                     break

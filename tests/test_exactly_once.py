@@ -209,6 +209,22 @@ class AdversarialLink(RuleBasedStateMachine):
         second = self.pool[b % len(self.pool)][0]
         self._deliver(a % len(self.pool), first[: max(1, int(len(first) * cut))] + second)
 
+    @rule(ahead=st.sampled_from([2, 1000, 1 << 29, None]))
+    def foreign_hello(self, ahead: int | None) -> None:
+        """Another host's HELLO (another session) at an epoch more than one ahead of the
+        board's, up to the last one (None: EPOCH_MAX): refused STALE, as only E + 1 opens
+        an epoch (docs/protocol.md §6), so no HELLO can use up the epochs this host needs
+        (issue 21: one at 1073741823 left none for a resync)."""
+        e = self._board_epoch()
+        e = self.epoch if e is None else e
+        epoch = P.EPOCH_MAX if ahead is None else min(e + ahead, P.EPOCH_MAX)
+        self.emu.inject(P.encode(0, "HELLO", P.PROTOCOL_VERSION, (self.session + 999) % 65535 + 1, epoch))
+        self._run(5)
+
+    def _board_epoch(self) -> int | None:
+        board = self.emu.board
+        return None if board is None else board.link.session.epoch
+
     @rule(ms=st.integers(5, 300))
     def run(self, ms: int) -> None:
         self._run(ms)
@@ -230,6 +246,11 @@ class AdversarialLink(RuleBasedStateMachine):
         assert ids == sorted(set(ids)), f"completed out of order or twice: {ids}"
         for _, wid, values in self.emu.executed:
             assert tuple(values) == self.values[wid], f"waypoint {wid}: ran {values}, sent {self.values[wid]}"
+
+    @invariant()
+    def the_board_epoch_is_one_this_host_opened(self) -> None:
+        e = self._board_epoch()
+        assert e is None or e <= self.epoch, f"the board is at epoch {e}, this host at {self.epoch}"
 
     @invariant()
     def firmware_alive(self) -> None:

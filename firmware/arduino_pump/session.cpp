@@ -14,7 +14,7 @@ SessAction Session::classify(uint16_t seq, bool read_only, bool hello, int32_t p
                              int32_t sid, int32_t epoch_v) const {
     if (hello) {
         if (proto_v != AB_PROTOCOL_VERSION) return S_BADPROTO;
-        if ((uint32_t)epoch_v > epoch) return sid == session ? S_RESYNC : S_NEW;
+        if ((uint32_t)epoch_v == epoch + 1) return sid == session ? S_RESYNC : S_NEW;   /* only the next */
         if ((uint32_t)epoch_v == epoch && sid == session && (int32_t)seq == hello_seq) return S_FRESH;
         return S_STALE;
     }

@@ -4,14 +4,16 @@
  *
  *   verb   condition                                            -> action
  *   HELLO  proto != 2                                           -> BADPROTO
- *   HELLO  epoch > E, session != stored                         -> NEW
- *   HELLO  epoch > E, session == stored                         -> RESYNC
+ *   HELLO  epoch == E + 1, session != stored                    -> NEW
+ *   HELLO  epoch == E + 1, session == stored                    -> RESYNC
  *   HELLO  epoch == E, session == stored, seq == hello_seq      -> FRESH
  *   HELLO  otherwise                                            -> STALE
  *   other  no HELLO since boot: read-only -> FRESH, else        -> NOSESSION
  *   other  seq == expect                                        -> EXEC
  *   other  1..RING behind: read-only -> FRESH, answered -> REPLAY
  *   other  otherwise                                            -> SEQERR
+ * Only the next epoch opens: a HELLO that jumped ahead (to AB_EPOCH_MAX) would leave
+ * none for a later resync; refused STALE E, the host retries with E + 1.
  */
 #ifndef PUMP_SESSION_H
 #define PUMP_SESSION_H

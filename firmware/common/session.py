@@ -18,8 +18,8 @@ The rules, first match wins:
 
   verb   condition                                              -> action
   HELLO  proto != PROTOCOL_VERSION                              -> BADPROTO (ER 12 PROTO version)
-  HELLO  epoch > E, session != stored session                   -> NEW      (open a new session)
-  HELLO  epoch > E, session == stored session                   -> RESYNC   (queue and motion kept)
+  HELLO  epoch == E + 1, session != stored session              -> NEW      (open a new session)
+  HELLO  epoch == E + 1, session == stored session              -> RESYNC   (queue and motion kept)
   HELLO  epoch == E, session == stored, seq == hello_seq        -> FRESH    (copy of the HELLO that
                                                                              opened E: answer afresh,
                                                                              change nothing)
@@ -30,6 +30,10 @@ The rules, first match wins:
   other  1..RING behind expect, read-only verb                  -> FRESH    (execute, do not record)
   other  1..RING behind expect, its answer in the ring          -> REPLAY   (send replay(seq) again)
   other  otherwise (ahead, far behind, never answered)          -> SEQERR   (ER 7 SEQ expect)
+
+Only the next epoch opens (not any newer one): a HELLO that jumped ahead, to
+1073741823 say, would leave no epoch for a later resync (issue 21); refused
+STALE E, a host retries at once with E + 1, so the epochs last 2**30 HELLOs.
 
 NEW and RESYNC: the caller does its part (a new session flushes the queue),
 then accept(seq, session, epoch) and persists. Nothing else changes state:
@@ -84,7 +88,7 @@ class Session:
             proto_v, sid, epoch = hello
             if proto_v != P.PROTOCOL_VERSION:
                 return BADPROTO
-            if epoch > self.epoch:
+            if epoch == self.epoch + 1:
                 return RESYNC if sid == self.session else NEW
             if epoch == self.epoch and sid == self.session and seq == self.hello_seq:
                 return FRESH

@@ -11,6 +11,8 @@ from fwutil import FakeHal, Host, events, replies, run
 
 
 def _session(sid=4242, epoch=1, **kw):
+    if epoch > 1 and "persist" not in kw:   # a board that last saw epoch - 1 (only E + 1 opens)
+        kw["persist"] = b"AB2 0 %d - - - -" % (epoch - 1)
     hal = FakeHal(**kw)
     board = arm.Board(hal, config)
     host = Host(hal, board, epoch)

@@ -189,7 +189,7 @@ def test_joint_angles_and_d_survive_a_reset_at_rest():
         assert abs(b2.theta[j] - th[j]) < 0.01
     assert abs(b2.theta[1] - 300.0) < 1.5 and abs(b2.theta[3] + 150.0) < 1.5
     host2 = Host(hal, b2)
-    assert host2.hello(1, 9, 3)[1] == "OK"
+    assert host2.hello(1, 9, 2)[1] == "OK"   # the next epoch (E + 1)
     assert host2.answer(2, "MV", 1, 420)[1] == "OK"      # it knows d: no HOME needed
     _until_done(b2, hal, 1, 5000)
     assert abs(hal.d - 420.0) < 4.0

@@ -7,7 +7,7 @@ import session as sess
 
 
 def _opened(seq=1, sid=7, epoch=1):
-    s = sess.Session()
+    s = sess.Session(0, epoch - 1)                    # a board that last saw epoch - 1
     assert s.classify(seq, "HELLO", (2, sid, epoch)) == sess.NEW
     s.accept(seq, sid, epoch)
     return s
@@ -37,7 +37,6 @@ def test_newer_epoch_other_session_is_new_same_session_is_resync():
     assert s.open and s.expect == 301 and (s.session, s.epoch, s.hello_seq) == (9, 1, 300)
     assert s.classify(5, "HELLO", (2, 9, 2)) == sess.RESYNC
     assert s.classify(5, "HELLO", (2, 10, 2)) == sess.NEW
-    assert s.classify(5, "HELLO", (2, 9, P.EPOCH_MAX)) == sess.RESYNC
     s.accept(65535, 9, 2)
     assert s.expect == 0 and s.classify(0, "W") == sess.EXEC
 
@@ -65,6 +64,17 @@ def test_stale_hellos():
     assert s.classify(11, "HELLO", (2, 7, 4)) == sess.STALE     # same epoch, other seq
     assert s.classify(10, "HELLO", (2, 8, 3)) == sess.STALE
     assert (s.session, s.epoch, s.hello_seq, s.expect) == (7, 4, 10, 11)
+
+
+def test_only_the_next_epoch_opens():
+    """A HELLO that jumps ahead is STALE: one at EPOCH_MAX would leave no epoch for a
+    resync (issue 21); the host then retries with E + 1, which opens."""
+    s = _opened(seq=10, sid=7, epoch=4)
+    for sid, epoch in ((7, 6), (8, 6), (7, 1000), (8, P.EPOCH_MAX), (7, P.EPOCH_MAX)):
+        assert s.classify(11, "HELLO", (2, sid, epoch)) == sess.STALE, (sid, epoch)
+    assert s.classify(11, "HELLO", (2, 7, 5)) == sess.RESYNC
+    assert s.classify(11, "HELLO", (2, 8, 5)) == sess.NEW
+    assert sess.Session().classify(1, "HELLO", (2, 9, 2)) == sess.STALE   # power on: epoch 1 first
 
 
 def test_persisted_state_after_a_reset_needs_a_newer_epoch():

@@ -110,7 +110,7 @@ static void latches_across_reset() {
     fresh_eeprom();
     {
         Rig r(EE);
-        r.hello(3, 77);
+        r.hello(1, 77);
         r.cmd("W 5 500 100 100 100");
         r.run_live(3000);
         CHECK(r.board.link.done == 5);
@@ -124,11 +124,11 @@ static void latches_across_reset() {
     CHECK(r.board.cal[1].adc_a == 100 && r.board.cal[1].a == -50 && r.board.cal[1].b == 1500);
     r.run(1);   /* a line that starts a while after the boot is no tail (link.cpp next_byte) */
     CHECK(r.cmd("W 6 100 0 0 0") == "" && r.seen("ER - 2 CRC"));   /* checked with the persisted epoch */
-    r.epoch = 3;
+    r.epoch = 1;
     CHECK(r.cmd("W 6 100 0 0 0") == "ER 10 NOSESSION");
     r.seq = 9;
-    CHECK(r.hello(3, 77) == "ER 11 STALE 3");      /* the epoch survived */
-    CHECK(r.hello(4, 77) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 5 - ESTOP");   /* done and latch too */
+    CHECK(r.hello(1, 77) == "ER 11 STALE 1");      /* the epoch survived */
+    CHECK(r.hello(2, 77) == "OK 32 arduino_pump 0.1.0 2 3 32 25 1000 5 - ESTOP");   /* done and latch too */
     r.run(100);
     CHECK(r.hal.duty[0] == 0 && !r.board.link.outputs_allowed);
     CHECK(r.cmd("CLR") == "OK 32" && r.board.link.outputs_allowed);
@@ -149,7 +149,7 @@ static void latch_cell_wins_over_an_older_record() {
     uint8_t before[EE_SIZE];
     {
         Rig r(EE);
-        r.hello(3, 77);
+        r.hello(1, 77);
         r.cmd("W 5 5000 100 100 100");
         r.run_live(200);
         memcpy(before, EE, sizeof before);
@@ -162,7 +162,7 @@ static void latch_cell_wins_over_an_older_record() {
         Rig r(EE);
         CHECK(r.seen("BOOT arduino_pump 0.1.0 2 ESTOP") && r.board.link.state == ST_ESTOP);
         r.seq = 9;
-        std::string ok = r.hello(4, 77);
+        std::string ok = r.hello(2, 77);
         CHECK_MSG(ok.size() > 5 && ok.compare(ok.size() - 5, 5, "ESTOP") == 0, "%s", ok.c_str());
         CHECK(r.cmd("W 6 100 0 0 0") == "ER 9 LATCHED");
         memcpy(before, EE, sizeof before);
@@ -184,7 +184,7 @@ static void done_across_reset_from_noinit() {
     uint8_t before[EE_SIZE];
     {
         Rig r(EE, ram);
-        r.hello(3, 77);
+        r.hello(1, 77);
         r.run_live(50);
         memcpy(before, EE, sizeof before);   /* the EEPROM as of the HELLO: done none */
         for (int i = 5; i < 9; i++) r.cmd("W " + std::to_string(i) + " 40 100 100 100");
@@ -195,13 +195,13 @@ static void done_across_reset_from_noinit() {
     {
         Rig r(EE, ram);   /* the reset: SRAM kept */
         r.seq = 20;
-        std::string ok = r.hello(4, 77);
+        std::string ok = r.hello(2, 77);
         CHECK_MSG(ok.find(" 1000 8 - IDLE") != std::string::npos, "%s", ok.c_str());
     }
     memcpy(EE, before, sizeof EE);
     Rig p(EE);   /* a power cycle: .noinit is noise, the EEPROM copy wins */
     p.seq = 20;
-    std::string ok = p.hello(4, 77);
+    std::string ok = p.hello(2, 77);
     CHECK_MSG(ok.find(" 1000 - - IDLE") != std::string::npos, "%s", ok.c_str());
 }
 

@@ -24,7 +24,7 @@ static SessAnswer er(uint8_t code) {
 }
 
 static void opened(Session *s, uint16_t seq, uint16_t sid, uint32_t epoch) {
-    s->init(0, 0, -1);
+    s->init(0, epoch - 1, -1);   /* a board that last saw epoch - 1: only E + 1 opens */
     CHECK(hello(*s, seq, 2, sid, (int32_t)epoch) == S_NEW);
     s->accept(seq, sid, epoch);
 }
@@ -43,7 +43,9 @@ void run_session() {
     CHECK(hello(s, 300, 2, 9, 1) == S_NEW);
     s.accept(300, 9, 1);
     CHECK(s.open() && s.expect == 301 && s.session == 9 && s.epoch == 1 && s.hello_seq == 300);
-    CHECK(hello(s, 5, 2, 9, 2) == S_RESYNC && hello(s, 5, 2, 10, 2) == S_NEW && hello(s, 5, 2, 9, AB_EPOCH_MAX) == S_RESYNC);
+    CHECK(hello(s, 5, 2, 9, 2) == S_RESYNC && hello(s, 5, 2, 10, 2) == S_NEW);
+    /* only the next epoch: one that jumps ahead is STALE (it would leave none for a resync) */
+    CHECK(hello(s, 5, 2, 9, 3) == S_STALE && hello(s, 5, 2, 10, 1000) == S_STALE && hello(s, 5, 2, 9, AB_EPOCH_MAX) == S_STALE);
     s.accept(65535, 9, 2);
     CHECK(s.expect == 0 && other(s, 0) == S_EXEC);
     /* accept clears the replay ring */

@@ -3,9 +3,11 @@ checks that the board is the one the plan was made for.
 
 `HELLO proto session epoch` opens a session or resynchronises one. The host
 starts at epoch 1 and every later HELLO (a resync, a routine renewal) uses the
-next epoch; a board that already saw a newer one answers `ER STALE E`, and the
-host tries again at once with E + 1 (a board keeps its epoch across resets, so
-a second run with the same session starts past the first). Retransmissions of
+next epoch; a board opens only the epoch after its own (E + 1) and answers any
+other `ER STALE E`, and the host tries again at once with E + 1 (a board keeps
+its epoch across resets, so a second run with the same session starts past the
+first). Only the next epoch opening means no HELLO, however buggy its epoch,
+uses up the epochs the host needs (docs/protocol.md §6). Retransmissions of
 one attempt keep its seq and its epoch: the board answers a copy of the HELLO
 that opened its epoch afresh and changes nothing, so a lost answer costs only
 a resend. A board of another protocol version answers `ER PROTO V`; a board of
@@ -109,9 +111,9 @@ def hello(arq: Arq, session: int, timeout: float) -> P.Ok:
                 epoch = int(ans.detail[0]) + 1
             except (IndexError, ValueError):
                 raise ArmbridgeError(f"the board refused HELLO: STALE with a malformed epoch {detail!r}") from None
-            if epoch > P.EPOCH_MAX:
-                raise ArmbridgeError(f"the board's epoch {epoch - 1} is the last one: power-cycle the board to "
-                                     "start again from epoch 1")
+            if epoch > P.EPOCH_MAX:   # 2**30 - 1 HELLOs opened it, one epoch at a time
+                raise ArmbridgeError(f"the board's epoch {epoch - 1} is the last one: its persisted memory must "
+                                     "be cleared (a power cycle on an ESP32 board) to start again from epoch 1")
             cmd = arq.new_hello(P.PROTOCOL_VERSION, session, epoch)
             next_send = 0.0
             continue
