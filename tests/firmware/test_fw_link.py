@@ -221,6 +221,19 @@ def test_an_estop_over_a_latch_keeps_its_first_cause():
         assert host2.answer(4, "STAT")[2][2::4] == ["IDLE", "-"]
 
 
+def test_an_estop_byte_that_came_while_the_board_booted_latches():
+    """docs/protocol.md §2: a byte in the receiver when the firmware starts (it came
+    after the UART was opened, before BOOT) is the first the board reads: ESTOP. What
+    came before the receiver was on is lost; BOOT's state tells the host to send again."""
+    hal = FakeHal()
+    hal.send(b"\x98")
+    board = arm.Board(hal, config)
+    boot = hal.take()
+    assert boot[0][1:] == ("BOOT", ["arm3r", "0.1.0", "2", "IDLE"])   # sent before it read anything
+    board.poll()
+    assert board.state == "ESTOP" and len(events(hal.take(), "ESTOP")) == 1
+
+
 def test_done_id_and_session_persist_across_reset():
     hal, board, host = _session(555, epoch=3)
     host.answer(2, "W", 31, 100, 1100, -1000, 0)
