@@ -38,8 +38,9 @@ class Proc:
             self._q.put(line.rstrip("\n"))
         self._q.put(None)
 
-    def wait_for(self, text: str, timeout: float = 30.0) -> str:
-        """The first line holding `text` (already seen or still to come)."""
+    def wait_for(self, text: str, timeout: float = 120.0) -> str:
+        """The first line holding `text` (already seen or still to come); `timeout` (wall clock) is a hang
+        guard: a child starting on a loaded machine may take many seconds to import."""
         for line in self.lines:
             if text in line:
                 return line
@@ -62,7 +63,7 @@ class Proc:
         rc = self.p.wait(timeout=timeout)
         while True:
             try:
-                line = self._q.get(timeout=5)
+                line = self._q.get(timeout=60)  # the reader's end (None) comes at once: a hang guard
             except queue.Empty:
                 break
             if line is None:

@@ -44,7 +44,7 @@ def estop(link: str) -> None:
 
 
 def wait_state(link: str, state: str) -> dict:
-    end = time.monotonic() + 10
+    end = time.monotonic() + 60  # a hang guard: each `board state` is a process that may start slowly
     while True:
         st = ok_json("state", "--port", link)
         if st["state"] == state or time.monotonic() > end:

@@ -70,9 +70,8 @@ def test_demo_refuses_a_latched_board_unless_clear(tmp_path):
     try:
         with serial.Serial(emu.port, timeout=0.1) as s:  # the e-stop byte, as a panicking user would send it
             s.write(P.ESTOP_BYTE)
-        for _ in range(200):  # the emulator thread reads the pty
-            if emu.state == "ESTOP":
-                break
+        end = time.monotonic() + 60  # the emulator thread reads the pty at once: a hang guard
+        while emu.state != "ESTOP" and time.monotonic() < end:
             time.sleep(0.02)
         assert emu.state == "ESTOP"
         q0 = emu.positions()

@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 import serial
@@ -41,7 +42,8 @@ def hello_ok(path) -> bool:
         s.reset_input_buffer()
         s.write(P.encode(1, "HELLO", P.PROTOCOL_VERSION, 9, 1))
         buf = b""
-        for _ in range(100):
+        end = time.monotonic() + 60  # the answer comes at once: a hang guard
+        while time.monotonic() < end:
             buf += s.read(512)
             if b" OK 1 " in buf:
                 return True

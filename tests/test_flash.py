@@ -73,7 +73,7 @@ def mpr(port: str, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(MPREMOTE), "connect", port, *args], capture_output=True, text=True, timeout=60)
 
 
-def wait(pred, seconds: float = 10.0) -> bool:
+def wait(pred, seconds: float = 60.0) -> bool:  # a hang guard: each condition comes within a second
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         if pred():
