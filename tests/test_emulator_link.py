@@ -30,7 +30,7 @@ def stop(proc, sig=signal.SIGINT):
     if proc.poll() is None:
         proc.send_signal(sig)
     try:
-        return proc.communicate(timeout=20)
+        return proc.communicate(timeout=60)  # it ends at once: a hang guard
     finally:
         if proc.poll() is None:
             proc.kill()
