@@ -11,6 +11,7 @@ Waits are bounded in sim time, and by wall time only as a hang guard: every
 assertion is about what the board said and the emulator recorded.
 """
 import os
+import select
 import time
 
 import numpy as np
@@ -117,8 +118,11 @@ def test_open_pty_is_raw_and_named():
         assert os.path.exists(p.name) and p.name.startswith("/dev/pts/")
         s = serial.Serial(p.name, 115200, timeout=0.2)
         s.write(b"abc\n")
-        time.sleep(0.05)
-        assert os.read(p.master, 100) == b"abc\n"
+        got, end = b"", time.monotonic() + HANG_S  # the kernel hands the bytes over at once: a hang guard
+        while got != b"abc\n" and len(got) < 4 and time.monotonic() < end:
+            if select.select([p.master], [], [], 0.05)[0]:
+                got += os.read(p.master, 100)
+        assert got == b"abc\n"
         os.write(p.master, b"x\r\n")
         assert s.read(3) == b"x\r\n"  # raw: no CR/LF translation
         s.close()
