@@ -115,7 +115,7 @@ def test_bridge_counts_the_same_checker_and_returns_a_valid_path():
     scene = horn_scene(5)
     problem = scene.problem()
     before = problem.checker.checks
-    r = ompl_planners.solve(problem, "RRTConnect", time_limit=10.0)
+    r = ompl_planners.solve(problem, "RRTConnect", time_limit=T)
     assert r.success and r.stats["obstacle_checks"] == problem.checker.checks - before > 0
     assert np.allclose(r.path[0], scene.start)
     assert problem.goal.is_satisfied(r.path[-1])
