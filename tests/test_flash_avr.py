@@ -27,7 +27,7 @@ def _flash_cmd(*args: str) -> list[str]:
 
 
 def _flash(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(_flash_cmd(*args), capture_output=True, text=True, timeout=120)
+    return subprocess.run(_flash_cmd(*args), capture_output=True, text=True, timeout=600)  # builds: a hang guard
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -84,7 +84,7 @@ def test_flash_another_version_through_the_bootloader(tmp_path):
 
 def test_a_port_without_the_bootloader_is_one_line(silent_port):
     """A pty whose other end never answers (no bootloader behind it): one line, exit 1."""
-    stdout, stderr = silent_port.communicate(timeout=120)
+    stdout, stderr = silent_port.communicate(timeout=600)  # avrdude's own ~30 s of timeouts: a hang guard
     r = subprocess.CompletedProcess(silent_port.args, silent_port.returncode, stdout, stderr)
     assert r.returncode == 1, (r.stdout, r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
