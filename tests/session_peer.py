@@ -41,6 +41,7 @@ class Peer:
         self.queue: list[tuple[int, tuple[int, ...]]] = []
         self.done: int | None = None
         self.state = "IDLE"
+        self.reason = "-"  # the latch's reason token, as STAT's fifth field says it
         self.executed: list[tuple[int, tuple[int, ...]]] = []
         self.seen: list[tuple[int, int, str]] = []  # (epoch, seq, verb) of every line executed or HELLO
         self.bseq = 0
@@ -190,7 +191,8 @@ class Peer:
         if verb == "STAT":
             done = "-" if self.done is None else self.done
             queued = self.queue[-1][0] if self.queue else "-"
-            return self._answer("OK", seq, self.free(), self.state, done, queued, int(self.clock.t * 1000))
+            reason = self.reason if self.state in ("ESTOP", "WDOG", "FAULT") else "-"
+            return self._answer("OK", seq, self.free(), self.state, done, queued, int(self.clock.t * 1000), reason)
         if verb == "PING":
             return self._answer("OK", seq, self.free(), int(self.clock.t * 1000))
         if verb == "CLR":

@@ -14,6 +14,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import select
 import signal
 import subprocess
 import termios
@@ -185,6 +186,36 @@ def test_a_board_that_never_answers_fails_with_a_summary(tmp_path):
     assert rc == 1, err
     s = json.loads(js.read_text())
     assert "no answer to HELLO" in s["error"] and s["final_state"] is None and s["waypoints_sent"] == 0
+    verify(rrd)
+
+
+def test_a_stop_while_connecting_still_sends_the_estop_byte(tmp_path):
+    """SIGTERM while the host is still sending HELLO to a board that has not answered:
+    the e-stop byte goes out all the same (docs/formats.md §2, §3, §7: every stop),
+    and the summary says so."""
+    master, slave = os.openpty()
+    try:
+        proc, js, rrd = run(tmp_path, plan_file(tmp_path, 3, 0.2), os.ttyname(slave), "connecting")
+        seen = b""
+        while seen.count(b"HELLO") < 2:  # the host is in its HELLO loop
+            r, _, _ = select.select([master], [], [], 30.0)
+            assert r, f"no HELLO from the host; stderr: {proc.p.poll()}"
+            seen += os.read(master, 4096)
+        proc.p.send_signal(signal.SIGTERM)
+        rc, err = proc.finish()
+        os.set_blocking(master, False)
+        try:
+            seen += os.read(master, 4096)
+        except BlockingIOError:
+            pass
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert rc == 143, err
+    assert b"\x98" in seen
+    s = json.loads(js.read_text())
+    assert s["stopped_by_user"] and s["stopped_by"] == "SIGTERM" and s["estop_sent"]
+    assert not s["estop_confirmed"] and s["waypoints_sent"] == 0
     verify(rrd)
 
 

@@ -355,9 +355,31 @@ def test_fault_names_the_joint_and_the_reason():
     c = client_for(peer)
     durs, q = plan(10)
     peer.send("EV", 1234, "FAULT", 2, 412)
-    peer.state = "FAULT"
+    peer.state, peer.reason = "FAULT", "FOLLOW:2"
     with pytest.raises(ArmbridgeError, match=r"FAULT latched, joint 2 \(elbow\): following error 412 mrad"):
         c.execute(durs, q)
+
+
+@pytest.mark.parametrize("reason, args, words", [
+    ("STALL:2", (2, 1000), r"joint 2 \(elbow\): drive stalled at 100 % effort \(no encoder count\)"),
+    ("STALL:LOCO", (3, -600), r"the locomotion motor: drive stalled at 60 % effort"),
+    ("MAGNET:MISSED", (3, 2), r"localisation lost: magnet 2 missed"),
+    ("MAGNET:SPURIOUS", (3, 1), r"localisation lost: a magnet edge where none can be \(nearest magnet 1\)"),
+    ("FOLLOW:3", (3, 31), r"joint 3 \(\w+\): following error 31 mrad"),
+])
+def test_each_fault_reason_has_its_own_words(reason, args, words):
+    """A FAULT is worded by its reason (STAT's token: docs/protocol.md §3.2), not as a following
+    error whatever it was: a missed magnet is no error in mrad, a stall's value is an effort."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    peer.auto_complete = False
+    c = client_for(peer)
+    durs, q = plan(10)
+    peer.send("EV", 1234, "FAULT", *args)
+    peer.state, peer.reason = "FAULT", reason
+    with pytest.raises(ArmbridgeError, match="FAULT latched, " + words):
+        c.execute(durs, q)
+    assert "following error" not in c.fault_reason or reason.startswith("FOLLOW")
 
 
 def test_keepalive_pings_on_the_clock():
@@ -482,3 +504,31 @@ def test_a_board_checking_another_epoch_is_resynchronised():
     c.execute(durs, q)
     assert c.stats.resyncs >= 1
     assert [v for _, v in peer.executed] == [tuple(row) for row in q]  # each once, in order
+
+
+def test_an_estop_the_board_did_not_report_is_sent_again_at_its_boot():
+    """A byte that reached a board before its receiver was on (it was booting) is lost in
+    the hardware (docs/protocol.md §2): until the board reports ESTOP, every BOOT that does
+    not say ESTOP gets the byte again; once it has, a BOOT gets nothing more."""
+    clock = FakeClock()
+    peer = Peer(clock)
+    c = client_for(peer)
+    sent = []
+    real = peer.write
+
+    def write(data):
+        if data == P.ESTOP_BYTE:
+            sent.append(clock.t)
+        return real(data)
+
+    peer.write = write
+    c.estop()
+    peer.state = "IDLE"  # the byte was lost: the board was booting
+    peer.send("BOOT", "arm3r", "1.0", 2, "IDLE")
+    c.drain(0.05, resync=False)
+    assert len(sent) == 2 and peer.state == "ESTOP"
+    peer.send("T", int(clock.t * 1000), "ESTOP", "-", 8, *([0] * 9))
+    c.drain(0.05, resync=False)
+    peer.send("BOOT", "arm3r", "1.0", 2, "ESTOP")
+    c.drain(0.05, resync=False)
+    assert len(sent) == 2

@@ -162,12 +162,14 @@ def state_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), 
     """The board's state and latch, the last done and last queued waypoint, board time."""
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         state, done, queued, t = client.stat()
-    d = {"state": state, "latched": state in LATCHED_STATES, "done": done, "queued": queued, "board_time_s": t}
+        cause = client.fault_reason if state in LATCHED_STATES else None
+    d = {"state": state, "latched": state in LATCHED_STATES, "cause": cause, "done": done, "queued": queued,
+         "board_time_s": t}
     if as_json:
         _print_json(d)
         return
     out = _out(False)
-    out.print(f"state {state}{_latch_hint(state, port)}")
+    out.print(f"state {state}{f' ({cause})' if cause else ''}{_latch_hint(state, port)}")
     out.print(f"done {'-' if done is None else done}, queued {'-' if queued is None else queued}, "
               f"board time {t:.3f} s", highlight=False)
 
@@ -218,7 +220,7 @@ def clear_cmd(port: str = _port_opt(), yes: bool = typer.Option(False, "--yes", 
             out.print(f"nothing to clear: the board is {state}")
             return
         if not yes:
-            reason = f" ({client.fault_reason})" if state == "FAULT" and client.fault_reason else ""
+            reason = f" ({client.fault_reason})" if client.fault_reason else ""
             if not typer.confirm(f"The board is latched in {state}{reason}. Clear it? The arm will accept "
                                  "motion again", default=False):
                 out.print("not cleared")

@@ -37,8 +37,10 @@ from __future__ import annotations
 import random
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 
 from armbridge.errors import ArmbridgeError
+from armbridge.executor.faults import fault_text
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
 from armbridge.executor.signals import holding
 from armbridge.executor.stream import Stream, Streaming
@@ -51,11 +53,26 @@ from armbridge.link.protodef import LATCHED_STATES
 __all__ = ["BoardClient", "BoardInfo", "BoardClock", "LinkStats", "LATCHED_STATES"]
 
 
+def _session_number(port) -> int:
+    """A random session number; from the emulator's seed for a lockstep emulator, whose seeded
+    runs must repeat bit for bit (the HELLO line's length depends on the number)."""
+    emu = getattr(port, "emulator", None)
+    if emu is not None and getattr(emu, "speed", 1.0) == 0:
+        return random.Random(f"armbridge-session:{emu.seed}").randint(1, 65535)
+    return random.randint(1, 65535)
+
+
 class BoardClient(Streaming):
     """A protocol v2 session with one board over `port` (read(n), write(b), in_waiting).
 
     `robot` None: no plan (the board console): connect() checks the protocol
-    version only and learns n and the limits; execute() is refused."""
+    version only and learns n and the limits; execute() is refused. `interrupt`:
+    called before every wait for the board, may raise to end the call (a link
+    engine's abort); `guard`: what holds stop signals off while bytes read are
+    split into lines (executor/signals.py `holding`, for a client in the main
+    thread)."""
+
+    estop_out_of_band = True  # the e-stop is one byte, written whatever else is in flight
 
     # Durations given to drain() and friends are on the client's clock, which
     # already runs at the link's speed. Callers that still divide by `speed`
@@ -76,8 +93,10 @@ class BoardClient(Streaming):
         silence_timeout: float | None = None,
         clock: Callable[[], float] | None = None,
         max_epoch_commands: int = P.MAX_EPOCH_COMMANDS,
+        interrupt: Callable[[], None] | None = None,
+        guard: Callable[[], AbstractContextManager] = holding,
     ) -> None:
-        self.session = int(session) if session is not None else random.randint(1, 65535)
+        self.session = int(session) if session is not None else _session_number(port)
         if not 1 <= self.session <= 65535:
             raise ValueError(f"session {session} outside 1..65535")
         if clock is None:
@@ -91,12 +110,15 @@ class BoardClient(Streaming):
         self.on_error = on_error
         self.connect_timeout = connect_timeout
         self.arq = Arq(port, clock=clock, baud=baud, on_line=self._on_line, on_note=lambda text: self._error(None, text),
-                       silence_timeout=silence_timeout, max_epoch_commands=max_epoch_commands, guard=holding)
+                       silence_timeout=silence_timeout, max_epoch_commands=max_epoch_commands, guard=guard,
+                       interrupt=interrupt)
         self.board_clock = BoardClock()
         self.info: BoardInfo | None = None
         self.state: str | None = None  # last state seen (HELLO, BOOT, telemetry, STAT, events)
         self.last_event: str | None = None
-        self.fault_reason: str | None = None  # from EV FAULT: joint and following error
+        self.fault_reason: str | None = None  # a latch's cause in words (EV FAULT, then STAT's reason)
+        self._fault_args: tuple[str, ...] = ()  # EV FAULT's `c v`
+        self._estop_wanted = False  # an e-stop sent and not yet reported by the board
         self._rate: int | None = None  # telemetry rate to restore after a resync
         self._base = 0  # waypoints streamed in this session before the current plan
         self._stream: Stream | None = None  # the current (or last) plan
@@ -122,6 +144,8 @@ class BoardClient(Streaming):
         if isinstance(msg, P.Telemetry):
             t = self.board_clock(msg.ms)
             self.state = msg.state
+            if msg.state == "ESTOP":
+                self._estop_wanted = False
             if msg.done is not None and stream is not None:
                 stream.mark_done(msg.done, t)
             self.arq.idle_credit(msg.free)
@@ -136,6 +160,9 @@ class BoardClient(Streaming):
             self.last_event = "BOOT"
             self.state = msg.state
             self._error(None, f"board booted: {msg.fw} {msg.version} protocol {msg.proto}, state {msg.state}")
+            if self._estop_wanted and msg.state != "ESTOP":
+                self._error(None, "the board booted without the e-stop latched: e-stop sent again")
+                self._write_estop()
             if self.on_event is not None:
                 self.on_event(None, P.Event(msg.bseq, -1, "BOOT", (msg.fw, msg.version, str(msg.proto), msg.state)))
 
@@ -158,28 +185,24 @@ class BoardClient(Streaming):
             self.stats.slow_events += 1
         elif ev.kind in LATCHED_STATES:
             self.state = ev.kind
-            if ev.kind == "FAULT":
-                self.fault_reason = self._fault_text(ev.args)
+            if ev.kind == "ESTOP":
+                self._estop_wanted = False
+            if ev.kind == "FAULT":  # `c v`; the reason token comes with STAT
+                self._fault_args = tuple(ev.args)
+                self.fault_reason = self._fault_text(None)
 
-    def _fault_text(self, args) -> str:
-        """EV FAULT j err -> 'joint 2 (elbow): following error 412 mrad'."""
-        try:
-            j, err = int(args[0]), int(args[1])
-        except (IndexError, ValueError):
-            return "FAULT " + " ".join(args)
-        return f"{self._joint(j)}: following error {err} mrad"
+    def _fault_text(self, reason: str | None) -> str:
+        """The latch's reason in words (executor/faults.py), with EV FAULT's `c v` when seen."""
+        return fault_text(reason, self._fault_args, self._joint, self._unit)
 
     def _joint(self, j: int) -> str:
         """'joint 2 (elbow)', or 'joint 2' without a robot."""
         names = list(self.robot.joint_names) if self.robot is not None else []
         return f"joint {j} ({names[j - 1]})" if 1 <= j <= len(names) else f"joint {j}"
 
-    def _latch_reason_text(self, token: str) -> str | None:
-        """STAT's latch reason token ("FOLLOW:2": joint 2's following error)."""
-        kind, _, j = token.partition(":")
-        if kind == "FOLLOW" and j.isdigit():
-            return f"{self._joint(int(j))}: following error"
-        return None if token == "-" else token
+    def _unit(self, j: int) -> str:
+        units = list(getattr(self.robot, "joint_units", ())) if self.robot is not None else []
+        return units[j - 1] if 1 <= j <= len(units) else "rad"
 
     # ------------------------------------------------------------------ connect
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -285,7 +308,13 @@ class BoardClient(Streaming):
         return ans
 
     def estop(self) -> None:
-        """The out-of-band e-stop byte, written at once."""
+        """The out-of-band e-stop byte, written at once; and again at every BOOT that comes
+        before the board reports ESTOP (a byte that reached it before its receiver was on,
+        during its boot, is lost in the hardware: docs/protocol.md §2)."""
+        self._estop_wanted = True
+        self._write_estop()
+
+    def _write_estop(self) -> None:
         self.port.write(P.ESTOP_BYTE)
         try:
             flush = getattr(self.port, "flush", None)
@@ -293,6 +322,12 @@ class BoardClient(Streaming):
                 flush()
         except Exception:  # noqa: BLE001 - the byte is written; flushing is best effort
             pass
+
+    def settle_tolerance(self, n: int):
+        """The dead band the run's settle times use (executor/settle.py), or None."""
+        from armbridge.executor.settle import settle_tolerance
+
+        return settle_tolerance(self, n)
 
     def set_rate(self, hz: int) -> None:
         """Telemetry rate (0..100 Hz); restored after a resync."""
@@ -304,8 +339,8 @@ class BoardClient(Streaming):
         reason (STAT's fifth field) lands in `fault_reason`."""
         p = self.command("STAT").payload
         self.state = p[0]
-        if p[0] == "FAULT" and len(p) > 4 and self.fault_reason is None:
-            self.fault_reason = self._latch_reason_text(p[4])  # latched before this session saw EV FAULT
+        if p[0] in LATCHED_STATES and len(p) > 4 and p[4] != "-":  # the first cause (an ESTOP keeps it)
+            self.fault_reason = self._fault_text(p[4])
         done = None if p[1] == "-" else int(p[1])
         queued = None if p[2] == "-" else int(p[2])
         return p[0], done, queued, self.board_clock(int(p[3]))
@@ -371,9 +406,14 @@ class BoardClient(Streaming):
 
     def _check_state(self, stream: Stream) -> None:
         if self.state in LATCHED_STATES:
+            if self.state == "FAULT":
+                try:
+                    self.stat()  # its reason: what EV FAULT's `c v` mean
+                except ArmbridgeError:
+                    pass
             why = {
                 "ESTOP": "an e-stop latched",
                 "WDOG": "its watchdog fired (no valid line in time)",
-                "FAULT": f"FAULT latched, {self.fault_reason or 'a following error'}",
+                "FAULT": f"FAULT latched, {self.fault_reason or 'reason not known'}",
             }[self.state]
             raise ArmbridgeError(f"the board stopped: {why}; {stream.progress()}")

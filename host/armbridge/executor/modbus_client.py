@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.executor.faults import fault_text
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits
 from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
@@ -56,12 +57,14 @@ class ModbusClient(Streaming):
     """A plan runner over Modbus RTU to one board, with BoardClient's public surface."""
 
     speed = 1.0
+    estop_out_of_band = False  # the e-stop is a register write: between two transactions
 
     def __init__(self, port, robot, session: int | None = None, *,
                  on_telemetry: Callable[[float, P.Telemetry], None] | None = None,
                  on_event: Callable[[float | None, P.Event], None] | None = None,
                  on_error: Callable[[float | None, str], None] | None = None,
-                 connect_timeout: float = 5.0, master: RtuMaster | None = None) -> None:
+                 connect_timeout: float = 5.0, master: RtuMaster | None = None,
+                 interrupt: Callable[[], None] | None = None, guard: object = None) -> None:
         self.port = port
         self.robot = robot
         self.session = session  # no sessions in Modbus: kept for the console's --session
@@ -69,6 +72,7 @@ class ModbusClient(Streaming):
         self.now = self.master.now
         self.on_telemetry, self.on_event, self.on_error = on_telemetry, on_event, on_error
         self.connect_timeout = connect_timeout
+        self.interrupt = interrupt  # called before every wait: may raise to end the call (a link engine's abort)
         self.stats = LinkStats()
         self.board_clock = BoardClock()
         self.info: BoardInfo | None = None
@@ -113,7 +117,7 @@ class ModbusClient(Streaming):
                           (*r[9:12], r[16]))
         if state != self.state:
             if state in LATCHED_STATES:
-                self.fault_reason = self._reason(r[13]) if state == "FAULT" else None
+                self.fault_reason = self._reason(r[13])
             if self.state is not None:
                 kind = self._state_event(self.state, state)
                 if kind is not None:
@@ -141,12 +145,13 @@ class ModbusClient(Streaming):
         return "RESUME" if old == "HOLD" else None
 
     def _reason(self, code: int) -> str | None:
-        text = latch_text(code)
-        if text and text.startswith("FOLLOW:"):
-            j = int(text[7:])
-            names = list(self.robot.joint_names) if self.robot is not None else []
-            return f"joint {j}" + (f" ({names[j - 1]})" if 1 <= j <= len(names) else "") + ": following error"
-        return text
+        """Input register 13's first cause in words (executor/faults.py)."""
+        token = latch_text(code)
+        if token is None or token == "ESTOP":
+            return token
+        names = list(self.robot.joint_names) if self.robot is not None else []
+        return fault_text(token, (), lambda j: f"joint {j}" + (f" ({names[j - 1]})" if 1 <= j <= len(names) else ""),
+                          lambda j: "rad")
 
     def _event(self, t: float, ms: int, kind: str, args: tuple[str, ...]) -> None:
         self.last_event = kind
@@ -259,6 +264,12 @@ class ModbusClient(Streaming):
     def set_rate(self, hz: int) -> None:
         self.rate = int(hz)
 
+    def settle_tolerance(self, n: int):
+        """The dead band the run's settle times use (executor/settle.py), read from the board."""
+        from armbridge.executor.settle import settle_tolerance
+
+        return settle_tolerance(self, n)
+
     def stat(self) -> tuple[str, int | None, int | None, float]:
         t = self.poll()
         return t.state, t.done, self.queued_id, self.board_time
@@ -271,6 +282,8 @@ class ModbusClient(Streaming):
 
     def _tick(self) -> None:
         """Poll the board when the rate says so (at least 4 times a watchdog period)."""
+        if self.interrupt is not None:
+            self.interrupt()
         period = 1.0 / self.rate if self.rate > 0 else 0.25
         if self.info is not None:
             period = min(period, self.info.wdog_ms / 4000.0)
@@ -303,7 +316,7 @@ class ModbusClient(Streaming):
             while not stream.finished:
                 if self.state in LATCHED_STATES:
                     why = {"ESTOP": "an e-stop latched", "WDOG": "its watchdog fired (no valid frame in time)",
-                           "FAULT": f"FAULT latched, {self.fault_reason or 'a following error'}"}[self.state]
+                           "FAULT": f"FAULT latched, {self.fault_reason or 'reason not known'}"}[self.state]
                     raise ArmbridgeError(f"the board stopped: {why}; {stream.progress()}")
                 while stream.next_wp < stream.k and self.free > 0:
                     if not self._send_waypoint(stream):

@@ -26,9 +26,9 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.client import LATCHED_STATES, BoardClient
-from armbridge.executor.settle import resting, settle_tolerance
+from armbridge.executor.settle import resting
 from armbridge.executor.signals import holding, stop_on_signals
-from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, plan_error
+from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, goal_check, plan_error
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, validate
 
@@ -163,15 +163,15 @@ def run_plan(
         summary.rrd = str(rrd)
         try:
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
-                              session=session, on_telemetry=on_telemetry, on_event=on_event,
-                              on_error=on_error) as c:
+                              session=session, on_telemetry=on_telemetry, on_event=on_event, on_error=on_error,
+                              on_stop=lambda c, stop: _stop(c, summary, rec, stop)) as c:
                 client = c
                 assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
                 if cartesian:
                     _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
-                band = settle_tolerance(c, robot.dof)  # None: the board has no dead band
+                band = c.settle_tolerance(robot.dof)  # None: the board has no dead band
                 bar = _progress_bar(plan, console) if progress else None
                 try:
                     c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
@@ -205,6 +205,7 @@ def run_plan(
                             s0 = int(plan.provenance["masr_plan"]["setup"]) - 1
                             executed = d[plan.k - 1] - d[s0] if s0 in d and plan.k - 1 in d else float("nan")
                         summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
+                    summary.goal = _goal(plan, masr, summary, samples)
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)
@@ -212,11 +213,12 @@ def run_plan(
                 raise
             failure = exc
             summary.error = str(exc)
-        except KeyboardInterrupt as stop:  # outside streaming (connecting): nothing sent moves the arm
-            summary.stopped_by_user = True
-            summary.stopped_by = getattr(stop, "name", "SIGINT")
-            if rec is not None:
-                rec.error(None, f"stopped by {summary.stopped_by}", "error")
+        except KeyboardInterrupt as stop:  # outside streaming: connecting (e-stop sent by on_stop), or opening
+            if not summary.stopped_by_user:
+                summary.stopped_by_user = True
+                summary.stopped_by = getattr(stop, "name", "SIGINT")
+                if rec is not None:
+                    rec.error(None, f"stopped by {summary.stopped_by}", "error")
         except ArmbridgeError as exc:  # handshake: no answer, another board, latched, refused
             if failure is None:
                 failure = exc
@@ -350,6 +352,11 @@ def _estop(client: BoardClient, summary: Summary, rec=None, why: str | None = No
     except (Exception, KeyboardInterrupt):  # noqa: BLE001 - the port went away; a signal: the byte is sent
         pass
     summary.estop_confirmed = client.state == "ESTOP"
+    if not summary.estop_confirmed:
+        try:
+            client.estop()  # once more: the board may have been booting when the first came
+        except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
+            pass
     if rec is not None and why is not None:
         rec.error(None, estop_note(summary), "info" if summary.estop_confirmed else "error")
 
@@ -384,6 +391,26 @@ def _fail(client: BoardClient, summary: Summary, rec, exc: BaseException) -> Non
     summary.fault = client.fault_reason
     if rec is not None:
         rec.error(None, f"run failed: {summary.error}", "error")
+
+
+def _goal(plan: Plan, masr, summary: Summary, samples) -> dict | None:
+    """The plan's goal against the last sample (Summary.goal): a MASR plan's goal pose (its
+    environment's e_p, e_phi), a soft plan's tip goal (its scene's point and tolerance); None
+    for a plan without a goal, or a run without telemetry."""
+    if not samples or summary.waypoints_done != summary.waypoints_total:
+        return None
+    m = summary.masr
+    if masr is not None and m and m.get("dp_mm") is not None and m.get("e_p_mm") is not None:
+        return goal_check("MA pose", m["dp_mm"] / 1000.0, m["e_p_mm"] / 1000.0, np.radians(m["dphi_deg"]),
+                          np.radians(m["e_phi_deg"]))
+    from armbridge.planning.soft.plan_file import soft_info, to_base_frame
+
+    info = soft_info(plan)
+    if info is None:
+        return None
+    tip = np.asarray(plan.robot.ee_point(samples[-1][2]), float).reshape(-1)[:2]  # the arm's base frame
+    goal = to_base_frame(info.goal_point, info.base)
+    return goal_check("tip", float(np.linalg.norm(tip - goal)), float(info.goal_tol))
 
 
 def _discard(rec, path: Path) -> None:

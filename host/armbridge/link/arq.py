@@ -54,7 +54,9 @@ Reliability:
   the split run under `guard` (the executor's `holding`: a signal waits for
   the block's end). Split lines wait in a queue and are dispatched one at a
   time, so an exception from a callback leaves the lines after it for the next
-  `pump`. Writes are not guarded: one can block on a full device, and a line
+  `pump`. A session served by a link engine (executor/engine.py) has no signals
+  to hold off (they land in its caller's thread); its `interrupt` hook, called
+  before every wait, ends a call the caller gave up. Writes are not guarded: one can block on a full device, and a line
   cut short is dropped by the board at the e-stop byte that follows it.
 """
 from __future__ import annotations
@@ -120,6 +122,7 @@ class Arq:
         silence_timeout: float | None = None,
         max_epoch_commands: int = P.MAX_EPOCH_COMMANDS,
         guard: Callable[[], AbstractContextManager] = nullcontext,
+        interrupt: Callable[[], None] | None = None,
     ) -> None:
         if not 2 <= max_epoch_commands <= P.MAX_EPOCH_COMMANDS:
             raise ValueError(f"max_epoch_commands {max_epoch_commands} outside 2..{P.MAX_EPOCH_COMMANDS}")
@@ -130,6 +133,7 @@ class Arq:
         self.on_line = on_line
         self.on_note = on_note
         self.guard = guard
+        self.interrupt = interrupt  # called before every wait for the board: may raise to end it
         self.max_epoch_commands = max_epoch_commands
         baud = baud or int(getattr(port, "baudrate", 0) or getattr(port, "baud", 0) or 115200)
         self.byte_time = 10.0 / baud  # clock seconds per byte (8N1)
@@ -302,6 +306,8 @@ class Arq:
             if cmd.wp not in self._sent_wp:  # a waypoint resent after a resync is a new command
                 self._sent_wp.add(cmd.wp)
                 st.waypoints_sent += 1
+        if self.live and now - self._last_send > st.longest_quiet_s:
+            st.longest_quiet_s = now - self._last_send
         self._last_send = now
         self.write(cmd.data)
 
@@ -371,6 +377,8 @@ class Arq:
         the board sent right after its reply) wait for the next call, so the
         handshake judges the reply's `done` before it learns of later news.
         Lines wait in `_pending` until dispatched (see Interruptions above)."""
+        if self.interrupt is not None:
+            self.interrupt()
         pending = self._pending
         if not pending:
             with self.guard():  # no exception between the bytes read and their split

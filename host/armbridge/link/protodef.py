@@ -138,3 +138,16 @@ STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
 LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
 
 EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET", "ENDSTOP")
+
+# A latch's reason (STAT's fifth field; the board's kind adds its own, docs/protocol.md
+# §3.2, §9) -> (what happened, what EV FAULT's value `v` is: "error" in the joint's
+# milli-unit, "effort" in per-mille of full drive, "magnet" a magnet's joint number).
+# The reason's part after ":" names a joint (or LOCO, MISSED, SPURIOUS). Host-side words
+# for summaries, recordings and `armbridge board state` (executor/faults.py); the boards
+# send the tokens only.
+FAULT_REASONS = {
+    "FOLLOW": ("following error", "error"),
+    "STALL": ("drive stalled", "effort"),
+    "MAGNET": ("localisation lost", "magnet"),
+    "WDOG": ("watchdog (no valid line in time)", None),
+}

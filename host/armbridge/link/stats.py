@@ -29,6 +29,9 @@ class LinkStats:
     pings: int = 0
     slow_events: int = 0
     window_cuts: int = 0  # congestion window halvings (lines lost on the way to the board)
+    # The longest the host sent nothing while the session was open (session clock, s): keep-alives
+    # every `keepalive` s hold it near that; what the board's watchdog would see of a host that stalls.
+    longest_quiet_s: float = 0.0
 
     @property
     def waypoints_retransmitted(self) -> int:

@@ -186,6 +186,16 @@ def _command_line() -> str:
     return text if len(text) <= 200 else text[:197] + "..."
 
 
+#: What a lock file says of its holder ("pid\ncommand line\n"); None: this process. A link
+#: engine's child (executor/engine.py) opens the port for its caller and names the caller.
+HOLDER: str | None = None
+
+
+def holder_text() -> str:
+    """'pid\ncommand line\n' of this process, as a port's lock file holds it."""
+    return f"{os.getpid()}\n{_command_line()}\n"
+
+
 class PortLock:
     """An flock on a lock file named after the device's real path, holding
     'pid\\ncommand line\\n' of the holder. Never unlinked (unlinking a lock
@@ -209,7 +219,7 @@ class PortLock:
                     from None
             raise
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n{_command_line()}\n".encode(), 0)
+        os.pwrite(fd, (HOLDER or holder_text()).encode(), 0)
         return cls(fd, path)
 
     def release(self) -> None:
