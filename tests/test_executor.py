@@ -13,7 +13,6 @@ ground truth for exactly-once, in-order execution with the values the host sent.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -294,11 +293,7 @@ def test_power_cycle_mid_plan_is_detected(ports):
         if done >= 10 and not fired:
             fired.append(done)
             emu.reset()
-            end = time.monotonic() + 60  # a hang guard: the reset comes at the board's next tick
-            while emu.board is not None and time.monotonic() < end:
-                emu.host_reading()  # the host waits: the coupled board runs on (transport.Port.read does this)
-                time.sleep(0.001)
-            assert emu.board is None
+            assert emu.run_until(lambda: emu.board is None, 1.0)  # lockstep: the reset comes at the next tick
             emu.persist.save(b"")  # RTC memory lost: a power cycle, not a reset
 
     with pytest.raises(ArmbridgeError, match="power-cycled"):

@@ -57,7 +57,7 @@ import numpy as np
 
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.plant import PlantParams
-from armbridge.emulator.pace import PaceLog
+from armbridge.emulator.pace import PaceLog, realtime
 from armbridge.emulator.pty import Pty, open_pty
 from armbridge.emulator.boardfs import BoardFs
 from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware, board_spec
@@ -80,6 +80,8 @@ class EmulatedBoard:
     called with every line the firmware writes (sim seconds, bytes without LF),
     before link faults. on_note(text): what the emulator has to say while it runs
     (a paced one that cannot keep the wall clock says so; also kept in `notes`).
+    realtime: run the emulator thread and the runner's processes at real-time
+    priority (pace.realtime; said when refused).
     """
 
     MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
@@ -102,6 +104,7 @@ class EmulatedBoard:
         on_line: Callable[[float, bytes], None] | None = None,
         fs_dir: str | os.PathLike | None = None,
         on_note: Callable[[str], None] | None = None,
+        realtime: bool = False,
     ) -> None:
         spec = board_spec(device)
         self.spec = spec
@@ -115,6 +118,7 @@ class EmulatedBoard:
         self.boot_ms = boot_ms
         self.on_line = on_line
         self.on_note = on_note
+        self.realtime = realtime
         self.tick_us = int(spec.tick_us)   # one iteration of the emulator (1 ms of sim time)
         root = Path(firmware_root) if firmware_root is not None else firmware_dir()
         self.runner = make_runner(spec, interpreter, root)
@@ -201,6 +205,12 @@ class EmulatedBoard:
             board = self.runner.boot(self.hal, cfg)
         board.on_done = self._on_done
         self.board = board
+        if self.realtime and self._thread is not None:
+            realtime(self._runner_pids())  # a runner may start new processes at a boot
+
+    def _runner_pids(self) -> list[int]:
+        pids = getattr(self.runner, "pids", None)
+        return list(pids()) if callable(pids) else []
 
     def _interrupt(self) -> None:
         """Ctrl-C from the host: the firmware stops (outputs off) and the REPL has the pty."""
@@ -413,9 +423,11 @@ class EmulatedBoard:
     @property
     def counters(self) -> dict:
         """Link faults per lane ("rx": host->board, "tx": board->host: bytes, drop,
-        corrupt, dup, delay) and resets, lost_in_reset, pty_dropped, overruns."""
+        corrupt, dup, delay) and resets, lost_in_reset, pty_dropped, overruns; host_line_gap_s: the
+        longest time between two host lines reaching the firmware (what its watchdog sees)."""
         c: dict = dict(self.uart.counters)
         c.update(self._counters)
+        c["host_line_gap_s"] = self.uart.rx.longest_line_gap
         c["pty_dropped"] = self._pty_dropped + (self._pty.dropped if self._pty is not None else 0)
         return c
 
@@ -483,6 +495,10 @@ class EmulatedBoard:
         return self._thread is not None and self._thread.is_alive()
 
     def _run(self) -> None:
+        if self.realtime:
+            note = realtime(self._runner_pids(), this_thread=True)
+            if note is not None:
+                self._say(note)
         try:
             if self.speed == 0:
                 self._run_lockstep()

@@ -33,7 +33,8 @@ def format_counters(counters: dict) -> str:
     return (f"host->board: {lane(counters['rx'])}\n"
             f"board->host: {lane(counters['tx'])}\n"
             f"resets: {counters['resets']}, bytes lost in resets: {counters['lost_in_reset']}, "
-            f"bytes nobody read: {counters['pty_dropped']}, clock overruns: {counters['overruns']}")
+            f"bytes nobody read: {counters['pty_dropped']}, clock overruns: {counters['overruns']}\n"
+            f"longest gap between host lines at the board: {counters.get('host_line_gap_s', 0.0):.3f} s")
 
 
 def emulate_cmd(
@@ -60,6 +61,9 @@ def emulate_cmd(
     seed: int = typer.Option(0, "--seed", help="Seed of sensor noise and link faults."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
+    realtime: bool = typer.Option(False, "--realtime", help="Run the board at real-time priority (SCHED_FIFO, as "
+                                  "Klipper's Linux MCU with -r), so a busy machine does not slow it; needs root or "
+                                  "CAP_SYS_NICE, else it says so and runs as usual."),
 ) -> None:
     """Put an emulated board on a pseudo-terminal and print its path; Ctrl-C stops it."""
     spec = rig_spec(board_spec(device), servos)
@@ -94,8 +98,12 @@ def emulate_cmd(
             else:
                 _say(text)
 
+    def warn(text: str) -> None:  # even with -q: a board that cannot keep the wall clock says so
+        sys.stderr.write(f"warning: {text}\n")
+        sys.stderr.flush()
+
     emu = EmulatedBoard(spec, speed=speed, faults=faults, seed=seed, link=link, interpreter=interpreter,
-                        on_line=None if quiet else echo)
+                        on_line=None if quiet else echo, on_note=warn, realtime=realtime)
     try:
         emu.start()  # a link another emulator owns: ArmbridgeError naming the owner
     except BaseException:
@@ -134,6 +142,11 @@ def emulate_cmd(
             signal.signal(signal.SIGTERM, old)
     _say(f"stopped at sim time {emu.now():.3f} s, board state {emu.state}")
     _say(format_counters(emu.counters))
+    if speed > 0:
+        pace = emu.pace()
+        achieved = "-" if pace["achieved"] is None else f"{pace['achieved']:.3f}x"
+        _say(f"pace: {achieved} of real time (asked {speed:g}x), largest lag {pace['max_lag_s']:.3f} s, "
+             f"{pace['overruns']} backlogs given up ({pace['given_up_s']:.2f} s)")
     if emu.crash:
         sys.stderr.write(emu.crash)
         raise ArmbridgeError(f"the {device} firmware raised an exception (traceback above)")

@@ -32,8 +32,11 @@ class LineProcess:
         self.encoding = encoding
         self._err = tempfile.TemporaryFile()
         try:
+            # Its own session: a signal to the caller's process group (Ctrl-C on the terminal,
+            # `timeout`, a service manager's stop) is the caller's to act on; the child ends
+            # when its stdin does.
             self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._err,
-                                         bufsize=0)
+                                         bufsize=0, start_new_session=True)
         except OSError as exc:
             self._err.close()
             raise error(f"cannot start {what}: {exc}") from None

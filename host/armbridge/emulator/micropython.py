@@ -169,6 +169,10 @@ class MicroPythonRunner:
         self._spawn()  # the next boot's interpreter loads meanwhile
         return MicroPythonBoard(proc, hal, int(cfg.N_JOINTS))
 
+    def pids(self) -> list[int]:
+        """The interpreters' processes (the running one and the spare), for real-time scheduling."""
+        return [p.proc.pid for p in self._procs if p.proc.poll() is None]
+
     def close(self) -> None:
         self._finalizer()
 

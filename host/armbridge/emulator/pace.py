@@ -12,9 +12,11 @@ most, with the speed it achieved over the stretch since its last note, and
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterable
 
 NOTE_EVERY_S = 5.0
+RT_PRIORITY = 1  # the lowest SCHED_FIFO priority: above every normal process, below the kernel's own
 
 
 class PaceLog:
@@ -60,3 +62,23 @@ class PaceLog:
         achieved = (sim_us - self.sim0) / 1e6 / span if span > 0 else None
         return {"speed": speed, "achieved": achieved, "max_lag_s": self.max_lag_s, "overruns": self.overruns,
                 "given_up_s": self.given_up_s}
+
+
+def realtime(pids: Iterable[int] = (), this_thread: bool = False) -> str | None:
+    """Real-time scheduling (SCHED_FIFO, priority RT_PRIORITY) for the calling thread and
+    for the processes `pids` (a runner's children): a board is a chip of its own, and
+    this keeps a busy machine from slowing it, as Klipper's Linux MCU process asks for
+    with -r. A paced emulator sleeps between ticks, so it takes what it needs and no
+    more. Returns None, or what stood in the way (no permission: root or
+    CAP_SYS_NICE is needed), for the emulator to say."""
+    param = os.sched_param(RT_PRIORITY)
+    targets = ([0] if this_thread else []) + list(pids)
+    for pid in targets:
+        try:
+            os.sched_setscheduler(pid, os.SCHED_FIFO, param)
+        except PermissionError:
+            return ("real-time scheduling was refused (it needs root or CAP_SYS_NICE): the emulator runs at "
+                    "normal priority and may fall behind the wall clock on a busy machine")
+        except (OSError, AttributeError) as exc:
+            return f"real-time scheduling is not available here ({exc}): the emulator runs at normal priority"
+    return None

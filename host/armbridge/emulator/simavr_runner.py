@@ -211,6 +211,11 @@ class SimavrRunner:
     def stopped(self) -> None:
         self._state["stopped"] = True
 
+    def pids(self) -> list[int]:
+        """The processes the chip runs in (the harness), for real-time scheduling."""
+        h = self.harness
+        return [h.proc.pid] if h is not None and h.proc.poll() is None else []
+
     def close(self) -> None:
         self._finalizer()
 

@@ -61,6 +61,8 @@ class Lane:
         self._q: deque[tuple[float, int]] = deque()
         self._last = float("-inf")
         self.counters = {"bytes": 0, "drop": 0, "corrupt": 0, "dup": 0, "delay": 0}
+        self._last_eol: float | None = None  # delivery time of the latest line end
+        self.longest_line_gap = 0.0  # s between two line ends delivered: what a board's watchdog sees
 
     def set_byte_time(self, seconds: float) -> None:
         """Pace the bytes that enter from now on at `seconds` a byte (those queued keep their times)."""
@@ -105,7 +107,10 @@ class Lane:
             return b""
         out = bytearray()
         while q and q[0][0] <= now:
-            out.append(q.popleft()[1])
+            t, b = q.popleft()
+            if b == 0x0A:
+                self._eol(t)
+            out.append(b)
         return bytes(out)
 
     def pop_timed(self, now: float) -> list[tuple[float, int]]:
@@ -113,8 +118,16 @@ class Lane:
         q = self._q
         out = []
         while q and q[0][0] <= now:
-            out.append(q.popleft())
+            item = q.popleft()
+            if item[1] == 0x0A:
+                self._eol(item[0])
+            out.append(item)
         return out
+
+    def _eol(self, t: float) -> None:
+        if self._last_eol is not None and t - self._last_eol > self.longest_line_gap:
+            self.longest_line_gap = t - self._last_eol
+        self._last_eol = t
 
     @property
     def pending(self) -> int:
@@ -136,6 +149,7 @@ class Lane:
         """Drop everything queued (a UART reset); returns how many bytes were lost."""
         n = len(self._q)
         self._q.clear()
+        self._last_eol = None  # the board restarts: its watchdog too
         return n
 
 

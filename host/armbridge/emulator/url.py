@@ -24,7 +24,9 @@ Parameters (all optional):
 `parse_emu_url` turns the text into EmulatedBoard arguments (the device is its
 name, or the rig's BoardSpec when servos= picks another rig; every bad part is
 one ArmbridgeError naming the URL and the parameter); `open_emu_port` starts
-the emulator on its pty and opens it like any serial port.
+the emulator on its pty and opens it like any serial port, or, at speed=0
+without link=, runs it in lockstep with its host in the host's own thread
+(emulator/lockstep.py: a seeded run repeats bit for bit).
 """
 from __future__ import annotations
 
@@ -139,6 +141,10 @@ def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
 
     device, kw = parse_emu_url(url)  # a bad URL: ArmbridgeError (usage, exit 2)
     emu = EmulatedBoard(device, **kw)
+    if emu.speed == 0 and not kw.get("link"):  # lockstep: board and host take turns in one thread
+        from armbridge.emulator.lockstep import lockstep_port
+
+        return lockstep_port(emu, url, timeout, baud)
     try:
         emu.start()
         ser = serial.Serial(emu.port, baudrate=baud, timeout=timeout)
