@@ -8,6 +8,7 @@ and its collision re-check, the timing model against the pneumatic plant itself.
 """
 from __future__ import annotations
 
+import io
 import json
 import math
 import shutil
@@ -428,3 +429,45 @@ def test_the_recording_shows_the_obstacles_the_planned_path_and_the_executed_one
     for ent in ("world/obstacles", "plan/planned_tip", "plan/shapes", "arm/**", "trace/**"):
         assert ent in arm["contents"], arm["contents"]
     assert any(v["name"] == "syringe positions" for v in views)
+
+
+@pytest.mark.hil
+def test_the_run_summary_checks_the_goal_against_where_the_tip_ended(demo):
+    """The summary's goal (docs/formats.md §3): the scene's tip goal against the last sample, the
+    same distance the demo's report measures from the recording; `reached` by the tolerance."""
+    run = demo["run"]
+    g = run.summary.goal
+    assert g["what"] == "tip" and g["tolerance_mm"] == pytest.approx(run.report["goal_tol_m"] * 1000)
+    assert g["distance_mm"] == pytest.approx(run.report["goal_distance_m"] * 1000, abs=0.5)
+    assert g["reached"] == (g["distance_mm"] <= g["tolerance_mm"])
+    assert run.summary.goal_missed == (not g["reached"])
+
+
+def test_a_completed_run_that_missed_its_goal_exits_3(monkeypatch, tmp_path):
+    """Exit codes (docs/formats.md §7): 0 for a run that reached its goal, 3 for one that ran
+    to its end with the arm outside the goal's tolerance, after the summary is written."""
+    import json
+
+    import typer
+    from rich.console import Console
+
+    import armbridge.executor.command as cmd
+    from armbridge.executor.summary import Summary, goal_check
+
+    def fake_run(distance_m):
+        def run_plan(*a, **kw):
+            s = Summary(plan="p.json", port="emu:arduino_pump", rrd=None, robot="soft3", waypoints_total=2,
+                        waypoints_done=2)
+            s.goal = goal_check("tip", distance_m, 0.002)
+            return s
+        return run_plan
+
+    out = tmp_path / "s.json"
+    monkeypatch.setattr(cmd, "run_plan", fake_run(0.001))
+    assert cmd.run_and_report("p.json", "emu:x", None, 50, str(out), False, False, Console(file=io.StringIO()))
+    monkeypatch.setattr(cmd, "run_plan", fake_run(0.0086))
+    with pytest.raises(typer.Exit) as exit_:
+        cmd.run_and_report("p.json", "emu:x", None, 50, str(out), False, False, Console(file=io.StringIO()))
+    assert exit_.value.exit_code == 3
+    s = json.loads(out.read_text())
+    assert s["completed"] and s["goal"]["reached"] is False and s["goal"]["distance_mm"] == pytest.approx(8.6)

@@ -30,9 +30,12 @@ def demo_cmd(
                                             "nullspace (the slow ground truth; the arm waits longer)."),
     clear: bool = typer.Option(False, "--clear", help="Clear a board latched (ESTOP/WDOG/FAULT) from before; "
                                                       "without it a latched board is refused."),
+    json_out: str = typer.Option(None, "--json", metavar="FILE|-",
+                                 help="Write the run's summary as JSON to FILE, or to stdout with - (as armbridge "
+                                      "run --json; docs/formats.md)."),
 ) -> None:
     """Run a robot's demo on the emulated board and record it to Rerun (arm3r: draw a square, or with
     --fault-tolerant reach a target despite a joint that stalls on the way)."""
     opts = DemoOptions(port=port or default_port(robot), rrd=rrd, write_plan=write_plan, fault_tolerant=fault_tolerant, seed=seed,
-                       smm=smm, clear=clear)
+                       smm=smm, clear=clear, json_out=json_out)
     run_demo(opts, robot)

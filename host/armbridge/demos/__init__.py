@@ -49,6 +49,7 @@ class DemoOptions:
     seed: int = 0
     smm: str = "learned"
     clear: bool = False  # clear a board latched from before (else it is refused)
+    json_out: str | None = None  # the run's JSON summary: a file, or "-" for stdout (as `armbridge run --json`)
 
 
 @dataclass(frozen=True)
@@ -82,8 +83,10 @@ def run_demo(options: DemoOptions, robot: str = "arm3r", console: Any = None) ->
     demo = get_demo(robot)
     if options.fault_tolerant and not demo.fault_tolerant:
         raise ArmbridgeError(f"--fault-tolerant: the {demo.robot} demo has no fault-tolerant variant")
+    if options.fault_tolerant and options.json_out is not None:
+        raise ArmbridgeError("--json: the fault-tolerant demo has no run summary to write")
     if console is None:
         from rich.console import Console
 
-        console = Console()
+        console = Console(stderr=options.json_out == "-")  # with --json - stdout carries the JSON alone
     demo.run(options, console)

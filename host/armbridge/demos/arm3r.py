@@ -58,7 +58,7 @@ def run(opts: DemoOptions, console: Any) -> None:
     console.print(f"demo: drawing a {SQUARE_SIDE * 100:.0f} cm square, {plan.k} waypoints, "
                   f"{plan.total_duration:.1f} s planned, on {opts.port}")
     # `armbridge run`'s own reporting: the table, the e-stop on every signal, its exit codes.
-    run_command(plan, opts.port, opts.rrd, 50, None, opts.clear, True)
+    run_command(plan, opts.port, opts.rrd, 50, opts.json_out, opts.clear, True)
 
 
 DEMO = Demo(robot="arm3r", summary="arm3r: draw a 10 cm square (--fault-tolerant: reach a target despite a "

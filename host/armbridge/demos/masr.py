@@ -44,7 +44,7 @@ def run(opts: DemoOptions, console: Any) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         out = save_masr_plan(env, path, Path(tmp) / f"demo-masr-{ENV}.json", provenance)
         console.print(f"demo: {len(path)} waypoints, tau = {result.cost:.1f} s planned; running on {opts.port}")
-        run_command(out, opts.port, opts.rrd, 50, None, opts.clear, True, home=True)  # a fresh MA is unhomed
+        run_command(out, opts.port, opts.rrd, 50, opts.json_out, opts.clear, True, home=True)  # a fresh MA is unhomed
 
 
 DEMO = Demo(robot="masr5", summary=f"masr5: plan in {ENV} with MASR-RRT* and run it on the emulated mobile actuator",

@@ -53,7 +53,7 @@ def execute(opts: DemoOptions, console: Any, *, tolerance: float | None = None) 
         console.print(f"wrote {opts.write_plan} ({plan.k} waypoints, {plan.total_duration:.1f} s)")
         return None
     rrd = opts.rrd if opts.rrd is not None else default_rrd_path(plan.name)
-    summary = run_command(plan, opts.port, rrd, 50, None, opts.clear, True)
+    summary = run_command(plan, opts.port, rrd, 50, opts.json_out, opts.clear, True, goal_exit=False)
     info = soft_info(plan)
     assert info is not None
     names = list(plan.robot.joint_names)
@@ -97,7 +97,16 @@ def _table(r: dict[str, Any]) -> Any:
 
 
 def run(opts: DemoOptions, console: Any) -> None:
-    execute(opts, console)
+    """The demo, and its exit: 3 when the arm ended outside the goal's tolerance (docs/formats.md §7),
+    said after the demo's own report."""
+    import typer
+
+    from armbridge.executor.command import GOAL_MISSED, goal_missed_text
+
+    done = execute(opts, console)
+    if done is not None and done.summary.goal_missed:
+        typer.secho(f"error: {goal_missed_text(done.summary)}", fg="red", err=True)
+        raise typer.Exit(GOAL_MISSED)
 
 
 DEMO = Demo(robot="soft3", summary=f"soft3: plan {SCENE} with WJRRT and run it on the emulated syringe-pump board",

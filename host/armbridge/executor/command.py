@@ -54,7 +54,7 @@ def run_cmd(
 
 
 def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
-                home=False) -> Summary:
+                home=False, goal_exit=True) -> Summary:
     """What `armbridge run` does with its options (also `armbridge draw --port`, the demos); the
     Summary of a completed run (any other outcome exits with its code)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
@@ -62,16 +62,17 @@ def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=F
     try:
         with stop_on_signals():
             return run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian,
-                                  pen=pen, home=home)
+                                  pen=pen, home=home, goal_exit=goal_exit)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto", home=False) -> Summary:
+                   pen="auto", home=False, goal_exit=True) -> Summary:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
-    and the exit code (1: the run failed, 128 + n: stopped by signal n); returns the
-    Summary of a completed run."""
+    and the exit code (1: the run failed, 3: it completed with the arm outside the
+    plan's goal, unless `goal_exit` is False (the caller reports it), 128 + n: stopped
+    by signal n); returns the Summary of a completed run."""
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
@@ -90,7 +91,19 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
             raise typer.Exit(128 + _signum(summary.stopped_by))
         if not summary.completed:
             raise typer.Exit(1)
+        if summary.goal_missed and goal_exit:
+            _say(f"error: {goal_missed_text(summary)}", "red")
+            raise typer.Exit(GOAL_MISSED)
     return summary
+
+
+GOAL_MISSED = 3  # the exit code of a run that completed with the arm outside the plan's goal (formats.md §7)
+
+
+def goal_missed_text(summary: Summary) -> str:
+    g = summary.goal or {}
+    return (f"the plan ran to its end but the {g.get('what', 'arm')} ended {g.get('distance_mm', float('nan')):.1f} mm "
+            f"from the goal (tolerance {g.get('tolerance_mm', float('nan')):.1f} mm)")
 
 
 def write_summary(summary: Summary, target: str) -> None:

@@ -54,6 +54,12 @@ class Summary:
     seq_errors: int = 0
     resyncs: int = 0
     slow_events: int = 0
+    spurious_timeouts: int = 0  # timeouts a later answer showed to be a late board, not a lost line
+    longest_quiet_s: float = 0.0  # the longest the host sent nothing while connected (keep-alives bound it)
+    emulator_pace: dict | None = None  # an emulator paced in this process: EmulatedBoard.pace()
+    # The plan's goal against where the arm ended (goal_check): what, distance and tolerance, reached.
+    # A completed run that missed it exits 3 (docs/formats.md §7).
+    goal: dict | None = None
     telemetry_samples: int = 0
     events: int = 0
     planned_duration_s: float = math.nan  # a MASR plan: tau, its own actions' time
@@ -83,6 +89,11 @@ class Summary:
     @property
     def completed(self) -> bool:
         return self.waypoints_done == self.waypoints_total and not self.stopped_by_user and self.error is None
+
+    @property
+    def goal_missed(self) -> bool:
+        """The plan ran to its end and the arm ended outside the plan's goal tolerance."""
+        return self.completed and self.goal is not None and not self.goal["reached"]
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -122,8 +133,13 @@ class Summary:
         t.add_row("waypoints retransmitted", str(self.waypoints_retransmitted))
         t.add_row("line errors (damaged lines)", str(self.line_errors))
         t.add_row("board lines lost", str(self.board_lines_lost))
-        t.add_row("timeouts / ER SEQ", f"{self.timeouts} / {self.seq_errors}")
+        t.add_row("timeouts (spurious) / ER SEQ", f"{self.timeouts} ({self.spurious_timeouts}) / {self.seq_errors}")
         t.add_row("resyncs", str(self.resyncs))
+        t.add_row("longest the host was quiet", f"{_f(self.longest_quiet_s, 3)} s")
+        pace = self.emulator_pace
+        if pace and pace.get("achieved") is not None and (pace["overruns"] or pace["achieved"] < 0.95 * pace["speed"]):
+            t.add_row("emulator", f"could not keep the wall clock: {pace['achieved']:.2f}x of {pace['speed']:g}x, "
+                                  f"{pace['overruns']} backlogs given up (the host's clock followed the board's)")
         if self.slow_events:
             t.add_row("segments slowed by the board", str(self.slow_events))
         if self.setup_steps:  # a MASR run's setup: not part of the plan, kept out of the rows below
@@ -163,6 +179,13 @@ class Summary:
                       f"{_f(d.get('target_mean_mm'), 2)} / {_f(d.get('target_max_mm'), 2)} mm")
             if d.get("characters"):
                 t.add_row("time per character", f"{_f(d.get('s_per_character'), 2)} s ({d['characters']} characters)")
+        if self.goal:
+            g = self.goal
+            angle = (f", {_f(g['angle_deg'], 2)} / {_f(g['angle_tolerance_deg'], 2)} deg"
+                     if g.get("angle_deg") is not None else "")
+            t.add_row(f"goal: {g['what']} off / tolerance",
+                      f"{_f(g['distance_mm'], 2)} / {_f(g['tolerance_mm'], 2)} mm{angle}: "
+                      + ("reached" if g["reached"] else "MISSED"))
         t.add_row("telemetry samples", str(self.telemetry_samples))
         if self.rrd:
             t.add_row("recording", self.rrd)
@@ -310,6 +333,11 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
     summary.seq_errors = s.seq_errors
     summary.resyncs = s.resyncs
     summary.slow_events = s.slow_events
+    summary.spurious_timeouts = s.spurious_timeouts
+    summary.longest_quiet_s = s.longest_quiet_s
+    emu = getattr(getattr(client, "port", None), "emulator", None)
+    if emu is not None and emu.speed > 0:
+        summary.emulator_pace = emu.pace()
     summary.telemetry_samples = len(samples)
     summary.joint_units = dict(zip(names, getattr(plan.robot, "joint_units", ("rad",) * len(names))))
     # Planned against executed, like with like: a MASR run's setup (HOME, the joints to the
@@ -367,3 +395,16 @@ def fill_settle(summary: Summary, client, plan: Plan, samples, names: list[str],
     q = np.stack([x[2] for x in samples])
     st = settle_times(t, q, plan.q, dict(client.done_times), np.asarray(band, float), float(t[-1]))
     summary.settle = dict(zip(names, st))
+
+
+def goal_check(what: str, distance_m: float, tolerance_m: float, angle_rad: float | None = None,
+               angle_tolerance_rad: float | None = None) -> dict[str, Any]:
+    """The summary's goal section: where the arm ended against the plan's goal (a tip point, or
+    a pose with its angle), reached when within every tolerance (a NaN distance: not reached)."""
+    reached = bool(distance_m <= tolerance_m)
+    if angle_rad is not None and angle_tolerance_rad is not None:
+        reached = reached and bool(abs(angle_rad) <= angle_tolerance_rad)
+    return {"what": what, "distance_mm": distance_m * 1000.0, "tolerance_mm": tolerance_m * 1000.0,
+            "angle_deg": None if angle_rad is None else math.degrees(abs(angle_rad)),
+            "angle_tolerance_deg": None if angle_tolerance_rad is None else math.degrees(angle_tolerance_rad),
+            "reached": reached}
