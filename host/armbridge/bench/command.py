@@ -30,6 +30,8 @@ def link_cmd(
     board: str = typer.Option("esp32", "--board", help="The emulated board: esp32 (the MicroPython firmware, paced "
                               "to the wall clock) or arduino_pump (the .elf in simavr in lockstep, on its clock; "
                               "adds the Modbus round trip, leaves out the damage model)."),
+    load: float = typer.Option(0.0, "--load", min=0.0, help="Busy-loop processes per core beside the run: then "
+                               "throughput, round trip and e-stop only, for the figures at load (bench load)."),
 ) -> None:
     """The line protocol: undetected errors of v1 and v2 under the UART fault mix, and,
     over a pty paced at 115200 baud, throughput, round trip, e-stop latency and a soak
@@ -43,7 +45,8 @@ def link_cmd(
     if board not in link.BOARDS:
         raise typer.BadParameter(f"{board!r}: use one of {', '.join(link.BOARDS)}", param_hint="--board")
     if json_out is None:
-        json_out = Path("runs/bench-link.json" if board == "esp32" else f"runs/bench-link-{board}.json")
+        tag = ("" if board == "esp32" else f"-{board}") + (f"-load{load:g}" if load else "")
+        json_out = Path(f"runs/bench-link{tag}.json")
     size = link.QUICK if quick else link.FULL
     if soak_s is not None:
         size = replace(size, soak_s=soak_s, reset_every_s=min(size.reset_every_s, soak_s / 2))
@@ -51,7 +54,7 @@ def link_cmd(
         size = replace(size, damaged_lines=damaged)
     console = Console()
     result = link.run(size, progress=lambda text: console.print(f"[dim]bench link: {text}[/]"), workers=workers,
-                      board=board)
+                      board=board, load=load)
     write_json(result, json_out)
     link.print_result(result, console)
     console.print(f"wrote {json_out}")

@@ -344,20 +344,29 @@ MODBUS_URL = "modbus:emu:arduino_pump?addr=1&speed=0"
 
 
 def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: int = 2,
-        board: str = "esp32") -> dict:
+        board: str = "esp32", load: float = 0.0) -> dict:
     """Every measurement of the bench on `board` (BOARDS), the pty ones first (so the
     damage model's worker processes do not share the cores with the paced emulator);
     the syringe-pump board adds the Modbus round trip and leaves out the damage model
-    (the codec's, the same for every board)."""
+    (the codec's, the same for every board). `load` > 0: throughput, round trip and
+    e-stop only, with that many busy processes per core beside them (bench/load.py)."""
+    from armbridge.bench.load import Busy
+
     b = BOARDS[board]
     clock = "emulator (sim time)" if b.lockstep else "wall"
-    progress(f"{board}: throughput: {size.throughput_runs} x {size.waypoints} waypoints, {clock} clock")
-    result: dict = {"board": board, "url": b.url, "clock": clock,
-                    "throughput": throughput(size.waypoints, size.throughput_runs, b)}
-    progress(f"round trip: {size.pings} pings")
-    result["round_trip"] = round_trip(size.pings, b)
-    progress(f"e-stop: {size.estops} trials")
-    result["estop"] = estop_latency(size.estops, b)
+    result: dict = {"board": board, "url": b.url, "clock": clock, "load_per_core": load}
+    with Busy(load) as busy:
+        result["busy_processes"] = busy
+        progress(f"{board}: throughput: {size.throughput_runs} x {size.waypoints} waypoints, {clock} clock"
+                 + (f", {busy} busy processes beside" if busy else ""))
+        result["throughput"] = throughput(size.waypoints, size.throughput_runs, b)
+        progress(f"round trip: {size.pings} pings")
+        result["round_trip"] = round_trip(size.pings, b)
+        progress(f"e-stop: {size.estops} trials")
+        result["estop"] = estop_latency(size.estops, b)
+    if load > 0:
+        result["size"] = size.__dict__
+        return result
     progress(f"soak: {size.soak_s:g} s with {SOAK_FAULTS}, a reset every {size.reset_every_s:g} s")
     result["soak"] = soak(size.soak_s, SOAK_FAULTS, size.reset_every_s, board=b)
     if board == "arduino_pump":
@@ -380,6 +389,8 @@ def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: i
 
 
 def targets(r: dict) -> dict[str, bool]:
+    if "soak" not in r:  # a run under load: its figures stand beside the idle ones, no targets
+        return {}
     so = r["soak"]
     out = {"v2 undetected == 0": r["undetected"]["v2"]["undetected"] == 0} if "undetected" in r else {}
     out.update({

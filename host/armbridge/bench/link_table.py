@@ -9,11 +9,12 @@ def print_result(r: dict, console) -> None:
     one column of v2 and the Modbus round trip."""
     from rich.table import Table
 
-    tp, rt, es, so = r["throughput"], r["round_trip"], r["estop"], r["soak"]
+    tp, rt, es, so = r["throughput"], r["round_trip"], r["estop"], r.get("soak")
     ud = r.get("undetected")
     board = r.get("board", "esp32")
+    load = f", {r['busy_processes']} busy processes beside" if r.get("busy_processes") else ""
     table = Table(title=f"armbridge bench link --board {board} (115200 baud 8N1, 3-joint waypoints, "
-                        f"{r.get('clock', 'wall')} clock)")
+                        f"{r.get('clock', 'wall')} clock{load})")
     table.add_column("measure", justify="left")
     cols = ("v1 (CRC-16)", "v2 (CRC-32, epoch)", "target") if ud else (f"{board} (v2)", "target")
     for col in cols:
@@ -44,11 +45,12 @@ def print_result(r: dict, console) -> None:
         f"< {TARGET_ESTOP_MS:g}")
     row("e-stop byte -> ESTOP event at host median / max (ms)", "",
         f"{es['byte_to_event_at_host']['median_ms']:.2f} / {es['byte_to_event_at_host']['max_ms']:.2f}")
-    row(f"soak {so['seconds']:.0f} s: waypoints executed", "", f"{so['executed']} / {so['waypoints']}")
-    row("soak: lost / duplicated / wrong value / in order", "",
-        f"{so['lost']} / {so['duplicated']} / {so['wrong_value']} / {so['in_order']}", "0 / 0 / 0 / True")
-    row("soak: resets / resyncs / W resent / line errors", "",
-        f"{so['resets']} / {so['resyncs']} / {so['retransmitted']} / {so['line_errors']}")
+    if so is not None:
+        row(f"soak {so['seconds']:.0f} s: waypoints executed", "", f"{so['executed']} / {so['waypoints']}")
+        row("soak: lost / duplicated / wrong value / in order", "",
+            f"{so['lost']} / {so['duplicated']} / {so['wrong_value']} / {so['in_order']}", "0 / 0 / 0 / True")
+        row("soak: resets / resyncs / W resent / line errors", "",
+            f"{so['resets']} / {so['resyncs']} / {so['retransmitted']} / {so['line_errors']}")
     mb = r.get("modbus")
     if mb:
         for key, what in (("read_one", "one register (FC4)"), ("write_setpoints", "set-point write (FC16 x 3)")):
@@ -58,4 +60,5 @@ def print_result(r: dict, console) -> None:
         row("Modbus: floor read / write; retries / timeouts", "",
             f"{mb['wire_read_ms']:.2f} / {mb['wire_write_ms']:.2f} ms; {mb['retries']} / {mb['timeouts']}")
     console.print(table)
-    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in r["targets"].items()))
+    if r.get("targets"):
+        console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in r["targets"].items()))
