@@ -19,6 +19,7 @@ bench: setup
 	$(VENV)/bin/armbridge bench link
 
 lint: setup
+	$(VENV)/bin/lint-imports --no-cache
 	$(VENV)/bin/python -m mypy host/armbridge
 
 # The sdist and the wheel (with firmware, models, environments, vectors) in dist/.

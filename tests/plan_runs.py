@@ -58,7 +58,7 @@ def lockstep_ports() -> Iterator[list]:
     """As `opened_ports`, but every `emu:` url (speed 0) opens as a lockstep port
     (emulator/lockstep.py: host and board take turns in one thread), so a run repeats
     bit for bit and a fault can be timed from an earlier run of the same plan and seed."""
-    from armbridge.emulator.lockstep import open_lockstep_port
+    from armbridge.emulator.url import open_lockstep_port
 
     opened: list = []
     real = transport.open_port

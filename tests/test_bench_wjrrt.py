@@ -11,7 +11,7 @@ from tests.require import missing
 if ompl_bridge.available():
     missing(f"the ompl Python wheel is needed: {ompl_bridge.available()}")
 
-from armbridge.bench import wjrrt  # noqa: E402
+from armbridge.bench import wjrrt, wjrrt_run  # noqa: E402
 from armbridge.planning.soft import ompl_planners  # noqa: E402
 from armbridge.planning.soft.scene import FORMAT, VERSION, horn_scene, scene_from_dict  # noqa: E402
 
@@ -96,7 +96,7 @@ def test_shard_records_round_trip_and_equal_the_plain_loop(result):
 
     scene = small_scene()
     for seed in (0, 1):
-        recs = [wjrrt.one_run(scene, pl, seed, T, None, EDGE_RES) for pl in ("wjrrt", "birrt", "RRTConnect")]
+        recs = [wjrrt_run.one_run(scene, pl, seed, T, None, EDGE_RES) for pl in ("wjrrt", "birrt", "RRTConnect")]
         back = decode_runs(**encode_runs(recs))
         assert back == recs and [list(r) for r in back] == [list(r) for r in recs]
         assert [[type(v) for v in r.values()] for r in back] == [[type(v) for v in r.values()] for r in recs]

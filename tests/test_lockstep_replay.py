@@ -25,7 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from armbridge.emulator.lockstep import lockstep_port, open_lockstep_port
+from armbridge.emulator.lockstep import lockstep_port
+from armbridge.emulator.url import open_lockstep_port
 from armbridge.emulator import EmulatedBoard
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient

@@ -315,7 +315,7 @@ def test_estop_mid_plan_switches_the_motors_off_within_one_period(tmp_path):
     plan, commands = masr_commands(mp, home=True)
     durs = [max(1, int(round(d * 1000))) for d in plan.durations]
     setup = int(plan.provenance["masr_plan"]["setup"])
-    from armbridge.emulator.lockstep import open_lockstep_port
+    from armbridge.emulator.url import open_lockstep_port
 
     # lockstep in the host's thread: the board does not run on while the callback sends the byte (over the
     # threaded pty it could, up to a lead and a period: 0.06 s against the 0.01 s asserted below)

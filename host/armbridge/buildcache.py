@@ -10,6 +10,7 @@ the other, and the later ones find it built.
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import subprocess
 from pathlib import Path
@@ -43,3 +44,26 @@ def locked_build(args: list[str], lock: Path, what: str) -> None:
     if r.returncode != 0:
         tail = (r.stdout + r.stderr).strip()[-1500:]
         raise ArmbridgeError(f"building {what} failed ({' '.join(args)}):\n{tail}")
+
+
+def _source_path(mpy: bytes) -> Path:
+    return cache_dir() / "mpy-src" / (hashlib.sha256(mpy).hexdigest() + ".py")
+
+
+def remember_source(mpy: bytes, source: bytes) -> None:
+    """Record that `source` compiles to `mpy` (armbridge flash calls this): an emulated
+    board, which runs firmware as source, boots what it was flashed with by looking the
+    source up (`mpy_source`)."""
+    p = _source_path(mpy)
+    if p.is_file() and p.read_bytes() == source:
+        return
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_bytes(source)
+    os.replace(tmp, p)
+
+
+def mpy_source(mpy: bytes) -> bytes | None:
+    """The source `remember_source` recorded for these .mpy bytes, or None."""
+    p = _source_path(mpy)
+    return p.read_bytes() if p.is_file() else None

@@ -12,7 +12,7 @@ closed-form joint plan at the pen speed), then run with `run_plan` on
 each with the pen-lift servo, and once more on the effort rig with
 `--cartesian` (the board solving every waypoint with its int8 net + FABRIK),
 when the board has its IK weights. The numbers are the run summary's
-`drawing` section (draw/error.py): the trace's distance from the strokes and
+`drawing` section (plans/drawing.py): the trace's distance from the strokes and
 the reverse, mean and max, and the time per character.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ SAMPLE = "text-robotics"
 def robotics_plan(speed: float):
     """The ROBOTICS sample's drawing plan at pen speed `speed` (m/s)."""
     from armbridge.draw.build import build
-    from armbridge.draw.error import characters
+    from armbridge.draw.sources import characters
     from armbridge.draw.samples import SAMPLES, sample_lines
     from armbridge.robots import get_robot
 

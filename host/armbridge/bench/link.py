@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from armbridge.bench import damage
+from armbridge.bench.link_table import TARGET_ESTOP_MS, TARGET_WPS
 from armbridge.executor.client import BoardClient
 from armbridge.link import protocol as P
 from armbridge.link.transport import open_port
@@ -336,8 +337,6 @@ FULL = LinkBenchSize(damaged_lines=10_000_000, waypoints=3000, throughput_runs=3
 QUICK = LinkBenchSize(damaged_lines=20_000, waypoints=300, throughput_runs=1, pings=50, estops=5, soak_s=15,
                       reset_every_s=7)
 SOAK_FAULTS = "drop=0.01&corrupt=0.01&dup=0.01&seed=7"
-TARGET_WPS = 300
-TARGET_ESTOP_MS = 20.0
 
 
 MODBUS_URL = "modbus:emu:arduino_pump?addr=1&speed=0"

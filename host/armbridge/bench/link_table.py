@@ -1,7 +1,8 @@
 """The table `armbridge bench link` prints (rich), for either board of bench/link.py."""
 from __future__ import annotations
 
-from armbridge.bench.link import TARGET_ESTOP_MS, TARGET_WPS
+TARGET_WPS = 300  # sustained 3-joint waypoints/s
+TARGET_ESTOP_MS = 20.0  # e-stop byte written -> outputs off, worst case
 
 
 def print_result(r: dict, console) -> None:

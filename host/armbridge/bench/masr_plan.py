@@ -72,15 +72,6 @@ def label(p_c: float) -> str:
     return "RRT* (p_c = 0)" if p_c == 0 else f"MASR-RRT* p_c = {p_c:g}"
 
 
-def _run(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, checker: Any) -> Any:
-    from armbridge.planning.masr import rrt_star
-
-    if p_c == 0:
-        return rrt_star.plan(env, planner="rrt*", iterations=iterations, seed=seed, checker=checker)
-    return rrt_star.plan(env, planner="masr-rrt*", iterations=iterations, goal_ik=goal_ik, p_c=p_c, seed=seed,
-                         checker=checker)
-
-
 def fig5(size: MasrPlanBenchSize, card: Path, progress: Callable[[str], None],
          runner: Runner | None = None) -> dict[str, Any]:
     from armbridge.bench.masr_shards import sweep
@@ -150,6 +141,7 @@ def fig7(size: MasrPlanBenchSize, card: Path, progress: Callable[[str], None],
 
 
 def timing(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str], None]) -> dict[str, Any]:
+    from armbridge.bench.masr_shards import run_planner
     from armbridge.planning.masr.environment import fixed_environment
 
     out: dict[str, Any] = {}
@@ -158,7 +150,7 @@ def timing(size: MasrPlanBenchSize, goal_ik: Callable, progress: Callable[[str],
         chk = env.checker()
         row = {}
         for p in (0.0, 0.6):
-            runs = [_run(env, p, 1000, 1000 + s, goal_ik, chk) for s in range(size.timing_runs)]
+            runs = [run_planner(env, p, 1000, 1000 + s, goal_ik, chk) for s in range(size.timing_runs)]
             ts = np.array([r.time_s for r in runs])
             cs = np.array([r.cost for r in runs])
             row[label(p)] = {"median_s_per_1000": float(np.median(ts)), "max_s_per_1000": float(ts.max()),

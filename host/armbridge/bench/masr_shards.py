@@ -28,6 +28,15 @@ FIG7_CHUNK = 10  # Fig. 7 trials per shard: about a minute of work at the full s
 _IK: dict[str, Any] = {}
 
 
+def run_planner(env: Any, p_c: float, iterations: int, seed: int, goal_ik: Callable, checker: Any) -> Any:
+    """MASR-RRT* with goal biasing p_c (p_c = 0: the baseline RRT*), one run."""
+    from armbridge.planning.masr import rrt_star
+
+    if p_c == 0:
+        return rrt_star.plan(env, planner="rrt*", iterations=iterations, seed=seed, checker=checker)
+    return rrt_star.plan(env, planner="masr-rrt*", iterations=iterations, goal_ik=goal_ik, p_c=p_c, seed=seed,
+                         checker=checker)
+
 def card_ref(card: Path) -> str:
     """How a shard names the goal IK card: "models:<path>" inside the shipped models (found on every
     node where armbridge is installed), else the absolute path (which every node must then see)."""
@@ -79,7 +88,6 @@ def trials_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarra
     environment's seed) and runs [(p_c, seed), ...]. Curves in run order, seconds per run."""
     import time
 
-    from armbridge.bench.masr_plan import _run
     from armbridge.planning.masr.environment import fixed_environment
     from armbridge.planning.masr.random_env import random_environment
     from armbridge.robots import get_masr
@@ -91,7 +99,7 @@ def trials_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarra
     env_s = time.perf_counter() - t0
     chk = env.checker()
     ik = goal_ik(params["card"])
-    runs = [_run(env, float(p), its, int(s), ik, chk) for p, s in shard.params["runs"]]
+    runs = [run_planner(env, float(p), its, int(s), ik, chk) for p, s in shard.params["runs"]]
     return {**encode_curves(np.array([r.best_costs for r in runs]).reshape(len(runs), its)),
             "time_s": np.array([r.time_s for r in runs]), "environment_s": np.asarray(env_s)}
 

@@ -46,14 +46,12 @@ from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
+from armbridge.bench.wjrrt_run import OMPL, OURS, PLANNERS
 from armbridge.errors import ArmbridgeError
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
 
-OURS = ("wjrrt", "jt-rrt", "birrt")
-OMPL = ("RRTConnect", "KPIECE1", "STRIDE")
-PLANNERS = OURS + OMPL
 LABELS = {"wjrrt": "WJRRT", "jt-rrt": "JT-RRT", "birrt": "Bi-RRT", "RRTConnect": "OMPL RRTConnect",
           "KPIECE1": "OMPL KPIECE1", "STRIDE": "OMPL STRIDE"}
 #: Table 1's count columns (means over the successful runs) and H.
@@ -95,32 +93,6 @@ def budgets(time_limit: float) -> list[float]:
     """Budgets t to report success at: 1-2-5 steps from 10 ms up to T, and T."""
     out = [m * 10.0 ** e for e in range(-2, 3) for m in (1, 2, 5) if m * 10.0 ** e < time_limit - 1e-9]
     return out + [float(time_limit)]
-
-
-def one_run(scene: Any, planner: str, seed: int, time_limit: float, iterations: Optional[int],
-            res: float) -> dict[str, Any]:
-    """One planner on one scene and seed -> the run's record (module doc: success is re-checked)."""
-    from armbridge.planning.soft import ompl_planners, planners
-
-    if planner in OURS:
-        r = planners.plan(scene, planner, seed=seed, time_limit=time_limit, iterations=iterations, res=res)
-    else:
-        r = ompl_planners.plan(scene, planner, seed=seed, time_limit=time_limit, res=res)
-    recheck = None
-    if r.path is not None:
-        chk = scene.checker(res)
-        recheck = chk.path_problem(r.path)
-        if recheck is None and not bool(np.linalg.norm(chk.tip(r.path[-1]) - scene.goal_point) <= scene.goal_tol):
-            recheck = "the last state is not in the goal"
-    rec: dict[str, Any] = {"seed": seed, "success": r.path is not None and recheck is None,
-                           "planner_success": r.path is not None, "recheck": recheck, "time_s": float(r.time_s),
-                           "iterations": int(r.iterations)}
-    for key in ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H", "tip_error_m"):
-        v = r.stats.get(key)
-        rec[key] = None if v is None else float(v) if key in ("final_H", "tip_error_m") else int(v)
-    if "status" in r.stats:
-        rec["status"] = r.stats["status"]
-    return rec
 
 
 def _mean(runs: Sequence[dict], key: str) -> Optional[float]:

@@ -25,7 +25,7 @@ What equals the serial run, and what does not:
   or scene list moves them. On Ray, which shards share a worker process,
   and in what order, is Ray's choice, so they differ from the serial rows
   (a worker's first shard aside). Every OMPL path is still re-checked by
-  our checker (bench.wjrrt.one_run);
+  our checker (bench.wjrrt_run.one_run);
 * time_s (and everything read off it: the time medians, success at a budget
   t, the targets) is measured on the worker that ran the shard. On a
   cluster of unlike machines those columns mix machines. On one machine
@@ -122,7 +122,7 @@ def scene_of(doc: Mapping[str, Any]) -> Scene:
 
 def seed_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
     """Every planner of params on scene shard.params["scene"] at seed shard.seed, in turn."""
-    from armbridge.bench.wjrrt import OMPL, one_run
+    from armbridge.bench.wjrrt_run import OMPL, one_run
     from armbridge.planning import ompl_bridge
 
     scene = scene_of(params["scenes"][shard.params["scene"]])

@@ -120,7 +120,7 @@ def draw_cmd(
               at=None if at is None else _parse_at(at), speed=speed)
     written = text.replace("\\n", "\n") if text is not None else _sample_text(sample)
     if written is not None:
-        from armbridge.draw.error import characters
+        from armbridge.draw.sources import characters
 
         d.plan.provenance["drawing"]["characters"] = characters(written)
     try:

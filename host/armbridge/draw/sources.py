@@ -225,3 +225,8 @@ def shape_outline(name: str) -> np.ndarray:
 def shape_lines(name: str) -> vp.LineCollection:
     """A shape (see SHAPES) as one closed stroke."""
     return from_strokes([shape_outline(name)])
+
+
+def characters(text: str) -> int:
+    """The characters of a text that are drawn (not spaces or new lines)."""
+    return sum(1 for c in text if not c.isspace())

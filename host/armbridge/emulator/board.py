@@ -55,6 +55,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from armbridge.boards.files import board_files
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.plant import PlantParams
 from armbridge.emulator.pace import PaceLog, realtime
@@ -63,7 +64,7 @@ from armbridge.emulator.boardfs import BoardFs
 from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware, board_spec
 from armbridge.emulator.repl import Console, cooked
 from armbridge.emulator.runner import boot_from, firmware_config, make_runner
-from armbridge.emulator.simhal import PersistentMemory, SimClock, board_files
+from armbridge.emulator.simhal import PersistentMemory, SimClock
 from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir

@@ -5,7 +5,7 @@ without a leading slash) and the folders of one emulated board. It starts as
 the board would after `mpremote fs cp firmware/common/*.py firmware/esp32/*.py :`:
 the firmware folders' modules side by side at the root (the first folder wins
 a name, as the import order does) and the files its config names (the IK
-weights, `simhal.board_files`). With `folder=` it is mirrored into a host
+weights, `boards.files.board_files`). With `folder=` it is mirrored into a host
 folder: an empty folder is seeded, a folder with files is the board's
 filesystem as a previous emulator left it (so a flash survives the emulator).
 
@@ -15,7 +15,7 @@ firmware that is in it (`firmware_dir()`): every `X.py` as it is, and every
 source it was compiled from. The emulator runs firmware as Python source (under
 CPython, or the MicroPython WebAssembly port, which cannot run the xtensawin
 native code of a viper kernel), so it looks the source up by the .mpy's
-sha256 in the source cache (`remember_source`, `mpy_source`) that
+sha256 in the source cache (buildcache `remember_source`, `mpy_source`) that
 `armbridge flash` fills when it compiles: the source that mpy-cross turned
 into exactly those bytes. An .mpy nobody compiled here is one clear error.
 """
@@ -28,31 +28,11 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterable
 
-from armbridge.buildcache import cache_dir
+from armbridge.boards.files import firmware_files
+from armbridge.buildcache import cache_dir, mpy_source  # noqa: F401 - cache_dir: the flash manifest's folder
 from armbridge.errors import ArmbridgeError
 
 MODULE_SUFFIXES = (".py", ".mpy")
-
-
-def _source_path(mpy: bytes) -> Path:
-    return cache_dir() / "mpy-src" / (hashlib.sha256(mpy).hexdigest() + ".py")
-
-
-def remember_source(mpy: bytes, source: bytes) -> None:
-    """Record that `source` compiles to `mpy` (armbridge flash calls this)."""
-    p = _source_path(mpy)
-    if p.is_file() and p.read_bytes() == source:
-        return
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_bytes(source)
-    os.replace(tmp, p)
-
-
-def mpy_source(mpy: bytes) -> bytes | None:
-    """The source `remember_source` recorded for these .mpy bytes, or None."""
-    p = _source_path(mpy)
-    return p.read_bytes() if p.is_file() else None
 
 
 def _norm(path: str) -> str:
@@ -64,16 +44,6 @@ def _norm(path: str) -> str:
         elif x and x != ".":
             parts.append(x)
     return "/".join(parts)
-
-
-def firmware_files(dirs: Iterable[Path]) -> dict[str, bytes]:
-    """The modules of the firmware folders `dirs` as they land at the board's
-    root: {name.py: bytes}, the first folder winning a name."""
-    out: dict[str, bytes] = {}
-    for d in dirs:
-        for p in sorted(Path(d).glob("*.py")):
-            out.setdefault(p.name, p.read_bytes())
-    return out
 
 
 class BoardFs:

@@ -24,7 +24,7 @@ a function of those alone, on any machine at any load.
     port = lockstep_port(emu, "emu:masr_ma?speed=0&seed=3")
     client = BoardClient(port, robot, session=1)   # the host as over any port
 
-`open_lockstep_port(url)` builds the board from an `emu:` url with speed 0.
+`emulator.url.open_lockstep_port(url)` builds the board from an `emu:` url with speed 0.
 """
 from __future__ import annotations
 
@@ -102,14 +102,3 @@ def lockstep_port(emu: Any, url: str, timeout: float | None = 0.1, baud: int = 1
     from armbridge.link.transport import Port
 
     return Port(LockstepSerial(emu, timeout, baud), url, emulator=emu, clock=emu.now)
-
-
-def open_lockstep_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
-    """The board an `emu:` url names (its speed must be 0), as a lockstep port."""
-    from armbridge.emulator.board import EmulatedBoard
-    from armbridge.emulator.url import parse_emu_url
-
-    device, kw = parse_emu_url(url)
-    if float(kw.get("speed", 1.0)) != 0:
-        raise ArmbridgeError(f"{url}: a lockstep port needs speed=0")
-    return lockstep_port(EmulatedBoard(device, **kw), url, timeout, baud)

@@ -24,6 +24,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any, cast
 
+from armbridge.boards import joint_limits_rad
 from armbridge.emulator.i2c import SimI2C
 from armbridge.emulator.pca9685 import Pca9685Model
 from armbridge.emulator.servo_plant import PenServo, PositionalPlant, ServoParams
@@ -43,8 +44,6 @@ def rig_plant(cfg: Any, params: ServoParams | None, q0, seed: int) -> Positional
     """The rig's plant from the firmware config: one DS3235-class servo per joint,
     mounted as SERVO_CAL says (the config's calibration is exact), and the pen
     servo when PEN_CHANNEL is set. Keeps `cfg` as the rig's wiring."""
-    from armbridge.emulator.registry import joint_limits_rad
-
     if params is not None and not isinstance(params, ServoParams):
         raise ArmbridgeError(f"the pca9685 rig's plant takes ServoParams, not {type(params).__name__}")
     lo, hi = joint_limits_rad(cfg)

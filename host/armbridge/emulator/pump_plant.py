@@ -4,7 +4,8 @@ Per joint k, as the paper builds it: a 12 V linear motor on an L298 pushes the
 plunger of a 100 mL syringe, whose outlet is tubed to one polychloroprene
 joint; pushing blows air in and bends the joint, pulling sucks it out and the
 joint straightens. The numbers are ours (the paper gives none), documented in
-`PumpParams` and docs/emulator.md ("Syringe-pump board in simavr").
+`PumpParams` (boards/pump_rig.py: the rig's one description, the planner's too) and
+docs/emulator.md ("Syringe-pump board in simavr").
 
     v_cmd = sign(u) v_motor (|u| - u0) / (1 - u0), 0 when |u| <= u0    motor (dead zone u0)
     dv/dt = (v_cmd - v) / tau_motor                                      motor lag
@@ -39,65 +40,17 @@ emulator needs of a plant (n, q, advance_to, stall).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+
+from armbridge.boards.pump_rig import PumpParams
 
 # simavr 1.6 converts vin * 1023 / vref (the datasheet's chip: vin * 1024 / vref); the
 # sensor voltages are inverted through simavr's conversion so that the firmware reads
 # the calibrated angle, as it would on the chip with a sensor calibrated there.
 ADC_FULL = 1023
 ADC_REF_MV = 5000.0      # AVCC = 5 V
-
-
-@dataclass(frozen=True)
-class PumpParams:
-    """Physical numbers of one syringe channel (all joints share them but their range).
-
-    travel_mm   100    plunger travel of a 100 mL syringe
-    area_mm2    1000   plunger area: 1 mL per mm (a ~36 mm bore)
-    v_motor     20     plunger speed at full duty, mm/s (a 12 V linear motor, no load)
-    tau_motor   0.02   motor speed lag, s
-    dead_duty   0.05   duty below which the motor does not move (static friction)
-    switch_mm   0.5    an end stop closes this close to either end of travel
-    x0_mm       2.0    plunger position at power on (just off the retracted stop)
-    v_tube_ml   5      tubing between syringe and joint
-    v_joint_ml  10     the straight joint's air volume
-    k_vol_ml    20     air the joint takes in per radian of bend
-    p0_kpa      101.325 atmosphere
-    p_open_kpa  12     a closed (straight) joint opens at this gauge pressure
-    p_hold_kpa  5      the open branch reaches theta = 0 here
-    p_full_kpa  30     the open branch reaches the joint's range here
-    tau_inflate 0.05   bend time constant while inflating, s (abrupt)
-    tau_deflate 0.40   bend time constant while deflating, s (smooth)
-    sigma_mv    3.0    bend-sensor noise, mV (0.6 of a 10-bit LSB)
-    max_dt      0.001  longest integration sub-step, s
-    """
-
-    travel_mm: float = 100.0
-    area_mm2: float = 1000.0
-    v_motor: float = 20.0
-    tau_motor: float = 0.02
-    dead_duty: float = 0.05
-    switch_mm: float = 0.5
-    x0_mm: float = 2.0
-    v_tube_ml: float = 5.0
-    v_joint_ml: float = 10.0
-    k_vol_ml: float = 20.0
-    p0_kpa: float = 101.325
-    p_open_kpa: float = 12.0
-    p_hold_kpa: float = 5.0
-    p_full_kpa: float = 30.0
-    tau_inflate: float = 0.05
-    tau_deflate: float = 0.40
-    sigma_mv: float = 3.0
-    max_dt: float = 0.001
-
-    @property
-    def v_rest_ml(self) -> float:
-        """Air at atmospheric pressure with the plunger retracted and the joint straight."""
-        return self.travel_mm * self.area_mm2 / 1000.0 + self.v_tube_ml + self.v_joint_ml
 
 
 def pressure(x: np.ndarray, theta: np.ndarray, p: PumpParams) -> np.ndarray:

@@ -1,15 +1,15 @@
-"""The boards the emulator knows, as data: one `BoardSpec` per board in `BOARDS`.
+"""How the emulator emulates each board: one `BoardSpec` per board in `BOARDS`.
 
-A board is where its firmware is (`MicroPythonFirmware`: folders searched in
-order, the module that defines `Board(hal, cfg)` and the config module; or
-`ElfFirmware`: a folder with a Makefile and the .elf it builds, for a board in
-C run under simavr), which interpreters can run that firmware, how to build its
-plant and its HAL from the firmware's config, its clock (emulator tick, baud)
-and its identity (the firmware name it reports in BOOT and HELLO).
+What a board is (its name, identity, firmware, rigs, baud, persisted memory)
+is boards/'s (`armbridge.boards.BOARDS`); this registry adds only how to
+emulate it, registered against the board's name: how to build its plant and
+its HAL from the firmware's config, per rig, and the plant's defaults. A
+`BoardSpec` is the two together, the emulator's one view of a board.
 
-A new board plugs in with one entry here and its own plant/HAL modules;
-`EmulatedBoard` also takes a `BoardSpec` directly, so a variant of a board
-(another plant, other initial positions) needs no registration and no copy:
+A new board plugs in with its entry in boards/ and one entry here (its own
+plant/HAL modules); `EmulatedBoard` also takes a `BoardSpec` directly, so a
+variant of a board (another plant, other initial positions) needs no
+registration and no copy:
 
     slow = dataclasses.replace(board_spec("esp32"), name="esp32-slow",
                                plant_params=PlantParams(v_servo=2.0))
@@ -27,34 +27,14 @@ from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
+from armbridge import boards
+from armbridge.boards import ElfFirmware, MicroPythonFirmware, joint_limits_rad
 from armbridge.emulator.plant import PlantParams, ServoPlant
 from armbridge.emulator.simhal import RTC_MEMORY_SIZE, SimHal
 from armbridge.errors import ArmbridgeError
 
-
-@dataclass(frozen=True)
-class MicroPythonFirmware:
-    """MicroPython firmware: `dirs` under the firmware root, searched in order
-    (flat module names); `board_module` defines `Board(hal, cfg)`;
-    `config_module` holds the board's constants (N_JOINTS, LIMITS_MRAD, PERIOD_MS ...)."""
-
-    dirs: tuple[str, ...]
-    board_module: str = "arm"
-    config_module: str = "config"
-    interpreters: tuple[str, ...] = ("cpython", "micropython")  # the first is the default
-
-
-@dataclass(frozen=True)
-class ElfFirmware:
-    """C firmware: `folder` under the firmware root holds the Makefile that
-    builds `elf` (relative to the folder); simavr runs the image. `config` is
-    the header whose `#define`s are the board's constants for the emulator
-    (simavr_runner.read_config_h: N_JOINTS, PERIOD_MS, the limits, the pins)."""
-
-    folder: str
-    elf: str
-    interpreters: tuple[str, ...] = ("simavr",)
-    config: str = "config.h"
+__all__ = ["BOARDS", "BoardSpec", "ElfFirmware", "MicroPythonFirmware", "Rig", "board_spec", "known_boards",
+           "rig_spec"]
 
 
 class Plant(Protocol):
@@ -72,15 +52,6 @@ PlantFactory = Callable[..., Plant]   # (cfg, params, q0, seed) -> Plant
 HalFactory = Callable[..., Any]       # (clock, plant, uart, persist, *, tick_offset_ms, on_line, files) -> HAL
 
 
-def joint_limits_rad(cfg) -> tuple[np.ndarray, np.ndarray]:
-    """Joint limits (rad) from the firmware config (LIMITS_MRAD: ((min, max), ...) in mrad)."""
-    lims = np.asarray(cfg.LIMITS_MRAD, dtype=float) / 1000.0
-    n = int(getattr(cfg, "N_JOINTS", len(lims)))
-    if lims.shape != (n, 2):
-        raise ArmbridgeError(f"firmware config LIMITS_MRAD has shape {lims.shape}, expected ({n}, 2)")
-    return lims[:, 0], lims[:, 1]
-
-
 def servo_plant(cfg, params: PlantParams | None, q0, seed: int) -> ServoPlant:
     """The servo plant of docs/emulator.md, its hard stops around the firmware's limits."""
     lo, hi = joint_limits_rad(cfg)
@@ -89,8 +60,8 @@ def servo_plant(cfg, params: PlantParams | None, q0, seed: int) -> ServoPlant:
 
 @dataclass(frozen=True)
 class Rig:
-    """One rig of a board: its plant and HAL factories (as BoardSpec's) and the
-    interpreters whose runners can carry its HAL."""
+    """How to emulate one rig of a board: its plant and HAL factories (as BoardSpec's),
+    with the rig's facts (description, interpreters) from boards/."""
 
     description: str
     plant: PlantFactory
@@ -128,12 +99,11 @@ def _pump_hal(*args: Any, **kw: Any) -> Any:
     return PumpSimHal(*args, **kw)
 
 
-ESP32_RIGS: dict[str, Rig] = {
-    "effort": Rig("continuous servos driven by effort, potentiometer feedback (hal_esp32.Esp32Hal)",
-                  servo_plant, SimHal, ("cpython", "micropython")),
-    # The MicroPython bridge replays write_outputs only: this rig runs under CPython.
-    "pca9685": Rig("positional hobby servos behind a PCA9685 on I2C, the paper's rig (hal_pca9685.Pca9685Hal)",
-                   _pca_plant, _pca_hal, ("cpython",)),
+#: board name -> rig name -> (plant factory, HAL factory): how each rig is emulated
+EMULATIONS: dict[str, dict[str, tuple[PlantFactory, HalFactory]]] = {
+    "esp32": {"effort": (servo_plant, SimHal), "pca9685": (_pca_plant, _pca_hal)},
+    "masr_ma": {"effort": (_ma_plant, _ma_hal)},
+    "arduino_pump": {"effort": (_pump_plant, _pump_hal)},
 }
 
 
@@ -169,43 +139,22 @@ class BoardSpec:
         return self.firmware.interpreters
 
 
-BOARDS: dict[str, BoardSpec] = {
-    spec.name: spec
-    for spec in (
-        BoardSpec(
-            name="esp32",
-            description="3R servo arm, ESP32, MicroPython",
-            identity="arm3r",
-            firmware=MicroPythonFirmware(dirs=("esp32", "common")),
-            rigs=ESP32_RIGS,
-        ),
-        # The MicroPython bridge carries the arm's HAL (joint readings in, efforts
-        # out), not the MA's (counts and hall edges in, loco/rot/grip out): cpython only.
-        BoardSpec(
-            name="masr_ma",
-            description="MASR mobile actuator, ESP32, MicroPython",
-            identity="masr_ma",
-            firmware=MicroPythonFirmware(dirs=("masr_ma", "common"), board_module="ma", interpreters=("cpython",)),
-            plant=_ma_plant,
-            hal=_ma_hal,
-        ),
-        # The real .elf in simavr (simavr_runner.py) against the pneumatic plant
-        # (pump_plant.py); the pins, limits and period are config.h's.
-        BoardSpec(
-            name="arduino_pump",
-            description="soft arm's syringe-pump board, Arduino Mega 2560, C++ in simavr",
-            identity="arduino_pump",
-            firmware=ElfFirmware(folder="arduino_pump", elf="build/arduino_pump.elf"),
-            plant=_pump_plant,
-            hal=_pump_hal,
-            persist_bytes=4096,   # the ATmega2560's EEPROM
-        ),
-    )
-}
+def _spec(b: boards.Board) -> BoardSpec:
+    """The emulator's spec of board `b`: its facts and how each of its rigs is emulated."""
+    emulation = EMULATIONS[b.name]
+    plant, hal = emulation[b.rig]
+    rigs = {name: Rig(fact.description, *emulation[name], fact.interpreters) for name, fact in b.rigs.items()}
+    return BoardSpec(name=b.name, description=b.description, identity=b.identity, firmware=b.firmware,
+                     plant=plant, hal=hal, baud=b.baud, tick_us=b.tick_us, persist_bytes=b.persist_bytes,
+                     rig=b.rig, rigs=rigs)
+
+
+BOARDS: dict[str, BoardSpec] = {name: _spec(b) for name, b in boards.BOARDS.items() if name in EMULATIONS}
 
 
 def known_boards() -> str:
     return ", ".join(sorted(BOARDS))
+
 
 
 def board_spec(device: str | BoardSpec) -> BoardSpec:

@@ -6,7 +6,7 @@ into a running board, so one machinery serves MicroPython under CPython, the
 same firmware under the real MicroPython interpreter, and a C image (an AVR
 .elf) under simavr (`simavr_runner.SimavrRunner`). The firmware's config (its
 constants: N_JOINTS, LIMITS_MRAD, PERIOD_MS, ...) is read once by
-`firmware_config` (it is plain data, so CPython reads it for every runner; a C
+`firmware_config` (boards/config.py reads it as data, for every runner; a C
 firmware's are the #defines of its config header) and handed to the plant factory and to every boot.
 A runner is any object with:
 
@@ -42,10 +42,13 @@ import sys
 import threading
 import types
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from armbridge.emulator.registry import BoardSpec, ElfFirmware, MicroPythonFirmware
+from armbridge.boards import ElfFirmware, MicroPythonFirmware
 from armbridge.errors import ArmbridgeError
+
+if TYPE_CHECKING:
+    from armbridge.emulator.registry import BoardSpec
 
 
 class FirmwareRunner(Protocol):
@@ -142,15 +145,14 @@ def boot_from(runner: Any, dirs: list[Path], config_module: str) -> Any:
 # ---------------------------------------------------------------- choosing one
 
 def firmware_config(spec: BoardSpec, root: Path) -> Any:
-    """The board's config module, read under CPython (it is data); for a C firmware
-    the `#define`s of its config header (simavr_runner.read_config_h)."""
-    fw = spec.firmware
-    if isinstance(fw, ElfFirmware):
-        from armbridge.emulator.simavr_runner import read_config_h
-        return read_config_h(root / fw.folder / fw.config)
-    if not isinstance(fw, MicroPythonFirmware):
-        raise ArmbridgeError(f"the {spec.name} board's config cannot be read yet (no {fw.interpreters[0]} runner)")
-    return load_firmware([root / d for d in fw.dirs], (fw.config_module,))[fw.config_module]
+    """The board's constants, read as data from its firmware under `root` (boards.config:
+    the MicroPython config module's constants, a C firmware's config-header #defines)."""
+    from armbridge import boards
+
+    fact = boards.BOARDS.get(spec.name)
+    if fact is None or fact.firmware != spec.firmware:  # a variant spec: its own firmware
+        fact = boards.Board(spec.name, spec.description, spec.identity, "", spec.firmware)
+    return boards.config(fact, root)
 
 
 def make_runner(spec: BoardSpec, interpreter: str | None, root: Path) -> FirmwareRunner:

@@ -47,7 +47,6 @@ conversion starts come to `elf_adc_start(t, channel)`; `elf_inputs()` ->
 """
 from __future__ import annotations
 
-import ast
 import hashlib
 import os
 import re
@@ -55,7 +54,6 @@ import select
 import shutil
 import subprocess
 import tempfile
-import types
 import weakref
 from pathlib import Path
 from typing import Any, Callable
@@ -220,6 +218,9 @@ class SimavrRunner:
         self._finalizer()
 
 
+_CRC = re.compile(rb"[0-9A-F]{8}")
+
+
 class SimavrBoard:
     """The emulator's view of the chip (poll(), state, on_done); see the module docstring."""
 
@@ -373,49 +374,6 @@ class SimavrBoard:
                 self.on_done(qid, targets)
             if qid == wid:
                 break
-
-
-# ---------------------------------------------------------------- the firmware's constants
-
-_DEFINE = re.compile(r"^\s*#define\s+([A-Z_][A-Z0-9_]*)\s+(.+)$")
-
-
-_CRC = re.compile(rb"[0-9A-F]{8}")
-
-
-def _value(text: str) -> Any:
-    text = re.sub(r"/\*.*?\*/|//.*$", "", text).strip()
-    if text.startswith('"') and text.endswith('"'):
-        return text[1:-1]
-    if text.startswith("{"):
-        try:
-            return ast.literal_eval(re.sub(r"(\d)[uUlL]+\b", r"\1", text).replace("{", "(").replace("}", ",)"))
-        except (ValueError, SyntaxError):
-            return None
-    m = re.fullmatch(r"(-?(?:0x[0-9a-fA-F]+|\d+))[uUlL]*", text)
-    return int(m.group(1), 0) if m else None
-
-
-def read_config_h(path: Path) -> types.SimpleNamespace:
-    """The firmware's constants from its config.h, as the emulator's cfg: every
-    `#define NAME value` whose value is an integer, a string or a brace list
-    (nested lists become tuples); others are skipped. LIMITS_MRAD ((min, max) per
-    joint) is derived from LIM_MIN_MRAD/LIM_MAX_MRAD when the header has them,
-    so the plant and the checks read the limits the firmware enforces."""
-    if not path.is_file():
-        raise ArmbridgeError(f"the firmware's constants are read from {path}, which is missing")
-    found: dict[str, Any] = {}
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-        m = _DEFINE.match(line)
-        if m:
-            v = _value(m.group(2))
-            if v is not None:
-                found[m.group(1)] = v
-    if "LIM_MIN_MRAD" in found and "LIM_MAX_MRAD" in found:
-        found["LIMITS_MRAD"] = tuple(zip(found["LIM_MIN_MRAD"], found["LIM_MAX_MRAD"]))
-    if "N_JOINTS" not in found:
-        raise ArmbridgeError(f"{path} defines no N_JOINTS")
-    return types.SimpleNamespace(**found)
 
 
 # ------------------------------------------------------- boot mode: the real bootloader behind a pty

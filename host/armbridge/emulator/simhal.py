@@ -20,15 +20,16 @@ t, taking PEN_SETTLE_MS of servo travel after each command (the pen touches
 the paper when the travel ends, and leaves it at once).
 
 Files: `read_file(name)` serves the board's filesystem from `files` (name ->
-bytes; None for a name it lacks). `board_files(cfg)` is what the emulator
-flashes by default: the config's IK_WEIGHTS -> the shipped
+bytes; None for a name it lacks); an emulated board starts with
+`boards.files.board_files(cfg)`: the config's IK_WEIGHTS -> the shipped
 models/onnx/arm3r-ik/int8.bin (the board IK's net, firmware/esp32/ik3r.py).
 """
 from __future__ import annotations
 
 from collections import deque
-from typing import Any, Callable
+from typing import Callable
 
+from armbridge.boards import ESP32_RTC_MEMORY
 from armbridge.emulator.plant import ServoPlant
 from armbridge.emulator.uart import PacedUart
 
@@ -36,7 +37,7 @@ TICKS_PERIOD = 1 << 30
 TICKS_MAX = TICKS_PERIOD - 1
 TICKS_HALF = TICKS_PERIOD >> 1
 ESTOP_BYTE = 0x98
-RTC_MEMORY_SIZE = 2048  # bytes of ESP32 RTC user memory
+RTC_MEMORY_SIZE = ESP32_RTC_MEMORY  # bytes of ESP32 RTC user memory
 
 
 def ticks_diff(a: int, b: int) -> int:
@@ -210,12 +211,4 @@ class SimHal:
         self.persist.save(data)
 
 
-def board_files(cfg: Any) -> dict[str, bytes]:
-    """The files an emulated board starts with: its IK weights (cfg.IK_WEIGHTS) when
-    its config names them (ik.board_ik.shipped_weights, the file the chip is flashed with)."""
-    name = getattr(cfg, "IK_WEIGHTS", None)
-    if not name:
-        return {}
-    from armbridge.ik.board_ik import shipped_weights
 
-    return {str(name): shipped_weights().read_bytes()}

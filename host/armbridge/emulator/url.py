@@ -159,3 +159,14 @@ def open_emu_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
         emu.stop()
         raise
     return Port(ser, url, emulator=emu, clock=emu.host_time)
+
+
+def open_lockstep_port(url: str, baud: int = 115200, timeout: float | None = 0.1):
+    """The board an `emu:` url names (its speed must be 0), as a lockstep port."""
+    from armbridge.emulator.board import EmulatedBoard
+    from armbridge.emulator.lockstep import lockstep_port
+
+    device, kw = parse_emu_url(url)
+    if float(kw.get("speed", 1.0)) != 0:
+        raise ArmbridgeError(f"{url}: a lockstep port needs speed=0")
+    return lockstep_port(EmulatedBoard(device, **kw), url, timeout, baud)

@@ -324,10 +324,11 @@ class BoardClient(Streaming):
             pass
 
     def settle_tolerance(self, n: int):
-        """The dead band the run's settle times use (executor/settle.py), or None."""
+        """The dead band the run's settle times use, or None: the line protocol has no query
+        for it, so the firmware's config says (executor/settle.py)."""
         from armbridge.executor.settle import settle_tolerance
 
-        return settle_tolerance(self, n)
+        return settle_tolerance(self.info.fw, n) if self.info is not None else None
 
     def set_rate(self, hz: int) -> None:
         """Telemetry rate (0..100 Hz); restored after a resync."""

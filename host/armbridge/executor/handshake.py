@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from armbridge.boards import boards_of_robot
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
 from armbridge.link.arq import Arq
@@ -123,19 +124,13 @@ def hello(arq: Arq, session: int, timeout: float) -> P.Ok:
         raise ArmbridgeError(f"the board refused HELLO {session}: {ans.code} {ans.name} {detail}".rstrip())
 
 
-#: robot name -> the firmware names that drive it, where they differ from the robot's own
-#: name (the arm3r firmware reports "arm3r"; a MASR is driven by its mobile actuator's board,
-#: the soft arm by the syringe-pump board). The joint count and limits are checked after.
-FIRMWARE_OF = {"masr5": ("masr_ma",), "soft3": ("arduino_pump",)}
-
-
 def check_identity(info: BoardInfo, robot) -> None:
     """Protocol version, and (with a robot) firmware name and joint count."""
     if info.proto != P.PROTOCOL_VERSION:
         raise ArmbridgeError(f"{_versions(info.proto)} (firmware {info.fw} {info.version})")
     if robot is None:
         return
-    if info.fw != robot.name and info.fw not in FIRMWARE_OF.get(robot.name, ()):
+    if info.fw != robot.name and info.fw not in boards_of_robot(robot.name):
         raise ArmbridgeError(f"the board runs firmware {info.fw!r} {info.version}, the plan is for robot "
                              f"{robot.name!r}")
     if info.n != robot.dof:

@@ -100,20 +100,18 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     return plan, commands
 
 
-BOARD_OF_MASR = "masr_ma"  # the firmware that drives a MASR's MA (executor.handshake.FIRMWARE_OF)
+BOARD_OF_MASR = "masr_ma"  # the board that drives a MASR's MA (armbridge.boards: robot masr5)
 
 
 def board_localisation(fw: str = BOARD_OF_MASR) -> dict[str, float]:
     """The MA board's localisation constants from its firmware config (mm): the hall window
     `w`, the wheel encoder's quantum `q`, the slip bound `s` (a fraction of the wheel's
     travel) and MV's stop tolerance `stop` (loc.py's bound e(T) = w + q + s T)."""
-    from armbridge.resources import firmware_dir
+    from armbridge import boards
 
-    path = firmware_dir() / fw / "config.py"
-    ns: dict[str, Any] = {}
-    exec(compile(path.read_text(encoding="utf-8"), str(path), "exec"), ns)  # noqa: S102 - our own data module
-    return {"w": float(ns["HALL_WINDOW_MM"]), "q": float(ns["WHEEL_MM_PER_COUNT"]), "s": float(ns["SLIP_MAX"]),
-            "stop": float(ns["STOP_TOL_MM"])}
+    cfg = boards.config(fw)
+    return {"w": float(cfg.HALL_WINDOW_MM), "q": float(cfg.WHEEL_MM_PER_COUNT), "s": float(cfg.SLIP_MAX),
+            "stop": float(cfg.STOP_TOL_MM)}
 
 
 def dead_reckoning(mp) -> tuple[int | None, float | None, bool]:

@@ -22,6 +22,7 @@ piece becomes without the line protocol:
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -32,7 +33,7 @@ from armbridge.executor.handshake import BoardInfo, check_identity, check_limits
 from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
 from armbridge.link.boardclock import BoardClock
-from armbridge.link.modbus import ModbusError, RtuMaster, to_i16
+from armbridge.link.modbus import ModbusError, ModbusPort, ReadInputRegistersRequest, RtuMaster, to_i16
 from armbridge.link.protodef import LATCHED_STATES, STATES, TICKS_PERIOD
 from armbridge.link.stats import LinkStats
 
@@ -265,10 +266,12 @@ class ModbusClient(Streaming):
         self.rate = int(hz)
 
     def settle_tolerance(self, n: int):
-        """The dead band the run's settle times use (executor/settle.py), read from the board."""
-        from armbridge.executor.settle import settle_tolerance
+        """The dead band the run's settle times use (executor/settle.py), read from the board:
+        holding 12..14 and the calibrations 24..35."""
+        from armbridge.executor.settle import board_tolerance
 
-        return settle_tolerance(self, n)
+        band = self.master.read_holding(HR_DBAND, n)
+        return board_tolerance(band, [to_i16(x) for x in self.master.read_holding(HR_BEND, 4 * n)], n)
 
     def stat(self) -> tuple[str, int | None, int | None, float]:
         t = self.poll()
@@ -365,3 +368,48 @@ class ModbusClient(Streaming):
         self.stats.waypoints_acked += 1
         self.free -= 1
         return True
+
+
+def open_modbus_port(url: str, baud: int = 115200, timeout: float | None = 0.1) -> ModbusPort:
+    """`modbus:PORT?addr=N...` (link/modbus.py `open_modbus_port`), with an emulated board
+    switched into Modbus first: it boots speaking the line protocol, and only a line
+    session can tell it MODBUS addr (the port table, link/transport.py SCHEMES, names
+    this opener)."""
+    from armbridge.link.modbus import open_modbus_port as open_link
+
+    port = open_link(url, baud, timeout)
+    try:
+        if port.emulator is not None:
+            switch_to_modbus(port, port.master.addr)
+    except BaseException:
+        port.close()
+        raise
+    return port
+
+
+def switch_to_modbus(port: ModbusPort, addr: int) -> None:
+    """An emulated board boots speaking the line protocol (unless its EEPROM says Modbus):
+    if it does not answer a Modbus read, open a line session and send MODBUS addr."""
+    from armbridge.executor.client import BoardClient
+    from armbridge.link.transport import PortError
+
+    master = port.master
+    try:
+        master.request(ReadInputRegistersRequest(address=0, count=1), retries=0)
+        return
+    except ModbusError:
+        pass
+    client = BoardClient(port, None, connect_timeout=10.0)
+    try:
+        client.connect()
+        client.command("MODBUS", addr)
+    except ArmbridgeError as exc:
+        raise PortError(f"cannot switch {port.inner_url} into Modbus: {exc}") from None
+    end = port.clock() + 2.0 if port.clock else time.monotonic() + 2.0
+    while True:
+        try:
+            master.read_input(0, 1)
+            return
+        except ModbusError as exc:
+            if (port.clock() if port.clock else time.monotonic()) > end:
+                raise PortError(f"{port.inner_url} took MODBUS {addr} but does not answer Modbus: {exc}") from None

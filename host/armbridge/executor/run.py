@@ -108,9 +108,9 @@ def run_plan(
 
     robot = plan.robot
     names = list(robot.joint_names)
-    from armbridge.executor.handshake import FIRMWARE_OF
+    from armbridge.boards import boards_of_robot
 
-    kind = FIRMWARE_OF.get(robot.name, (robot.name,))[0]  # the board's kind (its own columns): its fw once known
+    kind = (boards_of_robot(robot.name) or (robot.name,))[0]  # the board's kind (its own columns): its fw once known
     rrd = Path(rrd_path) if rrd_path is not None else default_rrd_path(plan.name)
     durs_ms = [max(1, int(round(d * 1000))) for d in plan.durations]
     verb, rows = ("X", cartesian_rows(plan)) if cartesian else ("W", [P.to_milli(row) for row in plan.q])
@@ -423,8 +423,8 @@ def _discard(rec, path: Path) -> None:
 
 
 def _drawing(plan: Plan, samples, duration_s: float) -> dict:
-    """A drawing plan's summary section (draw/error.py) from the telemetry samples."""
-    from armbridge.draw.error import run_drawing_report
+    """A drawing plan's summary section (plans/drawing.py) from the telemetry samples."""
+    from armbridge.plans.drawing import run_drawing_report
 
     q = np.array([x[2] for x in samples]).reshape(-1, plan.n)
     return run_drawing_report(plan, q, np.array([x[4] for x in samples], int), duration_s)

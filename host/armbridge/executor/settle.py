@@ -26,21 +26,18 @@ def count_mrad(bend: Sequence[Sequence[int]]) -> np.ndarray:
     return np.array([abs(b - a) / max(1, abs(adc_b - adc_a)) for adc_a, a, adc_b, b in bend], float)
 
 
-def settle_tolerance(client, n: int) -> tuple[np.ndarray, str] | None:
-    """(tolerance per joint in rad, "board" or "default"), or None (no dead band)."""
-    from armbridge.executor.modbus_client import HR_BEND, HR_DBAND, ModbusClient
-    from armbridge.link.modbus import to_i16
+def board_tolerance(band_mrad, bend, n: int) -> tuple[np.ndarray, str]:
+    """The tolerance from what the board said (Modbus: its dead band per joint, its calibrations)."""
+    return (np.asarray(band_mrad, float) + count_mrad([bend[4 * j:4 * j + 4] for j in range(n)])) / 1000.0, "board"
 
-    if isinstance(client, ModbusClient):
-        band = np.asarray(client.master.read_holding(HR_DBAND, n), float)
-        r = [to_i16(x) for x in client.master.read_holding(HR_BEND, 4 * n)]
-        return (band + count_mrad([r[4 * j:4 * j + 4] for j in range(n)])) / 1000.0, "board"
-    from armbridge.emulator.registry import board_spec
-    from armbridge.emulator.runner import firmware_config
-    from armbridge.resources import firmware_dir
+
+def settle_tolerance(fw: str, n: int) -> tuple[np.ndarray, str] | None:
+    """(tolerance per joint in rad, "default") for a board of firmware `fw` whose protocol has
+    no query for it (the line protocol), from its firmware's config; None (no dead band)."""
+    from armbridge import boards
 
     try:
-        cfg = firmware_config(board_spec(client.info.fw), firmware_dir())
+        cfg = boards.config(_board_of(fw))
     except (ArmbridgeError, OSError):  # a board kind this host has no firmware of
         return None
     mrad = getattr(cfg, "DBAND_DEFAULT_MRAD", None)
@@ -49,6 +46,16 @@ def settle_tolerance(client, n: int) -> tuple[np.ndarray, str] | None:
     bend = getattr(cfg, "BEND_DEFAULT", None)
     count = count_mrad(bend) if bend is not None and len(bend) == n else np.zeros(n)
     return (float(mrad) + count) / 1000.0, "default"
+
+
+def _board_of(fw: str) -> str:
+    """The board whose firmware reports `fw` (its identity), for its config."""
+    from armbridge import boards
+
+    for b in boards.BOARDS.values():
+        if b.identity == fw:
+            return b.name
+    return fw
 
 
 def resting(samples, target: np.ndarray, tol: np.ndarray, hold_s: float = 0.1) -> bool:

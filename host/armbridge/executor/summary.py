@@ -78,7 +78,7 @@ class Summary:
     fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None
     fw_version: str | None = None
-    drawing: dict | None = None  # a plan with pen flags: draw/error.py run_drawing_report
+    drawing: dict | None = None  # a plan with pen flags: plans/drawing.py run_drawing_report
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)

@@ -56,7 +56,8 @@ class AvrResult:
 
 def build_hex(target: AvrTarget, firmware_root: Path | None) -> tuple[Path, Any]:
     """The .hex and config.h constants of the board's firmware (rebuilt with its Makefile when stale)."""
-    from armbridge.emulator.simavr_runner import firmware_elf, read_config_h
+    from armbridge.boards.config import read_config_h
+    from armbridge.emulator.simavr_runner import firmware_elf
     from armbridge.resources import firmware_dir
 
     folder = (firmware_root or firmware_dir()) / target.folder

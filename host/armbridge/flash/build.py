@@ -1,16 +1,17 @@
 """What a MicroPython board is flashed with: the firmware's modules compiled by
 mpy-cross for the chip, main.py as source, and the files its config asks for.
 
-The firmware folders of a board (registry.MicroPythonFirmware.dirs: e.g.
+The firmware folders of a board (boards.MicroPythonFirmware.dirs: e.g.
 esp32 then common) land side by side at the board's root, the first folder
-winning a name (boardfs.firmware_files, the emulator's seed). Every module but
+winning a name (boards.files.firmware_files, the emulator's seed too). Every module but
 main.py is compiled with `mpy-cross -march=ARCH -s NAME.py` (the source name
 in tracebacks, and the bytes do not depend on where the checkout is);
 MicroPython runs main.py at boot and imports the rest, `.mpy` as fast as
 frozen bytecode and without the RAM the compiler needs. The files the config
-names come along (`simhal.board_files`: IK_WEIGHTS -> the shipped board IK
-net). Each compiled module's source is remembered by the .mpy's sha256
-(boardfs.remember_source) so an emulated board can boot what it was flashed
+names come along (`boards.files.board_files`: IK_WEIGHTS -> the shipped board
+IK net). The config and the protocol version are read as data (boards/config.py),
+not run. Each compiled module's source is remembered by the .mpy's sha256
+(buildcache.remember_source) so an emulated board can boot what it was flashed
 with.
 """
 from __future__ import annotations
@@ -23,7 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from armbridge.emulator.boardfs import firmware_files, remember_source
+from armbridge.boards.files import board_files, firmware_files
+from armbridge.buildcache import remember_source
 from armbridge.errors import ArmbridgeError
 
 KEEP_SOURCE = ("main.py",)   # run at boot by MicroPython: a .py file
@@ -76,27 +78,28 @@ def compile_module(mpy_cross: str, name: str, source: bytes, arch: str) -> bytes
         return out.read_bytes()
 
 
+def _first(dirs: list[Path], name: str) -> Path:
+    """The module `name` as the board imports it: from the first folder that has it."""
+    for d in dirs:
+        if (d / name).is_file():
+            return d / name
+    raise ArmbridgeError(f"firmware module {name} not found in {', '.join(map(str, dirs))}")
+
+
 def build(board: str, dirs: list[Path], config_module: str, arch: str) -> Build:
     """Compile the firmware in `dirs` for `arch`; see the module docstring."""
-    from armbridge.emulator.runner import load_firmware
-    from armbridge.emulator.simhal import board_files
+    from armbridge.boards.config import read_micropython_config
 
     for d in dirs:
         if not d.is_dir():
             raise ArmbridgeError(f"firmware folder {d} is missing (--firmware names the folder holding "
                                  f"{', '.join(x.name for x in dirs)})")
-    try:
-        mods = load_firmware(dirs, (config_module, "protodef"))
-    except ArmbridgeError:
-        raise
-    except Exception as exc:  # a config that does not even import
-        raise ArmbridgeError(f"the {board} firmware's {config_module}.py cannot be read: "
-                             f"{type(exc).__name__}: {exc}") from None
-    cfg: Any = mods[config_module]
+    cfg: Any = read_micropython_config(_first(dirs, f"{config_module}.py"))
     for name in ("FW_NAME", "FW_VERSION"):
         if not isinstance(getattr(cfg, name, None), str):
             raise ArmbridgeError(f"the {board} firmware's {config_module}.py has no {name} string")
-    out = Build(board, cfg.FW_NAME, cfg.FW_VERSION, int(mods["protodef"].PROTOCOL_VERSION))
+    protocol = read_micropython_config(_first(dirs, "protodef.py"), constants_only=False).PROTOCOL_VERSION
+    out = Build(board, cfg.FW_NAME, cfg.FW_VERSION, int(protocol))
     mpy_cross = find_mpy_cross()
     for name, source in sorted(firmware_files(dirs).items()):
         if name in KEEP_SOURCE:

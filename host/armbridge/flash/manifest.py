@@ -21,10 +21,9 @@ import json
 import os
 import re
 import time
-from pathlib import Path
 from typing import Any
 
-from armbridge.emulator.boardfs import cache_dir
+from armbridge.buildcache import cache_dir
 
 NAME = "armbridge.json"
 FORMAT = 1

@@ -36,7 +36,7 @@ from armbridge.flash.build import Build, build
 
 @dataclass(frozen=True)
 class MicroPythonTarget:
-    """A MicroPython board armbridge flashes: its emulator registry name (which
+    """A MicroPython board armbridge flashes: its name in armbridge.boards (which
     holds its firmware folders), mpy-cross's -march, esptool's chip and image
     offset, and what os.uname().machine says on it."""
 
@@ -130,12 +130,12 @@ def flash_micropython(t: MicroPythonTarget, port: str, *, firmware_root: Path | 
     """Flash the `t` firmware (from `firmware_root`, default the shipped tree) to
     the board on `port`; HELLO over `link` (default: the same port). on_plan(result)
     is called once the plan is known; progress(name, done, total) while writing."""
-    from armbridge.emulator.registry import MicroPythonFirmware, board_spec
+    from armbridge import boards
     from armbridge.flash.mpboard import MpBoard
     from armbridge.resources import firmware_dir
 
-    fw = board_spec(t.board).firmware
-    assert isinstance(fw, MicroPythonFirmware)
+    fw = boards.board(t.board).firmware
+    assert isinstance(fw, boards.MicroPythonFirmware)
     root = Path(firmware_root) if firmware_root is not None else firmware_dir()
     b = build(t.board, [root / d for d in fw.dirs], fw.config_module, t.arch)
     with board_device(port) as (device, emu):

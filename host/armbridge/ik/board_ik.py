@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
-from armbridge.ik.arm3r_ann import MODEL_DIR, scaler_bounds
+from armbridge.ik.arm3r_ann import scaler_bounds
 from armbridge.ik.fabrik import clip_angle
 from armbridge.ik.flat_int8 import read_flat_int8
 from armbridge.ik.region import SafeRegion
@@ -168,18 +168,13 @@ def _dirs(angle: np.ndarray) -> np.ndarray:
 
 def shipped_weights() -> Path:
     """models/onnx/arm3r-ik/int8.bin, the file the board is flashed with."""
-    from armbridge import resources
+    from armbridge.boards.files import config_file
 
-    path = resources.model_dir(MODEL_DIR) / WEIGHTS_NAME
-    if not path.is_file():
-        raise ArmbridgeError(f"the shipped board IK weights {path} are missing (armbridge train arm3r-ik writes them)")
-    return path
+    return config_file("IK_WEIGHTS")  # the board's config names it: boards/files.py CONFIG_FILES
 
 
 def firmware_config() -> Any:
-    """The ESP32 firmware's config module (plain data, read under CPython)."""
-    from armbridge.emulator.registry import board_spec
-    from armbridge.emulator.runner import firmware_config as read
-    from armbridge.resources import firmware_dir
+    """The ESP32 firmware's constants (boards.config: its config module read as data)."""
+    from armbridge import boards
 
-    return read(board_spec("esp32"), firmware_dir())
+    return boards.config("esp32")

@@ -31,7 +31,7 @@ from pymodbus.pdu.register_message import (ReadHoldingRegistersRequest, ReadInpu
                                            WriteMultipleRegistersRequest, WriteSingleRegisterRequest)
 
 from armbridge.errors import ArmbridgeError
-from armbridge.link.transport import DEFAULT_BAUD, Port, PortError
+from armbridge.link.transport import DEFAULT_BAUD, Port
 
 EXCEPTION_NAMES = {1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS", 3: "ILLEGAL DATA VALUE",
                    4: "SERVER DEVICE FAILURE", 6: "SERVER DEVICE BUSY"}
@@ -258,38 +258,4 @@ def open_modbus_port(url: str, baud: int = DEFAULT_BAUD, timeout: float | None =
     if inner_url.startswith("modbus:"):
         raise ArmbridgeError(f"port {url!r}: a modbus: port inside a modbus: port")
     inner = open_port(inner_url, p["baud"], timeout)
-    port = ModbusPort(inner, url, p["addr"], p["timeout"], p["retries"])
-    try:
-        if port.emulator is not None:
-            _switch_to_modbus(port, p["addr"])
-    except BaseException:
-        port.close()
-        raise
-    return port
-
-
-def _switch_to_modbus(port: ModbusPort, addr: int) -> None:
-    """An emulated board boots speaking the line protocol (unless its EEPROM says Modbus):
-    if it does not answer a Modbus read, open a line session and send MODBUS addr."""
-    from armbridge.executor.client import BoardClient
-
-    master = port.master
-    try:
-        master.request(ReadInputRegistersRequest(address=0, count=1), retries=0)
-        return
-    except ModbusError:
-        pass
-    client = BoardClient(port, None, connect_timeout=10.0)
-    try:
-        client.connect()
-        client.command("MODBUS", addr)
-    except ArmbridgeError as exc:
-        raise PortError(f"cannot switch {port.inner_url} into Modbus: {exc}") from None
-    end = port.clock() + 2.0 if port.clock else time.monotonic() + 2.0
-    while True:
-        try:
-            master.read_input(0, 1)
-            return
-        except ModbusError as exc:
-            if (port.clock() if port.clock else time.monotonic()) > end:
-                raise PortError(f"{port.inner_url} took MODBUS {addr} but does not answer Modbus: {exc}") from None
+    return ModbusPort(inner, url, p["addr"], p["timeout"], p["retries"])

@@ -52,7 +52,8 @@ PORT_KINDS = "a serial device (/dev/ttyUSB0), a pyserial URL (socket://, rfc2217
 # other ArmbridgeError it raises says the url is wrong (bad input: exit 2).
 SCHEMES: dict[str, str] = {
     "emu": "armbridge.emulator.url:open_emu_port",
-    "modbus": "armbridge.link.modbus:open_modbus_port",
+    # An emulated board is switched into Modbus through a line session: the executor's.
+    "modbus": "armbridge.executor.modbus_client:open_modbus_port",
 }
 
 

@@ -138,7 +138,7 @@ class Recording:
             text += [f"provenance.{k}: {_short(v)}" for k, v in prov.items()]
             rec.log("plan/info", rr.TextDocument("\n".join(text)), static=True)
         if self._pen is not None:
-            from armbridge.draw.error import pen_strips
+            from armbridge.plans.drawing import pen_strips
 
             rec.log("drawing/target", rr.LineStrips2D(pen_strips(tips[:, :2], self._pen), colors=[(60, 60, 200)],
                                                       radii=0.0006), static=True)
@@ -243,7 +243,7 @@ class Recording:
         send("arm/tip", indexes=idx, columns=self._points.columns(positions=tip))
         self._tip_trace.append(tip)
         if self._pen is not None:
-            from armbridge.draw.error import trace_strips
+            from armbridge.plans.drawing import trace_strips
 
             a = np.array([b[5] for b in buf])
             ok = (a >= 0) & (a < len(self._pen))

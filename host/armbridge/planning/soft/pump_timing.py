@@ -201,13 +201,11 @@ def durations(q: Any, timing: PumpTiming) -> tuple[np.ndarray, np.ndarray]:
 
 def board_timing(robot: Any, fw: str = "arduino_pump", params: Any = None) -> PumpTiming:
     """The PumpTiming of `robot` on the pump board `fw`: its firmware constants read from its config
-    header (the same values the board runs with), the plant's numbers from emulator/pump_plant.py
+    header (the same values the board runs with), the rig's numbers from boards/pump_rig.py
     PumpParams (ours: the paper gives none; docs/emulator.md), the rest pose straight (q_min: the
     board at power on, every syringe retracted)."""
-    from armbridge.emulator.pump_plant import PumpParams
-    from armbridge.emulator.registry import board_spec
-    from armbridge.emulator.runner import firmware_config
-    from armbridge.resources import firmware_dir
+    from armbridge import boards
+    from armbridge.boards.pump_rig import PumpParams
 
-    cfg = firmware_config(board_spec(fw), firmware_dir())
+    cfg = boards.config(fw)
     return pump_timing(params or PumpParams(), cfg, robot.q_max, robot.v_max, q_rest=robot.q_min)

@@ -1,4 +1,11 @@
-"""How far the drawn line is from the drawing: pure, on strokes and a pen trace in metres.
+"""How far the drawn line is from the drawing: pure, on a plan's pen flags and a pen trace, in metres.
+
+A plan with pen flags (docs/formats.md §1) says which moves draw; every run of
+one reports how far the executed pen trace was from those strokes (the run
+summary's `drawing`: `run_drawing_report`), the recording draws both
+(`pen_strips`, `trace_strips`), and `armbridge draw` and `bench arm3r` measure
+their drawings the same way. It lives with the plan format because it reads
+nothing but a plan and samples of the arm.
 
 Both directions are reported because each misses what the other sees: the
 trace-from-target distance catches a pen that wandered off the strokes, the
@@ -94,11 +101,6 @@ def pen_strips(points: np.ndarray, pen: np.ndarray) -> list[np.ndarray]:
         else:
             i += 1
     return strips
-
-
-def characters(text: str) -> int:
-    """The characters of a text that are drawn (not spaces or new lines)."""
-    return sum(1 for c in text if not c.isspace())
 
 
 def trace_strips(points: np.ndarray, down: np.ndarray) -> list[np.ndarray]:
