@@ -40,7 +40,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 
+from armbridge.bench.command import write_json
 from armbridge.ik import arm3r_pipeline as pipe
 from armbridge.ik.analytic3r import ik as closed_form
 from armbridge.ik.arm3r_ann import Arm3rANN, flat_int8_predictor, poses_of, shipped_card
@@ -264,3 +266,49 @@ def run(size: Arm3rBenchSize, progress: Callable[[str], None] = lambda s: None, 
                     "robotics_drawn_on_every_rig": all(r.get("completed") for r in drawing["runs"].values())},
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
     }
+
+
+def arm3r_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 of the 12 samples, 2,000 random CBF "
+                               "targets, 10 points timed singly and solved by RTB LM."),
+    seed: int = typer.Option(10, "--seed", help="Seed of the random CBF targets."),
+    json_out: Path = typer.Option(Path("runs/bench-arm3r.json"), "--json", help="Where to write the results."),
+    lyapunov_png: Path = typer.Option(None, "--lyapunov-png", help="Also plot Fig. 13 (the CBF's Lyapunov "
+                                      "function along each sample) to this PNG."),
+) -> None:
+    """Tables 5-8 of the 3R drawing-arm paper on its twelve samples: MSE, RMSE, MAE in
+    x, y, q1-q3, theta for ANN, ANN + FABRIK, ANN + FABRIK + CBF, the closed form and
+    RTB LM; time per point; CBF violations over random targets; the Lyapunov function
+    checked to decrease (Fig. 13); int8 against float."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    result = run(QUICK if quick else FULL, seed=seed, lyapunov_png=lyapunov_png,
+                 progress=lambda text: console.print(f"[dim]bench arm3r: {text}[/]"))
+    write_json(result, json_out)
+    table = Table(title="armbridge bench arm3r: overall (Tables 5, 8); x, y mm, angles deg: MSE / RMSE / MAE")
+    for col in ("row", *COLS, "mean tip (mm)"):
+        table.add_column(col, justify="left" if col == "row" else "right")
+    for row, s in result["overall"].items():
+        if "missing" in s:
+            table.add_row(row, s["missing"], *[""] * 6)
+            continue
+        table.add_row(row, *[f"{s[c]['mse']:.3g} / {s[c]['rmse']:.3g} / {s[c]['mae']:.3g}" for c in COLS],
+                      f"{s['tip_mm']['mean']:.2g}")
+    console.print(table)
+    rc = result["random_cbf"]
+    console.print(f"CBF on {rc['targets']:,} random targets ({rc['outside_region']:,} outside the region): "
+                  f"{rc['region_violations']} region and {rc['limit_violations']} joint-limit violations")
+    ly = result["lyapunov"]
+    console.print(f"Lyapunov V on {ly['rows']} samples, {ly['checked']:,} filter steps: {ly['violations']} rises "
+                  f"(max change {ly['max_increase']:.3g} rad^2), {ly['constrained_steps']} steps constrained"
+                  + (f"; wrote {ly['png']}" if "png" in ly else ""))
+    dr = result["drawing"]
+    for name, drawn in dr["runs"].items():
+        console.print(f"ROBOTICS at {dr['speed_m_s']:g} m/s on {name}: " + (
+            f"trace from strokes {drawn['trace_mean_mm']:.2f} / {drawn['trace_max_mm']:.2f} mm, strokes from trace "
+            f"{drawn['target_mean_mm']:.2f} / {drawn['target_max_mm']:.2f} mm (mean / max), "
+            f"{drawn['s_per_character']:.2f} s per character" if drawn.get("completed") else f"FAILED: {drawn.get('error')}"))
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")

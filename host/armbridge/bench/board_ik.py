@@ -20,10 +20,13 @@ from __future__ import annotations
 import json
 import subprocess
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 
+from armbridge.bench.command import write_json
 from armbridge.errors import ArmbridgeError
 from armbridge.ik.board_ik import BoardIKReference, firmware_config, shipped_weights
 
@@ -190,3 +193,23 @@ def print_report(r: dict[str, Any], console: Any) -> None:
             f"  us per point: MicroPython net {t['micropython']['net']:.0f} fabrik {t['micropython']['fabrik']:.0f} "
             f"solve {t['micropython']['solve']:.0f}; CPython net {t['cpython']['net']:.0f} "
             f"fabrik {t['cpython']['fabrik']:.0f} solve {t['cpython']['solve']:.0f}")
+
+
+def board_ik_cmd(
+    points: int = typer.Option(2000, "--points", min=10, help="Random targets per set (two sets: at the pen "
+                               "angle, and +- 0.25 rad around it)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the random targets."),
+    json_out: Path = typer.Option(Path("runs/bench-board-ik.json"), "--out", "--json",
+                                  help="Where to write the results."),
+) -> None:
+    """The ESP32's Cartesian IK (int8 net + FABRIK, firmware/esp32/ik3r.py) under the
+    real MicroPython interpreter and CPython: net size, multiply-adds and time per
+    point, answers against the host's int8 reference and the float net, tip errors."""
+    from rich.console import Console
+
+    console = Console()
+    result = board_ik_report(points, seed,
+                             progress=lambda text: console.print(f"[dim]bench board-ik: {text}[/]"))
+    write_json(result, json_out)
+    print_report(result, console)
+    console.print(f"wrote {json_out}")

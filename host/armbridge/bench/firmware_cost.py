@@ -25,6 +25,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+import typer
+
+from armbridge.bench.command import write_json
 from armbridge.emulator.micropython import bridge_script, find_micropython, find_node
 from armbridge.emulator.mpbridge import fwcost
 from armbridge.emulator.registry import MicroPythonFirmware, board_spec
@@ -153,3 +156,21 @@ def print_result(r: dict[str, Any], console: Any) -> None:
                       f"{b['period_ms']} ms tick: {b['w_us_per_tick']:.0f} us, {b['w_share_of_tick']:.1%} of the "
                       f"tick; with the control tick (RUN + telemetry) {b['with_tick_share']:.1%}")
     console.print(f"live heap under MicroPython after the bench: {mp['heap_live_after_bench']} bytes")
+
+
+def firmware_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 200 repetitions per item."),
+    reps: int = typer.Option(None, "--reps", min=10, help="Repetitions per item (full run: 2000)."),
+    device: str = typer.Option("esp32", "--device", help="A MicroPython board of the emulator."),
+    json_out: Path = typer.Option(Path("runs/bench-firmware.json"), "--json", help="Where to write the results."),
+) -> None:
+    """The firmware's cost per received line (each verb) and per control tick under
+    the real MicroPython interpreter (WebAssembly, by Node) and under CPython."""
+    from rich.console import Console
+
+    console = Console()
+    n = reps if reps is not None else (QUICK_REPS if quick else REPS)
+    result = run(device, n, progress=lambda text: console.print(f"[dim]bench firmware: {text}[/]"))
+    write_json(result, json_out)
+    print_result(result, console)
+    console.print(f"wrote {json_out}")

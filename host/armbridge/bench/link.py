@@ -36,10 +36,13 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+import typer
 
 from armbridge.bench import damage
+from armbridge.bench.command import write_json
 from armbridge.bench.link_table import TARGET_ESTOP_MS, TARGET_WPS
 from armbridge.executor.client import BoardClient
 from armbridge.link import protocol as P
@@ -407,3 +410,42 @@ def print_result(r: dict, console) -> None:
     from armbridge.bench.link_table import print_result as table
 
     table(r, console)
+
+
+def link_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 20,000 damaged lines per version, "
+                               "300 waypoints, 50 pings, 5 e-stops, 15 s soak."),
+    soak_s: float = typer.Option(None, "--soak", min=1.0, help="Soak length in seconds (full run: 600)."),
+    damaged: int = typer.Option(None, "--damaged", min=1, help="Damaged lines per protocol version (full run: 10^7)."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Processes for the damage model."),
+    json_out: Path = typer.Option(None, "--json", help="Where to write the results "
+                                  "[default: runs/bench-link.json, runs/bench-link-BOARD.json for another board]."),
+    board: str = typer.Option("esp32", "--board", help="The emulated board: esp32 (the MicroPython firmware, paced "
+                              "to the wall clock) or arduino_pump (the .elf in simavr in lockstep, on its clock; "
+                              "adds the Modbus round trip, leaves out the damage model)."),
+    load: float = typer.Option(0.0, "--load", min=0.0, help="Busy-loop processes per core beside the run: then "
+                               "throughput, round trip and e-stop only, for the figures at load (bench load)."),
+) -> None:
+    """The line protocol: undetected errors of v1 and v2 under the UART fault mix, and,
+    over a pty paced at 115200 baud, throughput, round trip, e-stop latency and a soak
+    under link faults and board resets."""
+    from dataclasses import replace
+
+    from rich.console import Console
+
+    if board not in BOARDS:
+        raise typer.BadParameter(f"{board!r}: use one of {', '.join(BOARDS)}", param_hint="--board")
+    if json_out is None:
+        tag = ("" if board == "esp32" else f"-{board}") + (f"-load{load:g}" if load else "")
+        json_out = Path(f"runs/bench-link{tag}.json")
+    size = QUICK if quick else FULL
+    if soak_s is not None:
+        size = replace(size, soak_s=soak_s, reset_every_s=min(size.reset_every_s, soak_s / 2))
+    if damaged is not None:
+        size = replace(size, damaged_lines=damaged)
+    console = Console()
+    result = run(size, progress=lambda text: console.print(f"[dim]bench link: {text}[/]"), workers=workers,
+                 board=board, load=load)
+    write_json(result, json_out)
+    print_result(result, console)
+    console.print(f"wrote {json_out}")

@@ -41,6 +41,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
+
+from armbridge.bench.command import write_json
 
 HOG_S = 1.5  # one GIL-holding call: longer than the 1 s watchdog of every board
 HOG_EVERY_S = 4.0
@@ -305,3 +308,63 @@ def print_result(result: dict, console: Any) -> None:
                       str(r["watchdog"]), str(r["timeouts"]), str(r["spurious_timeouts"]), str(r["resyncs"]),
                       f(r["pace_min"], 2), f(r["wall_s_median"], 1))
         console.print(d)
+
+
+def load_cmd(
+    loads: str = typer.Option("0,1,3", "--loads", metavar="L,L,...",
+                              help="Busy-loop processes per core beside the runs, one measurement each."),
+    boards: str = typer.Option("esp32,arduino_pump", "--boards", help="Boards of the session measurement."),
+    where: str = typer.Option("emu,pty", "--where", help="emu: the emulator paced in this process; pty: "
+                              "`armbridge emulate` in another process, on its pseudo-terminal."),
+    engines: str = typer.Option("inline,auto", "--engines", help="Where the session runs: inline (the caller's "
+                                "thread), thread, process, auto (thread for emu, process for pty)."),
+    busy_caller: bool = typer.Option(True, "--busy-caller/--idle-caller",
+                                     help="Keep the caller's thread busy: pure-Python work per telemetry sample "
+                                          "and a 1.5 s call holding the GIL every 4 s."),
+    seconds: float = typer.Option(12.0, "--seconds", min=2.0, help="Length of each session's plan (board time)."),
+    demos: str = typer.Option("", "--demos", metavar="R,R,...",
+                              help="Also run these demos (arm3r, masr, soft) as a user does, --runs times each, "
+                                   "on emu and pty, at the highest load; empty: none."),
+    runs: int = typer.Option(20, "--runs", min=1, help="Runs of each demo."),
+    demo_loads: str = typer.Option(None, "--demo-loads", help="Loads of the demo runs [default: the highest "
+                                                               "of --loads]."),
+    realtime: bool = typer.Option(False, "--realtime", help="Run the pty boards with `armbridge emulate "
+                                  "--realtime` (the board as a chip of its own, not slowed by the load)."),
+    json_out: Path = typer.Option(Path("runs/bench-load.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Runs under load (docs/benchmarks.md, "Runs under load"): keep-alive lateness, timeouts,
+    spurious timeouts and watchdog trips with N busy processes per core and the caller's thread
+    kept busy, the session in the caller's thread or in the link engine; and the demos as a
+    user runs them, on the in-process emulator and on `armbridge emulate`'s pty."""
+    from rich.console import Console
+
+    def floats(text: str, name: str) -> list[float]:
+        try:
+            return [float(x) for x in text.split(",") if x.strip()]
+        except ValueError:
+            raise typer.BadParameter(f"{text!r}: numbers separated by commas", param_hint=name) from None
+
+    def names(text: str, allowed, name: str) -> list[str]:
+        out = [x.strip() for x in text.split(",") if x.strip()]
+        bad = [x for x in out if x not in allowed]
+        if bad:
+            raise typer.BadParameter(f"{', '.join(bad)}: use {', '.join(allowed)}", param_hint=name)
+        return out
+
+    load_list = floats(loads, "--loads")
+    console = Console(width=160)
+    progress = lambda text: console.print(f"[dim]bench load: {text}[/]")  # noqa: E731
+    result: dict = {"cores": os.cpu_count(), "hog_s": HOG_S, "hog_every_s": HOG_EVERY_S,
+                    "spin_per_sample_s": SPIN_PER_SAMPLE_S, "realtime": realtime}
+    result["sessions"] = run_sessions(names(boards, ROBOT_OF, "--boards"), names(where, ("emu", "pty"), "--where"),
+                                      names(engines, ("inline", "thread", "process", "auto"), "--engines"),
+                                      load_list, busy_caller, seconds, progress, realtime)
+    if demos:
+        robots = names(demos, DEMO_BOARD, "--demos")
+        dl = floats(demo_loads, "--demo-loads") if demo_loads else [max(load_list)]
+        rows = run_demos(robots, names(where, ("emu", "pty"), "--where"), dl, runs, progress, realtime)
+        result["demo_runs"] = rows
+        result["demos"] = summarize_demos(rows)
+    write_json(result, json_out)
+    print_result(result, console)
+    console.print(f"wrote {json_out}")

@@ -36,9 +36,13 @@ import platform
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
+
+from armbridge.bench.command import write_json
 
 PAPER_TABLE_II: dict[str, Any] = {"environment": "E1", "planned_s": 46.16, "executed_mean_s": 48.78, "executed_std_s": 1.81}
 FIXED = ("E1", "E2", "E3")
@@ -244,3 +248,60 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
         result["fixed"] = {"runs": fixed, "summary": summarize(fixed)}
     result["wall_s"] = time.perf_counter() - t0
     return result
+
+
+def masr_exec_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 random environments, 300 iterations, "
+                                                      "no E1-E3."),
+    environments: int = typer.Option(None, "--environments", help="Random solvable environments (full run: 50)."),
+    iterations: int = typer.Option(None, "--iterations", help="MASR-RRT* iterations per plan (full run: 1000)."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-exec.json"), "--json", help="Where to write the results."),
+) -> None:
+    """MASR plans executed on the emulated MA (emu:masr_ma): planned tau against executed time, the true final
+    pose errors, localisation errors, and what the ramps and loops add over eq. (8), beside the paper's Table II."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    size = QUICK if quick else FULL
+    if environments is not None:
+        size = replace(size, environments=environments)
+    if iterations is not None:
+        size = replace(size, iterations=iterations)
+    console = Console()
+    result = run(size, progress=lambda text: console.print(f"[dim]bench masr-exec: {text}[/]"))
+    write_json(result, json_out)
+    t = Table(title="MASR plans executed on the emulated MA (true pose from the plant)")
+    for col in ("set", "runs", "tau (s)", "executed (s)", "executed / tau", "within 10 %", "dp mm (mean / max)",
+                "dphi deg (mean / max)", "at goal"):
+        t.add_column(col, justify="left" if col == "set" else "right")
+    paper = PAPER_TABLE_II
+    t.add_row("paper, Table II (E1)", "-", f"{paper['planned_s']:.2f}",
+              f"{paper['executed_mean_s']:.2f} +- {paper['executed_std_s']:.2f}",
+              f"{paper['executed_mean_s'] / paper['planned_s']:.3f}", "-", "-", "-", "-")
+    for key, label in (("random", f"{size.environments} random"), ("fixed", "E1-E3")):
+        s = result.get(key, {}).get("summary")
+        if not s or not s.get("completed"):
+            continue
+        t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['tau_s']['mean']:.2f} +- {s['tau_s']['std']:.2f}",
+                  f"{s['executed_s']['mean']:.2f} +- {s['executed_s']['std']:.2f}",
+                  f"{s['time_ratio']['mean']:.3f} (max {s['time_ratio']['max']:.3f})", f"{s['within_10_percent']:.0%}",
+                  f"{s['dp_mm']['mean']:.2f} / {s['dp_mm']['max']:.2f}",
+                  f"{s['dphi_deg']['mean']:.2f} / {s['dphi_deg']['max']:.2f}", f"{s['at_goal']:.0%}")
+    console.print(t)
+    s = result["random"]["summary"]
+    if s.get("completed"):
+        o = Table(title="what the ramps and loops add over eq. (8), per action (random environments)")
+        for col in ("action", "count", "measured (s)", "trapezoid ramp alone (s)", "share of tau"):
+            o.add_column(col, justify="left" if col == "action" else "right")
+        for kd, v in s["overhead"].items():
+            if v["actions"]:
+                o.add_row(kd, str(v["actions"]), f"{v['per_action_s']:.3f}", f"{v['ramp_per_action_s']:.3f}",
+                          f"{v['share_of_tau']:.1%}")
+        console.print(o)
+        console.print(f"localisation |estimate - true d|: mean {s['loc_mean_mm']:.2f} mm, max {s['loc_max_mm']:.2f} "
+                      f"mm ({s['loc_max_over_bound']:.0%} of the board's bound at worst); right after a magnet: mean "
+                      f"{s['after_magnet_mean_mm']:.2f} mm, max {s['after_magnet_max_mm']:.2f} mm; every action once: "
+                      f"{'yes' if s['log_exactly_once'] else 'NO'}")
+    console.print(f"wrote {json_out}")

@@ -34,8 +34,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 
 from armbridge import resources
+from armbridge.bench.command import write_json
 
 MODELS = resources.models_dir()
 CARD_12 = MODELS / "masr5-iknn-card.json"
@@ -165,3 +167,64 @@ def run(size: MasrIKBenchSize, card12: Path = CARD_12, card11: Path | None = CAR
         "nr_trials": n_nr, "rows": rows, "targets": targets,
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
     }
+
+
+def masr_ik_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 40 trials, NR on 4 of them with m = 50."),
+    trials: int = typer.Option(None, "--trials", help="Table I trials (full run: 5000)."),
+    nr_trials: int = typer.Option(None, "--nr-trials", help="How many of the trials the NR baseline solves (full: all)."),
+    nr_restarts: int = typer.Option(None, "--nr-restarts", help="NR restarts m (full run: 1000)."),
+    card12: Path = typer.Option(None, "--card", help="IK-NN (12) model card [default: models/onnx/masr5-iknn-card.json]."),
+    card11: Path = typer.Option(None, "--card11", help="IK-NN (11) model card [default: models/onnx/masr5-iknn-reg11-card.json]."),
+    seed: int = typer.Option(2024, "--seed", help="Seed of the random trials."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-ik.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Table I of the masr paper (section V-B): IK-NN (11), IK-NN (12), + refinement, + fallback,
+    int8, and the numeric NR baseline; accuracy, action time and time per query. Success is the
+    goal check over the robot's joint margin d_margin (every answer holds it)."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    size = QUICK if quick else FULL
+    for name, v in (("trials", trials), ("nr_trials", nr_trials), ("nr_restarts", nr_restarts)):
+        if v is not None:
+            size = replace(size, **{name: v})
+    console = Console()
+    result = run(size, card12=card12 or CARD_12, card11=card11 or CARD_11,
+                 seed=seed, progress=lambda text: console.print(f"[dim]bench masr-ik: {text}[/]"))
+    write_json(result, json_out)
+
+    table = Table(title=f"armbridge bench masr-ik (Table I protocol, {size.trials} trials, "
+                        f"e_p 8 mm, e_phi 4 deg; NR on {result['nr_trials']})")
+    for col in ("row", "mean dp (mm)", "mean dphi (deg)", "success (%)", "mean action time (s)",
+                "single query (ms, median)", "batched (queries/s)"):
+        table.add_column(col, justify="left" if col == "row" else "right")
+    for r in result["rows"]:
+        if "missing" in r:
+            table.add_row(r["row"], r["missing"], "", "", "", "", "")
+            continue
+        table.add_row(f"{r['row']}" + (f" [{r['model']}]" if r["row"].startswith("NR") else ""),
+                      f"{r['mean_dp_mm']:.2f}", f"{r['mean_dphi_deg']:.2f}", f"{r['success_rate']:.1f}",
+                      f"{r['mean_action_time_s']:.2f}", f"{r['single']['median_ms']:.3f}",
+                      f"{r['batched_queries_per_s']:,.0f}")
+    console.print(table)
+    if result["nr_trials"]:
+        sub = Table(title=f"on the NR trials ({result['nr_trials']}): same queries for every row")
+        for col in ("row", "mean dp (mm)", "success (%)", "mean action time (s)"):
+            sub.add_column(col, justify="left" if col == "row" else "right")
+        for r in result["rows"]:
+            s = r if r["row"].startswith("NR") else r.get("on_nr_subset")
+            if s:
+                sub.add_row(r["row"], f"{s['mean_dp_mm']:.2f}", f"{s['success_rate']:.1f}",
+                            f"{s['mean_action_time_s']:.2f}")
+        console.print(sub)
+    fb = next((r["fallback"] for r in result["rows"] if "fallback" in r), None)
+    if fb:
+        console.print(f"fallback: {fb['queries']} queries ({fb['share_pct']:.2f} %), {fb['solved']} solved, "
+                      f"+{fb['added_ms_per_fallback_query']:.2f} ms per fallback query "
+                      f"(+{fb['added_ms_per_query_batched'] * 1e3:.1f} us per query batched); "
+                      f"goal check over d_margin = {result['d_margin_m'] * 1e3:g} mm")
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")

@@ -27,11 +27,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
+import typer
 
+from armbridge.bench.command import write_json
 from armbridge.bench.masr_ik import CARD_12
+from armbridge.shards import cli as shard_options
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
@@ -238,3 +241,95 @@ def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
     if "fig7" in result:
         written.append(finish(fig7_figure(result["fig7"], LEVELS), png_dir / "masr-fig7.png"))
     return written
+
+
+def masr_plan_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 environments, 4 trials, 200 iterations."),
+    environments: int = typer.Option(None, "--environments", help="Fig. 5 random environments (full run: 300)."),
+    fig5_iterations: int = typer.Option(None, "--fig5-iterations", help="Fig. 5 iterations per run (full: 3000)."),
+    trials: int = typer.Option(None, "--trials", help="Fig. 7 trials per environment and planner (full: 200)."),
+    fig7_iterations: int = typer.Option(None, "--fig7-iterations", help="Fig. 7 iterations per trial (full: 12000)."),
+    timing_runs: int = typer.Option(None, "--timing-runs", help="Runs of 1,000 iterations per planner and environment."),
+    ompl_runs: int = typer.Option(None, "--ompl-runs", help="OMPL RRT* runs per environment (0: skip)."),
+    parts: str = typer.Option("timing,ompl,fig7,fig5", "--parts", help="Which parts to run (comma-separated)."),
+    card: Path = typer.Option(None, "--card", help="Goal IK model card [default: models/onnx/masr5-iknn-card.json]."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results."),
+    png_dir: Path = typer.Option(None, "--png-dir", help="Also write Fig. 5 / Fig. 7 plots (PNG) here."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
+) -> None:
+    """Section V-C of the masr paper: Fig. 5 (random environments, p_c in {0, 0.2, 0.6, 1}),
+    Fig. 7 (E1-E3 cost percentiles), time per 1,000 iterations, and OMPL's RRT* beside ours.
+
+    Fig. 5 (one shard per environment) and Fig. 7 (one per environment, planner and 10
+    trials) run as shards (--ray, --workers; docs/cluster.md) with the serial run's costs;
+    the timing and OMPL parts run here."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    size = QUICK if quick else FULL
+    for name, v in (("environments", environments), ("fig5_iterations", fig5_iterations), ("trials", trials),
+                    ("fig7_iterations", fig7_iterations), ("timing_runs", timing_runs), ("ompl_runs", ompl_runs)):
+        if v is not None:
+            size = replace(size, **{name: v})
+    console = Console()
+    chosen = tuple(p.strip() for p in parts.split(",") if p.strip())
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = run(size, card=card or CARD_12, parts=chosen,
+                     progress=lambda text: console.print(f"[dim]bench masr-plan: {text}[/]"), runner=runner)
+    write_json(result, json_out)
+
+    def fmt(v: object, spec: str = ".2f") -> str:
+        return "-" if v is None else format(v, spec)
+
+    if "timing" in result:
+        t = Table(title="seconds per 1,000 iterations (median) and cost at 1,000 iterations")
+        for col in ("env", "planner", "s / 1000 it (median)", "success", "mean cost (s)"):
+            t.add_column(col, justify="left" if col in ("env", "planner") else "right")
+        om = result.get("ompl", {})
+        for env, row in result["timing"].items():
+            for pl, r in row.items():
+                t.add_row(env, pl, f"{r['median_s_per_1000']:.3f}", f"{r['success_rate']:.0%}", fmt(r["mean_cost_s"]))
+            if env in om:
+                o = om[env]
+                t.add_row(env, "OMPL RRTstar (eq. 8)", f"{o['median_s_per_1000']:.3f}", f"{o['success_rate']:.0%}",
+                          fmt(o["mean_cost_s"]))
+        console.print(t)
+    if "fig5" in result:
+        f5 = result["fig5"]
+        t = Table(title=f"Fig. 5: {f5['environments']} random environments: success rate / mean cost (s) "
+                        "over the commonly solved")
+        t.add_column("iterations", justify="right")
+        for pl in f5["curves"]:
+            t.add_column(pl, justify="right")
+        for row in f5["rows"]:
+            t.add_row(str(row["iterations"]), *[f"{row[pl]['success_rate']:.0%} / {fmt(row[pl]['mean_cost_common_s'])}"
+                                                for pl in f5["curves"]])
+        console.print(t)
+    if "fig7" in result:
+        f7 = result["fig7"]
+        t = Table(title=f"Fig. 7: E1-E3, {f7['trials']} trials each: share below the 15th / 25th percentile "
+                        "of the normalised cost range")
+        t.add_column("env")
+        t.add_column("iterations", justify="right")
+        pls = None
+        for env, e in f7["environments"].items():
+            if pls is None:
+                pls = list(e["curves"])
+                for pl in pls:
+                    t.add_column(pl, justify="right")
+            for row in e["rows"]:
+                t.add_row(env, str(row["iterations"]),
+                          *[f"{row[pl]['below_p15']:.0%} / {row[pl]['below_p25']:.0%}" for pl in pls])
+        console.print(t)
+    tgt = result["target_masr_not_worse"]
+    console.print(f"MASR-RRT* (p_c 0.6) at least as good as RRT* at every iteration count: "
+                  f"{'met' if tgt['met'] else 'MISSED: ' + ', '.join(tgt['violations'][:10])}")
+    if png_dir is not None:
+        for p in plots(result, png_dir):
+            console.print(f"wrote {p}")
+    console.print(f"wrote {json_out}")

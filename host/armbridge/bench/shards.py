@@ -23,9 +23,13 @@ import os
 import platform
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
+
+from armbridge.bench.command import write_json
 
 PAPER_7R_SMMS = 80 * 160 * 12_000
 PROJECT_WORKERS = (1, 2, 16, 64, 256, 1024)
@@ -83,3 +87,38 @@ def run(locations: int = 1024, shard: int = 256, workers: Sequence[int] = (1, 2)
             "rows": rows, "seconds_per_location_1_worker": per_location,
             "projection_paper_7r_grid": {"smms": PAPER_7R_SMMS, "efficiency_assumed": eff, "days_on_n_workers": projection}
             if projection else None}
+
+
+def shards_cmd(
+    locations: int = typer.Option(1024, "--locations", min=1, help="Locations of the fixed SMM data job."),
+    robot: str = typer.Option("spatial7r", "--robot", help="SMM arm of the job (the projection is the 7R's only)."),
+    shard: int = typer.Option(256, "--shard", min=1, help="Locations per shard."),
+    workers: str = typer.Option("1,2", "--workers", help="Worker counts to time, comma-separated (1: serial here; "
+                                                         "N > 1: a local Ray of N CPUs)."),
+    json_out: Path = typer.Option(Path("runs/bench-shards.json"), "--json", help="Where to write the results."),
+) -> None:
+    """Scaling of a fixed SMM data job (7R nullspace SMMs in shards) with the worker count: wall
+    time, speed-up, efficiency; and the projected time of the paper's 7R grid on N workers."""
+    from rich.console import Console
+
+    from armbridge.errors import ArmbridgeError
+
+    try:
+        counts = tuple(int(w) for w in workers.split(",") if w.strip())
+    except ValueError:
+        raise ArmbridgeError(f"--workers must be counts like 1,2, got {workers!r}") from None
+    if not counts or min(counts) < 1:
+        raise ArmbridgeError(f"--workers must be counts >= 1 like 1,2, got {workers!r}")
+    console = Console()
+    result = run(locations, shard, counts, robot,
+                 progress=lambda text: console.print(f"[dim]bench shards: {text}[/]"))
+    write_json(result, json_out)
+    for r in result["rows"]:
+        eff = "-" if r["efficiency"] is None else f"{r['efficiency']:.2f}"
+        console.print(f"{r['workers']} worker(s): {r['wall_s']:.1f} s wall, shards' nullspace {r['shard_seconds_sum']:.1f} s, "
+                      f"efficiency {eff}, identical {r['identical_to_first']}")
+    projection = result["projection_paper_7r_grid"]
+    if projection:
+        days = projection["days_on_n_workers"]
+        console.print("paper's 7R grid (1.536e8 SMMs): " + ", ".join(f"{n} workers {d:.3g} days" for n, d in days.items()))
+    console.print(f"wrote {json_out}")

@@ -33,11 +33,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
+import typer
 
 from armbridge import resources
+from armbridge.bench.command import write_json
+from armbridge.shards import cli as shard_options
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
@@ -332,3 +335,86 @@ def fig3_png(result: dict[str, Any], path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def smm_cmd(
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 40 locations, 2 for realtime-smm, 20 trials."),
+    locations: int = typer.Option(None, "--locations", help="Table III locations for the 3R and 4R (full run: 10000)."),
+    robots: str = typer.Option("planar3r,spatial4r,spatial7r", "--robots", help="Comma-separated SMM arms."),
+    json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
+    png: Path = typer.Option(None, "--png", help="Also plot Fig. 3 (error against K) to this PNG."),
+    models: Path = typer.Option(None, "--models", help="Folder holding the learned models, smm-ROBOT each (default: models/onnx; the 7R's is not shipped, see docs/smm.md)."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
+) -> None:
+    """Table III of the SMM paper (time per location, FK error before/after
+    correction, branch-count mismatch; ours, learned, realtime-smm), Fig. 3, and
+    the Figs. 15-16 locked-joint simulation.
+
+    The nullspace ground truth of Table III runs in shards of 1,024 locations
+    (--ray, --workers; docs/cluster.md); its time per location is the sum of the
+    shards' seconds. Every other timing runs here."""
+    from dataclasses import replace
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from armbridge.smm.arms import get_smm_arm
+
+    size = QUICK if quick else FULL
+    if locations is not None:
+        size = replace(size, locations=locations)
+    names = tuple(r.strip() for r in robots.split(",") if r.strip())
+    for name in names:
+        get_smm_arm(name)  # a clear error before any work
+    console = Console()
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = run(size, names, progress=lambda text: console.print(f"[dim]bench smm: {text}[/]"),
+                     models=models or MODELS, runner=runner)
+    write_json(result, json_out)
+
+    def num(v: float | None, fmt: str) -> str:
+        return "-" if v is None else format(v, fmt)
+
+    for t in result["table3"]:
+        table = Table(title=f"Table III protocol, {t['robot']}: {t['locations']} random locations {t['where']} "
+                            f"(paper: {t['paper']['fk_before_pct']} % / {t['paper']['fk_after_pct']} %, "
+                            f"mismatch {t['paper']['mismatch_pct']} %)")
+        for col in ("method", "ms/location batched", "ms single", "FK error % mean +- std", "branch mismatch %",
+                    "mismatched / locations by true count"):
+            table.add_column(col, justify="left" if col in ("method", "mismatched / locations by true count")
+                             else "right")
+        for r in t["rows"]:
+            if "missing" in r:
+                table.add_row(r["method"], r["missing"], "", "", "", "")
+                continue
+            fk = r["fk_error_pct"]
+            by = r.get("mismatch_by_true_count") or {}
+            table.add_row(f"{r['method']} ({r['locations']})", num(r["batched_ms_per_location"], ".3f"),
+                          num(r["single_ms"], ".2f"), f"{fk['mean']:.3g} +- {fk['std']:.2g}" if fk else "-",
+                          num(r.get("branch_count_mismatch_pct"), ".2f"),
+                          ", ".join(f"{b}: {v['mismatched']}/{v['locations']}" for b, v in by.items()))
+        console.print(table)
+    f3 = result["fig3"]
+    table = Table(title="Fig. 3: mean |joint error| (rad) after keeping K Fourier components")
+    table.add_column("robot")
+    for k in f3["K"]:
+        table.add_column(f"K={k}", justify="right")
+    for name, errs in f3["mean_abs_error_rad"].items():
+        table.add_row(name, *(f"{e:.2e}" for e in errs))
+    console.print(table)
+    if "simulation" in result:
+        sim = result["simulation"]
+        table = Table(title=f"Figs. 15-16 simulation ({sim['robot']}, {sim['trials']} trials, a joint locks at random)")
+        for col in ("SMMs from", "latency (s)", "success %"):
+            table.add_column(col, justify="left" if col == "SMMs from" else "right")
+        for name, o in sim.items():
+            if isinstance(o, dict):
+                table.add_row(name, f"{o['latency_s']:.4f}", f"{100 * o['success'] / o['trials']:.1f}")
+        console.print(table)
+    console.print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()))
+    console.print(f"wrote {json_out}")
+    if png is not None:
+        console.print(f"wrote {fig3_png(result, png)}")

@@ -16,17 +16,25 @@ of another leaves its neighbour's edges showing) and each curve's markers
 sit at budgets shifted a little per planner. Log axes carry plain 1-2-5
 tick labels in seconds (0.01, 0.02, 0.05, ...), the legend sits below the
 panels, never on the data.
+
+`wjrrt_cmd` is the `armbridge bench wjrrt` command: it lives here, above
+bench/wjrrt.py, because it runs the bench and then draws these figures
+(`--png`); wjrrt.py cannot import this module back (no circles).
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
+import typer
 
-from armbridge.bench.wjrrt import LABELS, OURS, PLANNERS, TARGET_MEDIAN_S, time_to_success
+from armbridge.bench.command import write_json
+from armbridge.bench.wjrrt import (FULL, LABELS, OURS, PLANNERS, QUICK, TARGET_MEDIAN_S, print_result, run,
+                                    time_to_success)
 from armbridge.planning.figure import OKABE_ITO, pyplot
+from armbridge.shards import cli as shard_options
 
 STYLE: dict[str, dict[str, Any]] = {
     "wjrrt": {"color": OKABE_ITO["blue"], "marker": "o", "lw": 2.8},
@@ -194,3 +202,52 @@ def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
         plt.close(fig)
         out.append(p)
     return out
+
+
+def wjrrt_cmd(
+    seeds: int = typer.Option(None, "--seeds", min=1, help="Seeds per scene and planner (full run: 100)."),
+    scenes: str = typer.Option("two-arm,three-arm,seven-tube,horn", "--scenes",
+                               help="Comma-separated fixed scenes (planning/soft/scenes)."),
+    planners: str = typer.Option("wjrrt,jt-rrt,birrt,RRTConnect,KPIECE1,STRIDE", "--planners",
+                                 help="Comma-separated: ours (wjrrt, jt-rrt, birrt) and OMPL's (RRTConnect, "
+                                      "KPIECE1, STRIDE)."),
+    time_limit: float = typer.Option(None, "--time-limit", min=0.001,
+                                     help="Wall-clock budget T per run, every planner (s; full run: 2)."),
+    iterations: int = typer.Option(None, "--iterations", min=1,
+                                   help="Our planners' iteration budget [default: each scene's, Table 1's Iter.]."),
+    quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 2 seeds, T = 0.5 s."),
+    json_out: Path = typer.Option(Path("runs/bench-wjrrt.json"), "--json", help="Where to write the results."),
+    png: Path = typer.Option(None, "--png", help="Also write the figures (wjrrt-success.png, wjrrt-time.png) "
+                                                 "into this folder."),
+    ray: Optional[str] = shard_options.ray_option(),
+    workers: int = shard_options.workers_option(),
+    checkpoint: Optional[Path] = shard_options.checkpoint_option("none: shards are not kept"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
+) -> None:
+    """Table 1 of the WJRRT paper (success, iterations, time, nodes, track / goal / random nodes,
+    obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT and OMPL's RRTConnect, KPIECE1, STRIDE on the
+    same scenes and checker, every run with the same time budget; success against the budget.
+
+    One shard per scene and seed, every planner on it in turn (--ray, --workers; docs/cluster.md):
+    our planners' runs are the serial run's but their times, where no run ran out of the budget;
+    OMPL's are time-bound and not reproducible; times are measured where each shard ran."""
+    from dataclasses import replace
+
+    from rich.console import Console
+
+    size = QUICK if quick else FULL
+    if seeds is not None:
+        size = replace(size, seeds=seeds)
+    if time_limit is not None:
+        size = replace(size, time_limit=time_limit)
+    console = Console()
+    with shard_options.runner(ray, workers, checkpoint, progress) as runner:
+        result = run(size, tuple(s.strip() for s in scenes.split(",") if s.strip()),
+                     tuple(p.strip() for p in planners.split(",") if p.strip()), iterations=iterations,
+                     progress=lambda text: console.print(f"[dim]bench wjrrt: {text}[/]"), runner=runner)
+    write_json(result, json_out)
+    print_result(result, console)
+    if png is not None:
+        for p in plots(result, png):
+            console.print(f"wrote {p}")
+    console.print(f"wrote {json_out}")
