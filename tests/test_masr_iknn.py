@@ -34,13 +34,11 @@ from armbridge.ik.masr_ik import (  # noqa: E402
 from armbridge.ik.masr_nn import (  # noqa: E402
     MasrIKLoss,
     MasrIKNet,
-    TrainConfig,
     masr_fk_torch,
-    random_configs,
     se2_log,
-    train,
     twist_norm,
 )
+from armbridge.ik.masr_nn_train import TrainConfig, random_configs, train  # noqa: E402
 from armbridge.robots import get_masr  # noqa: E402
 from armbridge.robots.planar import wrap_angle  # noqa: E402
 

@@ -29,7 +29,7 @@ from armbridge.ik import export as ex
 from armbridge.ik.arm3r_ann import CARD_NAME, Arm3rANN, fk_samples, flat_int8_predictor, scaler_bounds
 from armbridge.ik.arm3r_pipeline import drawing_samples, measure
 from armbridge.ik.region import pen_angle, safe_region
-from armbridge.ik.masr_nn import restore_torch, set_determinism
+from armbridge.ik.masr_nn_train import restore_torch, set_determinism
 from armbridge.robots import get_robot
 
 CARD_VERSION = 1

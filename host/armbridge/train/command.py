@@ -95,7 +95,7 @@ def masr_iknn_cmd(
     merged here in batch order; the network trains here."""
     _require_train_extra()
     from armbridge.ik.masr_data import GridSpec
-    from armbridge.ik.masr_nn import TrainConfig
+    from armbridge.ik.masr_nn_train import TrainConfig
     from armbridge.train.masr_iknn import PipelineConfig, parse_hidden, run
 
     if reg not in ("action", "joint"):

@@ -39,7 +39,7 @@ class PipelineConfig:
     int8_epochs: int = 2
     int8_lr: float = 3e-4
     command: str = ""
-    train: Any = None  # masr_nn.TrainConfig
+    train: Any = None  # masr_nn_train.TrainConfig
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -90,7 +90,7 @@ def run(cfg: PipelineConfig, resume: bool = False, progress: bool = True,
 
     from armbridge.ik import export as ex
     from armbridge.ik.masr_ik import MasrIK, refine
-    from armbridge.ik.masr_nn import finetune_int8, train
+    from armbridge.ik.masr_nn_train import finetune_int8, train
     from armbridge.robots import get_masr
 
     arm = get_masr(cfg.robot)
