@@ -13,7 +13,8 @@ from armbridge.executor.client import BoardClient
 from armbridge.executor.signals import Stopped, stop_on_signals
 from armbridge.executor.stream import Stream
 from armbridge.link import protocol as P
-from armbridge.link.arq import MIN_WINDOW, Arq, Cmd
+from armbridge.link.arq import Arq, Cmd
+from armbridge.link.recovery import MIN_WINDOW
 from armbridge.link.rto import RTO_MAX_S, RetransmitTimer
 from armbridge.robots import ARM3R
 from session_peer import FakeClock, Peer

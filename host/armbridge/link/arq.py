@@ -10,27 +10,12 @@ runs on `clock` (seconds): for an emulator running K times faster than the wall
 clock, a clock that does too; the port's read timeout (READ_WAIT_S, wall)
 only bounds a wait.
 
-Reliability:
+Rules:
 
-* Every command carries a seq = its command number mod 65536; an answer (OK
-  or ER) ends its life. Unanswered commands stay in a list in seq order and
-  are sent again when
-  (a) their retransmission timer runs out (link/rto.py: Jacobson/Karels,
-      Karn, back-off while the board is silent): first that line alone, the
-      later ones held until its new deadline (F-RTO, RFC 5682): an answer to a
-      line sent once shows the board was only late, and nothing more is sent
-      again; a second timeout is a real loss: go-back-N from it;
-  (b) the board answers `ER SEQ E`: go-back-N from E, unless a retransmission
-      of E is already on its way (answers to lines sent before it are stale);
-  (c) the board reports a framing error (CRC/PARSE/LONG with seq `-`): the
-      timers of the lines that have reached the board are cut to the time an
-      answer needs (fast retransmit);
-  (d) a later command is answered while an earlier one is not: its answer was
-      lost; it is sent again and the board replays the answer from its ring
-      without executing it a second time.
-* Window: at most `cwnd` commands unanswered, `cwnd` <= MAX_WINDOW (below the
-  board's 32-entry replay ring). A lost line halves it (not below MIN_WINDOW),
-  a timeout found real sets it to MIN_WINDOW, each answer grows it by 1/cwnd.
+* Reliability: every command carries a seq = its command number mod 65536;
+  an answer (OK or ER) ends its life. Unanswered commands stay in a list in
+  seq order (`out`); which of them are sent again, and how many may be
+  unanswered at once (the window, `cwnd`), is link/recovery.py's.
 * Credits: at most FREE waypoints (W lines) unacknowledged, FREE from the OK
   with the newest seq; a T or EV DONE line refreshes it (`idle_credit`) only
   when nothing is unanswered.
@@ -69,18 +54,11 @@ from contextlib import AbstractContextManager, nullcontext
 
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
+from armbridge.link.recovery import Recovery
 from armbridge.link.rto import RetransmitTimer
 from armbridge.link.stats import LinkStats
 
 READ_WAIT_S = 0.005  # the port's read timeout (wall clock): the longest one wait for a byte
-MAX_WINDOW = 24  # unanswered commands at most: the board's replay ring holds 32
-# Smallest window after losses. Losses on a serial line are noise, not
-# congestion: a few lines in flight keep loss detection fast (the next line's
-# ER SEQ or answer reveals a lost line or a lost answer) while a go-back resends
-# little. Measured on the emulator at 1% drop+corrupt+dup per byte: windows of
-# 1/2/4/8 ran a 200-waypoint plan in 10.2/7.5/4.7/5.1 s.
-MIN_WINDOW = 4
-NOISY_S = 2.0  # a timeout this soon after a damaged line is taken as a real loss (no F-RTO probe)
 RENEWAL = "a new epoch before seqs repeat"  # need_resync reason of a full epoch: routine, not a fault
 _V1_FRAME = re.compile(rb"[\x20-\x7e]*\*[0-9A-F]{4}\r?\n?")  # a protocol 1 line (CRC-16)
 
@@ -147,7 +125,7 @@ class Arq:
         self.live = False  # a session is open: keep-alive and silence detection run
         self.need_resync: str | None = None  # why the session must be resynchronised
         self.epoch = 0  # the epoch every non-HELLO line is framed with
-        self.out: list[Cmd] = []  # unanswered commands, in seq order
+        self.out: list[Cmd] = []  # unanswered commands, in seq order (the same list as recovery.out: never rebound)
         self.refused: list[tuple[Cmd, P.Er]] = []  # ER answers of commands nobody waits for
         self.joints: int | None = None  # the board's n, once HELLO said it (T lines' joint columns)
 
@@ -159,10 +137,6 @@ class Arq:
         self._epoch_n = 1  # command number of the HELLO that opened the epoch
         self._tx_order = 0
         self._lane_free = 0.0  # when the bytes written so far have reached the board (estimate)
-        self.cwnd = float(MAX_WINDOW)
-        self._last_cut = -math.inf
-        self._probing = False  # a timeout's line was sent alone; the rest wait (F-RTO)
-        self._last_damage = -math.inf  # latest sign of a noisy link (a damaged line either way, ER SEQ)
         self._last_send = -math.inf
         self.last_rx = self.now()  # latest valid board line
         self.last_answer = self.last_rx  # latest answer naming one of our seqs (OK, or ER with a seq)
@@ -175,6 +149,12 @@ class Arq:
         self._pending: deque = deque()  # split lines not yet dispatched (after a HELLO answer, an exception)
         self._sent_wp: set[int] = set()  # waypoint keys sent / answered OK at least once
         self._acked_wp: set[int] = set()
+        self.recovery = Recovery(self.out, self._transmit, self.now, self.stats, self.answer_time)
+
+    @property
+    def cwnd(self) -> float:
+        """The window: how many commands may be unanswered (link/recovery.py)."""
+        return self.recovery.cwnd
 
     # ------------------------------------------------------------------ byte I/O
     def write(self, data: bytes) -> None:
@@ -218,7 +198,7 @@ class Arq:
         """A HELLO attempt (framed with epoch 0); everything unanswered is dropped:
         after the HELLO the board's reply says where things stand."""
         self.out.clear()
-        self._probing = False
+        self.recovery.settled()
         self._w_sent_n = []
         cmd = Cmd(self._n, "HELLO", (proto, session, epoch), 0, keep=True)
         self._n += 1
@@ -236,7 +216,7 @@ class Arq:
         self.epoch = int(hello.args[2])
         self._epoch_n = hello.n
         self.out.clear()
-        self._probing = False
+        self.recovery.settled()
         self._answers.clear()
         self._credit_n = hello.n
         self._credit = ok.free
@@ -248,7 +228,7 @@ class Arq:
     def abandon(self) -> None:
         """Forget every unanswered command (a HELLO that failed)."""
         self.out.clear()
-        self._probing = False
+        self.recovery.settled()
 
     # ------------------------------------------------------------------ sending
     def issue(self, verb: str, *args, wp: int | None = None, keep: bool = False) -> Cmd:
@@ -261,31 +241,12 @@ class Arq:
         self.out.append(cmd)
         if wp is not None:
             self._w_sent_n.append(cmd.n)
-        self._send_due()
+        self.recovery.send_due()
         return cmd
 
     def answer_of(self, cmd: Cmd) -> P.Ok | P.Er | None:
         """The answer of a `keep` command, once (None while unanswered)."""
         return self._answers.pop(cmd.n, None)
-
-    def _send_due(self) -> None:
-        """Transmit due commands, oldest first, while the window has room."""
-        window = max(1, int(self.cwnd))
-        inflight = sum(1 for c in self.out if not c.due)
-        for cmd in self.out:
-            if inflight >= window:
-                return
-            if cmd.due:
-                self._transmit(cmd)
-                inflight += 1
-
-    def _loss(self) -> None:
-        """A line was lost on the way to the board: halve the window (once per round trip)."""
-        now = self.now()
-        if now - self._last_cut > self.answer_time:
-            self._last_cut = now
-            self.cwnd = max(float(MIN_WINDOW), self.cwnd / 2)
-            self.stats.window_cuts += 1
 
     def _transmit(self, cmd: Cmd) -> None:
         now = self.now()
@@ -310,45 +271,6 @@ class Arq:
             st.longest_quiet_s = now - self._last_send
         self._last_send = now
         self.write(cmd.data)
-
-    def _retransmit_from(self, first: Cmd, *, timed_out: bool = False) -> None:
-        """Go-back-N: send `first` and every later unanswered command again, in
-        order, as the window allows. After a timeout (a real loss, see
-        `_timed_out`) the window restarts at MIN_WINDOW, TCP's rule after an
-        RTO, floored as `_loss` is."""
-        self._probing = False
-        go = False
-        for cmd in self.out:
-            go = go or cmd is first
-            if go:
-                cmd.due = True
-        if timed_out:
-            self._last_cut = self.now()
-            self.cwnd = float(MIN_WINDOW)
-            self.stats.window_cuts += 1
-        else:
-            self._loss()
-        self._send_due()
-
-    def _timed_out(self, cmd: Cmd) -> None:
-        """`cmd`'s retransmission timer ran out. The first time (F-RTO, RFC
-        5682) only `cmd` goes again and the later lines wait until its new
-        deadline: when the host or the board's process was descheduled past
-        the RTO, the answers to the first copies arrive meanwhile, an answer
-        to a line sent once ends the probe (`_on_answer`) and nothing more is
-        resent (go-back-N at once resent 14-19 W lines per such timeout on a
-        clean link, 2 cores shared). Another timeout while probing is a real
-        loss: go-back-N from `cmd`, as is any timeout within NOISY_S of a
-        damaged line: on a noisy link a timeout is mostly a real loss, and
-        probing first cost the soak's fault mix 30 % of its waypoints/s."""
-        if self._probing or self.now() - self._last_damage < NOISY_S:
-            self._retransmit_from(cmd, timed_out=True)
-            return
-        self._probing = True
-        self._transmit(cmd)
-        for other in self.out:
-            if other.n > cmd.n and not other.due:
-                other.deadline = max(other.deadline, cmd.deadline)
 
     def _find(self, seq: int) -> Cmd | None:
         for cmd in self.out:
@@ -392,7 +314,7 @@ class Arq:
             first, self._first_piece = self._first_piece, False
             if isinstance(item, P.ProtocolError):
                 st.host_line_errors += 1
-                self._last_damage = self.now()
+                self.recovery.damaged()
                 self.note(f"board line dropped: {item}")
                 continue
             if item in (b"\n", b"\r\n"):
@@ -411,7 +333,7 @@ class Arq:
                     self.note(f"the first bytes from the port were not a whole line (opened mid-line): {exc}")
                     continue
                 st.host_line_errors += 1
-                self._last_damage = self.now()
+                self.recovery.damaged()
                 self.note(f"board line dropped: {exc}")
                 continue
             self.last_rx = self.now()
@@ -446,9 +368,7 @@ class Arq:
         if cmd is None:
             return None  # a late duplicate of an answer we already have
         self._rtt_sample(cmd)
-        if cmd.tx == 1 and self._probing:
-            self._probing = False  # the board executes the lines as sent: the timeout was spurious
-            self.stats.spurious_timeouts += 1
+        self.recovery.answered(cmd)
         self._settle(cmd, ok)
         if cmd.n > self._credit_n:
             self._credit_n = cmd.n
@@ -457,51 +377,32 @@ class Arq:
         if cmd.wp is not None and cmd.wp not in self._acked_wp:
             self._acked_wp.add(cmd.wp)
             self.stats.waypoints_acked += 1
-        if cmd.tx == 1 or cmd.wp is None:
-            self.cwnd = min(float(MAX_WINDOW), self.cwnd + 1.0 / self.cwnd)
-        self._lost_answers_before(cmd)
+        self.recovery.grow(cmd)
+        self.recovery.lost_answers_before(cmd)
         return cmd.verb
 
     def _settle(self, cmd: Cmd, answer) -> None:
         self.timer.answered()
         cmd.answer = answer
         self.out.remove(cmd)
-        if not self.out:
-            self._probing = False
+        self.recovery.settled()
         if cmd.keep:
             self._answers[cmd.n] = answer
         elif isinstance(answer, P.Er):
             self.refused.append((cmd, answer))
 
-    def _lost_answers_before(self, cmd: Cmd) -> None:
-        """Commands before `cmd` that were sent before it and are still unanswered
-        were executed (the board answers in order): their answers were lost. Ask
-        again; the board replays them."""
-        again = False
-        for other in self.out:
-            if other.n >= cmd.n:
-                break
-            if other.order < cmd.order and not other.due:
-                other.due = True
-                again = True
-        if again:
-            self._send_due()
-
     def _on_er(self, er: P.Er) -> None:
         if er.seq is None:  # framing error of one of our lines: its seq is unknown
             self.stats.board_framing_errors += 1
-            self._last_damage = self.now()
+            self.recovery.damaged()
             self.note(f"board: our line arrived damaged ({er.code} {er.name})")
-            now = self.now()
-            for c in self.out:
-                if c.arrive_at <= now:
-                    c.deadline = min(c.deadline, now + self.answer_time)
+            self.recovery.framing_error()
             return
         self.last_answer = self.now()
         cmd = self._find(er.seq)
         if er.code == P.SEQ:
             self.stats.seq_errors += 1
-            self._last_damage = self.now()
+            self.recovery.damaged()
             if cmd is not None:
                 self._on_seq_error(er)
             return
@@ -515,7 +416,7 @@ class Arq:
         if cmd is None:
             return
         self._settle(cmd, er)
-        self._lost_answers_before(cmd)
+        self.recovery.lost_answers_before(cmd)
 
     def _on_seq_error(self, er: P.Er) -> None:
         try:
@@ -530,16 +431,12 @@ class Arq:
             if self.need_resync is None:
                 self.need_resync = f"the board expects seq {expect}, which is not in flight"
             return
-        if self.now() < first.arrive_at + self.answer_time:
-            return  # stale: a retransmission of `first` is on its way already
-        # Commands before `first` are executed; ask for their answers again.
-        self._lost_answers_before(first)
-        self._retransmit_from(first)
+        self.recovery.seq_error(first)
 
     # ------------------------------------------------------------------ service
     def service(self) -> None:
         """Retransmission timers, due commands, keep-alive, silence and epoch renewal."""
-        self._send_due()
+        self.recovery.send_due()
         now = self.now()
         try:
             waiting = len(self._pending) or self.port.in_waiting
@@ -553,8 +450,8 @@ class Arq:
                     # A noisy link that still delivers bytes keeps the plain RTO.
                     self.timer.expired_in_silence()
                 self.note(f"no answer to seq {cmd.seq} ({cmd.verb}) in {now - cmd.last_tx:.3f} s: "
-                          + ("resending from it" if self._probing else "resending it"))
-                self._timed_out(cmd)
+                          + ("resending from it" if self.recovery.probing else "resending it"))
+                self.recovery.timed_out(cmd)
                 break
         if not self.live:
             return
