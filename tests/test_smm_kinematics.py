@@ -13,7 +13,8 @@ except ImportError:
 
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.catalog import ARM3R
-from armbridge.robots.dh import DHChain, rot_from_vec, vec_from_rot
+from armbridge.robots.dh import DHChain
+from armbridge.robots.rotations import rot_from_vec, vec_from_rot
 from armbridge.smm.arms import ARMS, get_smm_arm
 
 torch.set_num_threads(1)

@@ -139,7 +139,7 @@ def target_matrix(arm: Any, x: np.ndarray) -> np.ndarray:
     """(L, 4, 4) homogeneous targets of locations x (L, m): 'xy' at z = 0, positions with the identity rotation."""
     import torch
 
-    from armbridge.robots.dh import rot_from_vec
+    from armbridge.robots.rotations import rot_from_vec
 
     t = np.tile(np.eye(4), (len(x), 1, 1))
     t[:, : min(arm.m, 3), 3] = x[:, :3]

@@ -13,7 +13,8 @@ from typing import Any
 from array_api_compat import device
 
 from armbridge.geometry import wrap_angle
-from armbridge.robots.dh import DHChain, xp_of
+from armbridge.robots.dh import DHChain
+from armbridge.robots.rotations import xp_of
 
 SmmArm = DHChain
 DAMPING = 1e-10  # lambda^2 of the damped pseudoinverse in eq. (18): keeps J J^T invertible at singular points

@@ -59,7 +59,8 @@ import torch
 
 from armbridge.errors import ArmbridgeError
 from armbridge.geometry import wrap_angle
-from armbridge.robots.dh import DHChain, rot_from_vec
+from armbridge.robots.dh import DHChain
+from armbridge.robots.rotations import rot_from_vec
 from armbridge.smm.correction import correct
 from armbridge.smm.manifold import SmmSet, concat
 
