@@ -29,17 +29,18 @@ from armbridge.shards import Runner
 from armbridge.shards.store import DONE_LOG, ShardStore
 from armbridge.smm import dataset
 from armbridge.smm.arms import get_smm_arm
+from armbridge.smm.grid import GridSpec
 from require import missing
 
 ROOT = Path(__file__).resolve().parents[1]
 # A small SMM data job: 64 cells of the planar 3R, 4 per shard (16 grid shards, then the boundary's).
-SMM_JOB = "dict(grid=dataset.GridSpec((0.0,), (3.3,), (64,)), batch=4, seeds=8, device='cpu', step=0.1, per_cell=1, N=64, K=16)"
+SMM_JOB = "dict(grid=GridSpec((0.0,), (3.3,), (64,)), batch=4, seeds=8, device='cpu', step=0.1, per_cell=1, N=64, K=16)"
 SWEEP = masr_plan.MasrPlanBenchSize(environments=0, fig5_iterations=60, trials=3, fig7_iterations=150,
                                     timing_runs=1, ompl_runs=0)  # Fig. 7: E1-E3 x 2 planners, 3 trials each
 
 
 def smm_job() -> dict:
-    return eval(SMM_JOB, {"dataset": dataset})  # the same text runs in the killed job's driver
+    return eval(SMM_JOB, {"GridSpec": GridSpec})  # the same text runs in the killed job's driver
 
 
 def build(runner=None):
@@ -214,6 +215,7 @@ from pathlib import Path
 from armbridge.shards import Runner
 from armbridge.smm import dataset
 from armbridge.smm.arms import get_smm_arm
+from armbridge.smm.grid import GridSpec
 job = {SMM_JOB}
 dataset.build_dataset(get_smm_arm("planar3r"), job.pop("grid"), runner=Runner(ray=sys.argv[1],
                       checkpoint=Path(sys.argv[2])), **job)

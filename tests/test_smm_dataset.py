@@ -7,6 +7,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm import dataset, fourier
 from armbridge.robots.dh import DHChain
 from armbridge.smm.arms import get_smm_arm
+from armbridge.smm.grid import REGION_SHAPE, GridSpec, default_grid, region_locations
 
 torch.set_num_threads(1)
 K = 40
@@ -16,7 +17,7 @@ N = 128
 @pytest.fixture(scope="module")
 def build():
     arm = get_smm_arm("planar3r")
-    grid = dataset.GridSpec((0.0,), (3.3,), (40,))  # links of 1 m: singular radii 1 and 3, reach 3
+    grid = GridSpec((0.0,), (3.3,), (40,))  # links of 1 m: singular radii 1 and 3, reach 3
     calls = []
     b = dataset.build_dataset(arm, grid, K=K, N=N, batch=16, progress=lambda d, t: calls.append((d, t)),
                               seeds=12, device="cpu")
@@ -138,17 +139,17 @@ def test_save_load_round_trip(build, tmp_path):
 def test_bad_input_is_an_armbridge_error(tmp_path):
     arm = get_smm_arm("planar3r")
     with pytest.raises(ArmbridgeError, match="lo < hi"):
-        dataset.GridSpec((1.0,), (0.0,), (10,))
+        GridSpec((1.0,), (0.0,), (10,))
     with pytest.raises(ArmbridgeError, match="dimensions"):
-        dataset.build_dataset(arm, dataset.GridSpec((0.0, 0.0), (1.0, 1.0), (2, 2)))
+        dataset.build_dataset(arm, GridSpec((0.0, 0.0), (1.0, 1.0), (2, 2)))
     with pytest.raises(ArmbridgeError, match="K"):
-        dataset.build_dataset(arm, dataset.GridSpec((0.0,), (1.0,), (2,)), K=0)
+        dataset.build_dataset(arm, GridSpec((0.0,), (1.0,), (2,)), K=0)
     s7 = get_smm_arm("spatial7r")
     rolled = DHChain(name="pose7", a=np.r_[s7.a[:-1], 0.1], alpha=s7.alpha, d=s7.d, theta=s7.theta, space="pose")
     with pytest.raises(ArmbridgeError, match="explicit GridSpec"):
-        dataset.default_grid(rolled)  # its last joint moves the tip: 5 canonical numbers
+        default_grid(rolled)  # its last joint moves the tip: 5 canonical numbers
     with pytest.raises(ArmbridgeError, match="4 cell counts"):
-        dataset.default_grid(s7, shape=(3, 3))
+        default_grid(s7, shape=(3, 3))
     (tmp_path / "x.npz").write_bytes(b"not a zip")
     with pytest.raises(ArmbridgeError, match="cannot read"):
         dataset.SmmDataset.load(tmp_path / "x.npz")
@@ -159,18 +160,18 @@ def test_bad_input_is_an_armbridge_error(tmp_path):
 
 def test_the_7r_grid_is_one_region_times_every_tool_direction():
     arm = get_smm_arm("spatial7r")
-    g = dataset.default_grid(arm)
-    assert g.shape == dataset.REGION_SHAPE
+    g = default_grid(arm)
+    assert g.shape == REGION_SHAPE
     assert g.lo[2:] == (0.0, -np.pi) and g.hi[2:] == (np.pi, np.pi)
     assert g.hi[0] - g.lo[0] == pytest.approx(0.2) and g.hi[1] - g.lo[1] == pytest.approx(0.2)
-    c = dataset.region_locations(g, 1000, seed=3)
+    c = region_locations(g, 1000, seed=3)
     assert (c >= np.array(g.lo)).all() and (c <= np.array(g.hi)).all()
 
 
 def test_default_grids_cover_the_workspace_with_a_margin():
-    g3 = dataset.default_grid(get_smm_arm("planar3r"))
+    g3 = default_grid(get_smm_arm("planar3r"))
     assert g3.shape == (200,) and g3.lo == (0.0,) and 3.0 < g3.hi[0] < 3.3
-    g4 = dataset.default_grid(get_smm_arm("spatial4r"), shape=(25, 40))
+    g4 = default_grid(get_smm_arm("spatial4r"), shape=(25, 40))
     assert g4.shape == (25, 40) and g4.lo[0] == 0.0 and g4.lo[1] < 0 < g4.hi[1]
     assert g4.centres().shape == (1000, 2)
 

@@ -105,11 +105,12 @@ def test_reference_component_for_a_joint_turning_backwards():
 def test_two_tracings_of_one_smm_encode_equally(robot):
     """The phase and direction rules make the representation unique: tracer seeds 0 and 1
     start each loop at different configurations."""
-    from armbridge.smm import automaton, dataset, nullspace
+    from armbridge.smm import automaton, nullspace
     from armbridge.smm.arms import get_smm_arm
+    from armbridge.smm.grid import random_locations
 
     arm = get_smm_arm(robot)
-    x = dataset.random_locations(arm, 4, seed=3)
+    x = random_locations(arm, 4, seed=3)
     a = nullspace.compute(arm, x, seeds=12, seed=0, device="cpu")
     b = nullspace.compute(arm, x, seeds=12, seed=1, device="cpu")
     assert np.array_equal(a.count, b.count) and a.count.min() >= 1

@@ -28,12 +28,13 @@ from armbridge.smm.dataset import SmmDataset
 from armbridge.smm.correction import correct, damped_pinv_step, error_and_step
 from armbridge.smm.learned import CARD_NAME, LearnedSmm
 from armbridge.train import smm as tr
+from armbridge.train import smm_data, smm_fit
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::UserWarning")  # torch.onnx internals
 
 ARM = get_smm_arm("planar3r")
 N, K = 64, 16
-TINY = tr.SmmTrainConfig(cls_hidden=(8, 8), reg_hidden=(32, 32), epochs=40, min_steps=600, batch=32, seed=1)
+TINY = smm_fit.SmmTrainConfig(cls_hidden=(8, 8), reg_hidden=(32, 32), epochs=40, min_steps=600, batch=32, seed=1)
 
 
 @pytest.fixture(autouse=True)
@@ -137,11 +138,11 @@ def test_regressor_scaling_keeps_eq17_up_to_a_constant():
 
 @pytest.fixture(scope="module")
 def tiny(ds) -> Any:
-    rows, _ = tr.split(ds.cluster, 0.1, 0)
-    return SimpleNamespace(rows=rows, trained=tr.train(ds, rows, TINY, progress=False, device=torch.device("cpu")))
+    rows, _ = smm_data.split(ds.cluster, 0.1, 0)
+    return SimpleNamespace(rows=rows, trained=smm_fit.train(ds, rows, TINY, progress=False, device=torch.device("cpu")))
 
 
-def same_weights(a: tr.Trained, b: tr.Trained) -> bool:
+def same_weights(a: smm_fit.Trained, b: smm_fit.Trained) -> bool:
     nets_a = [a.classifier, *a.regressors.values()]
     nets_b = [b.classifier, *b.regressors.values()]
     return all(torch.equal(pa, pb) for na, nb in zip(nets_a, nets_b) for pa, pb in zip(na.parameters(), nb.parameters()))
@@ -152,7 +153,7 @@ def test_tiny_training_lowers_both_losses_and_is_deterministic(ds, tiny):
         h = tiny.trained.history[key]
         assert h[-1]["loss"] < 0.5 * h[0]["loss"], key
     assert set(tiny.trained.regressors) == {0}  # cluster 1 is out of reach: no regressor
-    again = tr.train(ds, tiny.rows, TINY, progress=False, device=torch.device("cpu"))
+    again = smm_fit.train(ds, tiny.rows, TINY, progress=False, device=torch.device("cpu"))
     assert same_weights(again, tiny.trained)
 
 
@@ -164,20 +165,20 @@ def test_resume_after_an_interruption_gives_the_same_networks(ds, tiny, tmp_path
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        tr.train(ds, tiny.rows, TINY, checkpoint=ck, progress=False, log=stop, device=torch.device("cpu"))
+        smm_fit.train(ds, tiny.rows, TINY, checkpoint=ck, progress=False, log=stop, device=torch.device("cpu"))
     logs: list[str] = []
-    resumed = tr.train(ds, tiny.rows, TINY, checkpoint=ck, resume=True, progress=False, log=logs.append,
-                       device=torch.device("cpu"))
+    resumed = smm_fit.train(ds, tiny.rows, TINY, checkpoint=ck, resume=True, progress=False, log=logs.append,
+                            device=torch.device("cpu"))
     assert logs[0].startswith("resumed") and "1 of 2" in logs[0]
     assert same_weights(resumed, tiny.trained)
-    other = tr.SmmTrainConfig(**{**TINY.__dict__, "seed": 2})
+    other = smm_fit.SmmTrainConfig(**{**TINY.__dict__, "seed": 2})
     with pytest.raises(ArmbridgeError, match="other settings"):
-        tr.train(ds, tiny.rows, other, checkpoint=ck, resume=True, progress=False, device=torch.device("cpu"))
+        smm_fit.train(ds, tiny.rows, other, checkpoint=ck, resume=True, progress=False, device=torch.device("cpu"))
 
 
 def test_split_holds_out_a_share_of_every_cluster_and_skips_singular():
     cluster = np.array([-1] * 5 + [0] * 20 + [1] * 10 + [2])
-    train, test = tr.split(cluster, 0.2, 0)
+    train, test = smm_data.split(cluster, 0.2, 0)
     assert not set(train) & set(test)
     assert np.bincount(cluster[test], minlength=3).tolist() == [4, 2, 0]
     assert set(np.flatnonzero(cluster == 2)) <= set(train)
@@ -186,12 +187,12 @@ def test_split_holds_out_a_share_of_every_cluster_and_skips_singular():
 
 def test_bad_settings_are_user_errors():
     with pytest.raises(ArmbridgeError, match="--epochs"):
-        tr.SmmTrainConfig(cls_hidden=(5,), reg_hidden=(5,), epochs=0)
+        smm_fit.SmmTrainConfig(cls_hidden=(5,), reg_hidden=(5,), epochs=0)
     with pytest.raises(ArmbridgeError, match="--lr-decay"):
-        tr.SmmTrainConfig(cls_hidden=(5,), reg_hidden=(5,), lr_decay=0)
-    assert tr.parse_sizes("4x150", "--reg-hidden") == (150,) * 4
+        smm_fit.SmmTrainConfig(cls_hidden=(5,), reg_hidden=(5,), lr_decay=0)
+    assert smm_fit.parse_sizes("4x150", "--reg-hidden") == (150,) * 4
     with pytest.raises(ArmbridgeError, match="--cls-hidden"):
-        tr.parse_sizes("5,a", "--cls-hidden")
+        smm_fit.parse_sizes("5,a", "--cls-hidden")
 
 
 # ------------------------------------------------------------ export and card
@@ -317,12 +318,12 @@ def test_missing_corrupt_or_foreign_models_are_user_errors(model_dir, tmp_path):
 
 def test_cli_grids_the_7r_region_and_rejects_other_pose_arms():
     s7 = get_smm_arm("spatial7r")
-    assert tr.grid_for(s7, "").shape == (3, 3, 24, 48) and tr.grid_for(s7, "2x2x8x16").shape == (2, 2, 8, 16)
+    assert smm_data.grid_for(s7, "").shape == (3, 3, 24, 48) and smm_data.grid_for(s7, "2x2x8x16").shape == (2, 2, 8, 16)
     rolled = DHChain(name="pose7", a=np.r_[s7.a[:-1], 0.1], alpha=s7.alpha, d=s7.d, theta=s7.theta, space="pose")
     with pytest.raises(ArmbridgeError, match="--dataset"):
-        tr.grid_for(rolled, "")
+        smm_data.grid_for(rolled, "")
     with pytest.raises(ArmbridgeError, match="--grid"):
-        tr.grid_for(ARM, "2x")
+        smm_data.grid_for(ARM, "2x")
 
 
 # ------------------------------------------------------- end to end, real data
@@ -396,7 +397,7 @@ def test_the_3r_and_4r_models_are_shipped():
 def test_shipped_model_meets_its_card_on_fresh_locations(folder):
     """A quality gate: fresh random locations (not grid cells), against the nullspace ground truth."""
     from armbridge.smm import nullspace
-    from armbridge.smm.dataset import random_locations
+    from armbridge.smm.grid import random_locations
 
     model = LearnedSmm.load(folder)  # checks every file's sha256
     held = model.card["accuracy"]["held_out"]

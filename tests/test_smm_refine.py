@@ -6,7 +6,8 @@ import torch
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import dataset, fourier, refine
 from armbridge.smm.arms import get_smm_arm
-from armbridge.smm.dataset import GridSpec, SmmDataset
+from armbridge.smm.dataset import SmmDataset
+from armbridge.smm.grid import GridSpec
 
 torch.set_num_threads(1)
 

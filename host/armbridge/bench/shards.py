@@ -1,7 +1,7 @@
 """`armbridge bench shards`: how a fixed SMM data job scales with Ray workers, and what the
 paper's 7R grid would take on N workers.
 
-The job: nullspace SMMs (smm.dataset.trace_smms, the data sets' sharded
+The job: nullspace SMMs (smm.trace.trace_smms, the data sets' sharded
 tracer) of `locations` 7R locations (another robot: tips of random
 configurations, the CI size) uniform over the region grid's positions
 and tool directions (smm.dataset.region_locations, seed 0), `shard`
@@ -39,7 +39,7 @@ def job_locations(robot: str, count: int) -> tuple[Any, np.ndarray]:
     """The job's locations: over the region grid for the 7R (as its data set), else tips of random
     configurations (smaller arms: the CI size of this bench)."""
     from armbridge.smm.arms import get_smm_arm
-    from armbridge.smm.dataset import random_locations, region_grid, region_locations
+    from armbridge.smm.grid import random_locations, region_grid, region_locations
 
     arm = get_smm_arm(robot)
     if arm.tool_roll:
@@ -50,7 +50,7 @@ def job_locations(robot: str, count: int) -> tuple[Any, np.ndarray]:
 def run(locations: int = 1024, shard: int = 256, workers: Sequence[int] = (1, 2), robot: str = "spatial7r",
         progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     from armbridge.shards import Runner
-    from armbridge.smm.dataset import trace_smms
+    from armbridge.smm.trace import trace_smms
 
     arm, x = job_locations(robot, locations)
     rows: list[dict[str, Any]] = []

@@ -10,7 +10,7 @@ std over locations), and the share of locations whose branch count differs
 from our nullspace method's. Methods:
 
 * nullspace (ours): armbridge.smm.nullspace.compute, the ground truth, in
-  shards of GROUND_TRUTH_SHARD locations (smm.dataset.trace_smms: each shard
+  shards of GROUND_TRUTH_SHARD locations (smm.trace.trace_smms: each shard
   with IK seed 0; they may run on a Ray cluster, --ray), its batched time the
   sum of the shards' nullspace seconds over the locations;
 * learned before / after correction: the shipped models (models/onnx/smm-*)
@@ -178,7 +178,7 @@ def bench_locations(arm: Any, count: int, model: Path) -> tuple[np.ndarray, str]
     """Table III's locations (seed 1) and where they lie: the tips of random configurations; for a
     tool-roll arm with a model, uniform over the model's region (its positions, every tool direction and
     roll, any turn about the base), as the paper samples its 7R within its grid."""
-    from armbridge.smm.dataset import GridSpec, region_locations
+    from armbridge.smm.grid import GridSpec, region_locations
     from armbridge.smm.learned import read_card
 
     if arm.tool_roll and (model / "card.json").is_file():
@@ -199,7 +199,7 @@ def table3(arm_name: str, size: SmmBenchSize, progress: Callable[[str], None], m
            runner: Runner | None = None) -> dict[str, Any]:
     from armbridge.smm import nullspace
     from armbridge.smm.arms import get_smm_arm
-    from armbridge.smm.dataset import trace_smms
+    from armbridge.smm.trace import trace_smms
     from armbridge.smm.learned import LearnedSmm
 
     arm = get_smm_arm(arm_name)

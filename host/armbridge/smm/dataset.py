@@ -6,15 +6,10 @@ centre by nullspace projection (with phi = 0), the cluster automaton (V-B),
 the homotopy automaton (V-C), and the unique, low-passed Fourier spectrum of
 every branch (IV, eq. 4-8) in its homotopy slot.
 
-Default grids (`default_grid`, every size settable):
-- 'xy' arms (planar 3R): 200 radial cells (the paper's 200) over [0, r_max];
-- 'xyz' arms (spatial 4R): 250 x 400 cells over (rho, z) (the paper's
-  100,000) in the x-z half plane.
-r_max, z_min, z_max are the extent of 20,000 random configurations grown by
-`margin` (5 %) of the span, so the border cells are out of reach: those have
-branch count 0 and form their own cluster(s) with cluster_branches 0, which
-teaches the classifier "out of reach". Tool-roll pose arms (7R): one
-region, `region_grid`. Other pose arms need an explicit GridSpec.
+The grids (GridSpec, `default_grid`, `region_grid`) are smm/grid.py's, the
+ground-truth SMMs traced in shards (`compute_smms`) smm/trace.py's; this
+module holds the data set itself (`SmmDataset`, its .npz file) and the steps
+that turn the SMMs into it (`assemble`, `add_boundary`, `build_dataset`).
 
 The classifier learns from more than the clusters: every cell, singular ones
 included, is labelled by `automaton.nearest_cluster` from its own branch
@@ -27,8 +22,7 @@ time (Table III's 2.16 %); the boundary points sample it finer.
 """
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,102 +32,18 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import automaton, fourier
 from armbridge.smm.arms import SmmArm
-from armbridge.smm.manifold import SmmSet, concat
+from armbridge.smm.grid import GridSpec, default_grid, random_locations
+from armbridge.smm.manifold import SmmSet
+from armbridge.smm.trace import Progress, compute_smms
 
 if TYPE_CHECKING:
-    from armbridge.shards import Runner, Shard
+    from armbridge.shards import Runner
 
-Progress = Callable[[int, int], None]
-DEFAULT_SHAPES = {1: (200,), 2: (250, 400)}
-REGION_SHAPE = (3, 3, 24, 48)  # region_grid: (rho, z, polar, azimuth) cells of the 7R
 # Cells a label may reach across (automaton.nearest_cluster): a singular band is a few cells wide,
 # and 10 finds the cluster beyond it (3 left 1.4 % of the 4R's grid-cell labels at -1, 10 left 0.7 %).
 LABEL_REACH = 10.0
 FIELDS = ("robot", "canon", "cluster", "label", "coeffs", "cluster_branches", "boundary_canon", "boundary_label",
           "K", "N")
-
-
-@dataclass(frozen=True)
-class GridSpec:
-    """A regular grid of cells over canonical coordinates: per dimension lo, hi and cell count.
-
-    Cell centres are lo + (i + 1/2) (hi - lo) / count; cells are numbered in
-    C order (the last dimension fastest), which is also the automaton's order.
-    """
-
-    lo: tuple[float, ...]
-    hi: tuple[float, ...]
-    shape: tuple[int, ...]
-
-    def __post_init__(self) -> None:
-        d = len(self.shape)
-        if d == 0 or len(self.lo) != d or len(self.hi) != d:
-            raise ArmbridgeError(f"grid: lo, hi and shape need one entry per dimension, got {self}")
-        for i, (a, b, s) in enumerate(zip(self.lo, self.hi, self.shape)):
-            if not (np.isfinite(a) and np.isfinite(b) and a < b):
-                raise ArmbridgeError(f"grid dimension {i}: need finite lo < hi, got [{a}, {b}]")
-            if not isinstance(s, (int, np.integer)) or s < 1:
-                raise ArmbridgeError(f"grid dimension {i}: cell count must be an integer >= 1, got {s!r}")
-
-    @property
-    def size(self) -> int:
-        return int(np.prod(self.shape))
-
-    def centres(self) -> np.ndarray:
-        """(L, d) cell centres in flat (C) order."""
-        axes = [lo + (np.arange(s) + 0.5) * (hi - lo) / s for lo, hi, s in zip(self.lo, self.hi, self.shape)]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(self.shape))
-
-
-def default_grid(arm: SmmArm, shape: Sequence[int] | None = None, margin: float = 0.05, seed: int = 0) -> GridSpec:
-    """The grid of the module docstring for a planar ('xy'), positioning ('xyz') or tool-roll pose arm."""
-    if arm.c_dim == 4:
-        return region_grid(arm, shape, seed=seed)
-    if arm.c_dim not in DEFAULT_SHAPES:
-        raise ArmbridgeError(f"robot {arm.name!r} has {arm.c_dim} canonical coordinates; pass an explicit GridSpec")
-    if not 0 <= margin < 1:
-        raise ArmbridgeError(f"grid margin must be a fraction in [0, 1), got {margin!r}")
-    cells = tuple(int(s) for s in (shape or DEFAULT_SHAPES[arm.c_dim]))
-    if len(cells) != arm.c_dim:
-        raise ArmbridgeError(f"grid shape for {arm.name!r} needs {arm.c_dim} cell counts, got {shape!r}")
-    q = np.random.default_rng(seed).uniform(-np.pi, np.pi, (20000, arm.n))
-    c, _ = arm.canonical(arm.task(q))
-    lo, hi = c.min(axis=0), c.max(axis=0)
-    grow = margin * (hi - lo)
-    lo, hi = lo - grow, hi + grow
-    lo[0] = 0.0  # rho >= 0: the half plane of section V-B
-    return GridSpec(tuple(float(v) for v in lo), tuple(float(v) for v in hi), cells)
-
-
-def region_grid(arm: SmmArm, shape: Sequence[int] | None = None, half: float = 0.1, seed: int = 0) -> GridSpec:
-    """A tool-roll pose arm's (7R) grid: a (rho, z) square of side 2 half around the median
-    position of 20,000 random configurations, times every tool direction (polar [0, pi],
-    azimuth [-pi, pi]); REGION_SHAPE cells by default.
-
-    The paper grids about 10 % of the 7R's positions (80 x 160) times 12,000
-    orientations, 1.5e8 SMMs; at about 90 ms per 7R location on one CPU
-    thread that is beyond this machine, so the default is one small region.
-    """
-    if not arm.tool_roll:
-        raise ArmbridgeError(f"robot {arm.name!r} is not a tool-roll pose arm; region_grid is for those (the 7R)")
-    if not half > 0:
-        raise ArmbridgeError(f"region half-size must be > 0 m, got {half!r}")
-    cells = tuple(int(s) for s in (shape or REGION_SHAPE))
-    if len(cells) != 4:
-        raise ArmbridgeError(f"grid shape for {arm.name!r} needs 4 cell counts (rho, z, polar, azimuth), got {shape!r}")
-    q = np.random.default_rng(seed).uniform(-np.pi, np.pi, (20000, arm.n))
-    c, _ = arm.canonical(arm.task(q))
-    rho, z = np.median(c[:, 0]), np.median(c[:, 1])
-    return GridSpec((float(rho - half), float(z - half), 0.0, -np.pi), (float(rho + half), float(z + half), np.pi, np.pi),
-                    cells)
-
-
-def region_locations(grid: GridSpec, count: int, seed: int = 0) -> np.ndarray:
-    """Canonical locations uniform over a region_grid's positions and over tool directions (the sphere)."""
-    rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(grid.lo), np.asarray(grid.hi)
-    pos = lo[:2] + rng.uniform(0, 1, (count, 2)) * (hi[:2] - lo[:2])
-    return np.column_stack([pos, np.arccos(rng.uniform(-1, 1, count)), rng.uniform(-np.pi, np.pi, count)])
 
 
 @dataclass(frozen=True)
@@ -228,85 +138,6 @@ class Build:
     homotopy: automaton.Homotopy
     reference: np.ndarray  # (2, C, Bmax) phase-rule (joint, freq) per cluster and slot
     margin: np.ndarray  # (C, Bmax) its smallest |Theta| / N in the cluster (NaN: no branch)
-
-
-def compute_smms(
-    arm: SmmArm,
-    canon: np.ndarray,
-    n_points: int = 128,
-    batch: int = 2048,  # locations per nullspace call: larger batches amortise the per-step overhead
-    progress: Progress | None = None,
-    runner: Runner | None = None,
-    job: str = "smm",
-    **nullspace_options: Any,
-) -> SmmSet:
-    """Nullspace SMMs at canonical locations (no shift): trace_smms at arm.uncanonical(canon)."""
-    x = np.asarray(arm.uncanonical(np.asarray(canon, dtype=np.float64)))
-    return trace_smms(arm, x, n_points, batch, progress, runner, job, **nullspace_options)
-
-
-def trace_smms(
-    arm: SmmArm,
-    x: np.ndarray,
-    n_points: int = 128,
-    batch: int = 2048,
-    progress: Progress | None = None,
-    runner: Runner | None = None,
-    job: str = "smm",
-    seconds: list[float] | None = None,
-    **nullspace_options: Any,
-) -> SmmSet:
-    """Nullspace SMMs at task locations x, `batch` locations per call, one shard each.
-
-    The shards (armbridge.shards) run where `runner` says (None: here, one
-    after the other); each traces its locations with the same IK seed
-    `seed` (a nullspace option), as the serial path always has, so the
-    result does not depend on where or in which order the shards ran.
-    progress(done, total) follows the shards in order; `seconds` gets each
-    shard's nullspace time (a measurement, not part of the result).
-    """
-    from armbridge.shards import Job, Runner, Shard
-
-    x = np.asarray(x, dtype=np.float64)
-    options = dict(nullspace_options)
-    seed = options.pop("seed", 0)
-    if "device" in options and options["device"] is not None:
-        options["device"] = str(options["device"])
-    work = Job(job, smm_shard, {"arm": arm.to_dict(), "n_points": int(n_points), "options": options},
-               gpu=options.get("device") is None)
-    shards = [Shard(i, seed, {"start": s}, {"x": x[s : s + batch]}) for i, s in enumerate(range(0, len(x), batch))]
-    done = 0
-
-    def advance(shard: Shard, arrays: dict[str, np.ndarray]) -> None:
-        nonlocal done
-        done += len(arrays["count"])
-        if seconds is not None:
-            seconds.append(float(arrays["seconds"]))
-        if progress is not None:
-            progress(done, len(x))
-
-    parts = (runner or Runner()).map(work, shards, on_result=advance, label=f"SMM {job}")
-    return concat([SmmSet(p["points"], p["count"], p["singular"]) for p in parts], n_points, arm.n)
-
-
-def smm_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
-    """One shard of trace_smms: nullspace.compute on its locations, on one torch thread (the
-    tracer's ops are small: a second thread only adds hand-offs, nullspace's docstring)."""
-    import torch
-
-    from armbridge.robots.dh import DHChain
-    from armbridge.smm import nullspace
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    arm = DHChain.from_dict(params["arm"])
-    try:
-        t0 = time.perf_counter()
-        s = nullspace.compute(arm, shard.inputs["x"], n_points=params["n_points"], seed=shard.seed, **params["options"])
-        took = time.perf_counter() - t0
-    finally:
-        torch.set_num_threads(threads)
-    return {"points": s.points, "count": s.count, "singular": s.singular, "seconds": np.asarray(took)}
 
 
 def harmonics(smms: SmmSet, label: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -485,12 +316,6 @@ def _check(arm: SmmArm, grid: GridSpec, K: int, N: int) -> None:
         )
     if not isinstance(K, (int, np.integer)) or not 1 <= K <= N:
         raise ArmbridgeError(f"K (Fourier components kept) must be an integer in 1..N={N}, got {K!r}")
-
-
-def random_locations(arm: SmmArm, count: int, seed: int = 0) -> np.ndarray:
-    """Reachable task locations: the tips of uniformly random configurations."""
-    q = np.random.default_rng(seed).uniform(-np.pi, np.pi, (count, arm.n))
-    return np.asarray(arm.task(q))
 
 
 def fig3(

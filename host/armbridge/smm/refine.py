@@ -43,7 +43,8 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm
-from armbridge.smm.dataset import Build, GridSpec, SmmDataset
+from armbridge.smm.dataset import Build, SmmDataset
+from armbridge.smm.grid import GridSpec
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
@@ -212,7 +213,8 @@ def refine(
     "smm-patch-<i>-boundary" (armbridge.shards), traced with the coarse
     build's IK seed `seed` and patch_sing_tol(sing_tol, factor).
     """
-    from armbridge.smm.dataset import add_boundary, assemble, compute_smms
+    from armbridge.smm.dataset import add_boundary, assemble
+    from armbridge.smm.trace import compute_smms
 
     ds = coarse.dataset
     tol = patch_sing_tol(sing_tol, factor)

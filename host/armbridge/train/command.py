@@ -224,15 +224,17 @@ def smm_cmd(
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.networks import default_architecture
     from armbridge.train import smm as tr
+    from armbridge.train.smm_data import load_or_build
+    from armbridge.train.smm_fit import SmmTrainConfig, parse_sizes
 
     kind = ctx.info_name or "smm-3r"
     arm = get_smm_arm(robot or tr.ROBOTS[kind])
     if f"{arm.n}r" != kind.split("-")[1]:
         raise ArmbridgeError(f"--robot {arm.name!r} has {arm.n} joints; `train {kind}` trains a {kind[4:-1]}-joint arm")
     arch = default_architecture(arm.n) if not (cls_hidden and reg_hidden) else None
-    cfg = tr.SmmTrainConfig(
-        cls_hidden=tr.parse_sizes(cls_hidden, "--cls-hidden") if cls_hidden else arch.classifier,  # type: ignore[union-attr]
-        reg_hidden=tr.parse_sizes(reg_hidden, "--reg-hidden") if reg_hidden else arch.regressor,  # type: ignore[union-attr]
+    cfg = SmmTrainConfig(
+        cls_hidden=parse_sizes(cls_hidden, "--cls-hidden") if cls_hidden else arch.classifier,  # type: ignore[union-attr]
+        reg_hidden=parse_sizes(reg_hidden, "--reg-hidden") if reg_hidden else arch.regressor,  # type: ignore[union-attr]
         epochs=epochs, min_steps=min_steps, batch=batch, cls_lr=cls_lr, reg_lr=reg_lr, lr_decay=lr_decay,
         holdout=holdout, seed=seed)
     work = work_dir or Path("runs") / f"smm-{arm.name}"
@@ -247,8 +249,8 @@ def smm_cmd(
     argv = sys.argv[sys.argv.index(kind) + 1 :] if kind in sys.argv else []
     command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
     with shard_options.runner(ray, workers, checkpoint or work / "shards", progress) as runner:
-        ds, info = tr.load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol,
-                                    runner, refine)
+        ds, info = load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol,
+                                 runner, refine)
     pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=model_dir,
                              work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
     card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)
