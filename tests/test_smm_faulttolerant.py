@@ -1,4 +1,4 @@
-"""SMM bounding boxes, motions into them and locked-joint recovery (smm/faulttolerant.py),
+"""SMM bounding boxes (smm/bbox.py), motions into them and locked-joint recovery (smm/faulttolerant.py),
 and the Fig. 15-16 simulation (smm/simulate.py)."""
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from armbridge.errors import ArmbridgeError
+from armbridge.smm import bbox
 from armbridge.smm import faulttolerant as ft
 from armbridge.smm import nullspace
 from armbridge.smm import simulate as sim
@@ -35,30 +36,30 @@ def ellipse(center, radii, n=200) -> np.ndarray:
 
 def test_arc_of_a_curve_across_pi():
     t = np.linspace(0, 2 * PI, 64)
-    lo, w = ft.curve_arc(ft.wrap(3.0 + 0.5 * np.sin(t)))
+    lo, w = bbox.curve_arc(ft.wrap(3.0 + 0.5 * np.sin(t)))
     assert lo == pytest.approx(2.5, abs=1e-3) and w == pytest.approx(1.0, abs=1e-3)
 
 
 def test_a_winding_joint_gets_the_full_circle():
     t = np.linspace(-PI, PI, 50)  # one whole turn, the first sample repeated at the end
-    assert ft.curve_arc(t)[1] == 2 * PI
+    assert bbox.curve_arc(t)[1] == 2 * PI
     # Not winding, but swinging over more than a turn and back: also every angle.
     s = np.linspace(0, 2 * PI, 100)
-    assert ft.curve_arc(ft.wrap(3.3 * np.sin(s)))[1] == 2 * PI
-    assert ft.curve_arc(ft.wrap(3.0 * np.sin(s)))[1] == pytest.approx(6.0, abs=1e-3)
+    assert bbox.curve_arc(ft.wrap(3.3 * np.sin(s)))[1] == 2 * PI
+    assert bbox.curve_arc(ft.wrap(3.0 * np.sin(s)))[1] == pytest.approx(6.0, abs=1e-3)
 
 
 def test_arc_hull_keeps_out_the_largest_gap():
-    assert ft.arc_hull([(0.0, 1.0), (2.0, 1.0)]) == pytest.approx((0.0, 3.0))
-    lo, w = ft.arc_hull([(3.0, 1.0), (-3.0, 1.0)])  # across pi: from 3 to -2
+    assert bbox.arc_hull([(0.0, 1.0), (2.0, 1.0)]) == pytest.approx((0.0, 3.0))
+    lo, w = bbox.arc_hull([(3.0, 1.0), (-3.0, 1.0)])  # across pi: from 3 to -2
     assert lo == pytest.approx(3.0) and w == pytest.approx(2 * PI - 5.0)
-    assert ft.Box(np.array([lo]), np.array([w])).contains(np.array([[PI], [-2.1], [-3.05]])).all()
-    assert ft.arc_hull([(0.0, 1.0), (0.5, 1.0)]) == pytest.approx((0.0, 1.5))
-    assert ft.arc_hull([(0.0, 4.0), (3.5, 3.0)])[1] == 2 * PI  # together they cover the circle
+    assert bbox.Box(np.array([lo]), np.array([w])).contains(np.array([[PI], [-2.1], [-3.05]])).all()
+    assert bbox.arc_hull([(0.0, 1.0), (0.5, 1.0)]) == pytest.approx((0.0, 1.5))
+    assert bbox.arc_hull([(0.0, 4.0), (3.5, 3.0)])[1] == 2 * PI  # together they cover the circle
 
 
 def test_box_contains_across_the_wrap():
-    box = ft.Box(np.array([3.0, -1.0]), np.array([1.0, 2 * PI]))
+    box = bbox.Box(np.array([3.0, -1.0]), np.array([1.0, 2 * PI]))
     q = np.array([[3.1, 0.0], [-3.1, 3.0], [-2.3, 1.0], [-2.2, 0.0], [2.9, 0.0]])
     assert box.contains(q).tolist() == [True, True, True, False, False]
 
@@ -67,59 +68,59 @@ def test_branch_and_location_boxes():
     a = ellipse([0.0, 1.0, -1.0], [0.5, 0.4, 0.3])
     b = ellipse([3.0, -2.0, 2.0], [0.3, 0.3, 0.3])  # joint 1 crosses pi
     smm = smm_of([a, b])
-    boxes = ft.branch_boxes(smm, 0)
+    boxes = bbox.branch_boxes(smm, 0)
     assert len(boxes) == 2
     np.testing.assert_allclose(boxes[0].lo, [-0.5, 0.6, -1.3], atol=1e-3)
     np.testing.assert_allclose(boxes[0].width, [1.0, 0.8, 0.6], atol=1e-3)
     assert boxes[1].contains(ft.wrap(b)).all() and boxes[0].contains(a).all()
     assert boxes[1].width[0] == pytest.approx(0.6, abs=1e-3)  # not the long way round
-    loc = ft.location_box(smm, 0)
+    loc = bbox.location_box(smm, 0)
     assert loc is not None and loc.contains(ft.wrap(np.vstack([a, b]))).all()
     empty = SmmSet(np.full((1, 1, 4, 3), np.nan), np.array([0]), np.array([False]))
-    assert ft.location_box(empty, 0) is None and ft.branch_boxes(empty, 0) == []
+    assert bbox.location_box(empty, 0) is None and bbox.branch_boxes(empty, 0) == []
 
 
 def test_intersections():
-    assert ft.intersect_arcs((0.0, 1.0), (2.0, 1.0)) == []
-    two = ft.intersect_arcs((0.0, 5.0), (3.0, 5.0))  # overlapping at both ends
+    assert bbox.intersect_arcs((0.0, 1.0), (2.0, 1.0)) == []
+    two = bbox.intersect_arcs((0.0, 5.0), (3.0, 5.0))  # overlapping at both ends
     np.testing.assert_allclose(sorted(two), [(0.0, 5.0 - (2 * PI - 3.0)), (3.0, 2.0)])
-    assert ft.intersect_arcs((1.0, 2 * PI), (0.5, 1.0)) == [(0.5, 1.0)]
+    assert bbox.intersect_arcs((1.0, 2 * PI), (0.5, 1.0)) == [(0.5, 1.0)]
     # Fig. 2b: the box of a's SMM against the two boxes of b's branches.
-    box_a = ft.Box(np.array([-1.0, -1.0]), np.array([2.0, 2.0]))
-    box_b1 = ft.Box(np.array([0.5, -3.0]), np.array([1.0, 2.5]))
-    box_b2 = ft.Box(np.array([0.5, 3.0]), np.array([1.0, 1.0]))  # misses a on joint 2
-    regions = ft.intersect_all([[box_a], [box_b1, box_b2]])
+    box_a = bbox.Box(np.array([-1.0, -1.0]), np.array([2.0, 2.0]))
+    box_b1 = bbox.Box(np.array([0.5, -3.0]), np.array([1.0, 2.5]))
+    box_b2 = bbox.Box(np.array([0.5, 3.0]), np.array([1.0, 1.0]))  # misses a on joint 2
+    regions = bbox.intersect_all([[box_a], [box_b1, box_b2]])
     assert len(regions) == 1
     np.testing.assert_allclose(regions[0].lo, [0.5, -1.0])
     np.testing.assert_allclose(regions[0].width, [0.5, 0.5])
-    assert ft.intersect_all([[box_a], [box_b2]]) == []
+    assert bbox.intersect_all([[box_a], [box_b2]]) == []
     with pytest.raises(ArmbridgeError, match="at least one task point"):
-        ft.intersect_all([])
+        bbox.intersect_all([])
 
 
 def test_clipping_to_limits_is_an_intersection():
-    box = ft.Box(np.array([2.5, -0.5]), np.array([1.5, 1.0]))
-    clipped = ft.intersect_boxes(box, ft.limits_box((np.array([0.0, -PI]), np.array([PI, 0.0]))))
+    box = bbox.Box(np.array([2.5, -0.5]), np.array([1.5, 1.0]))
+    clipped = bbox.intersect_boxes(box, bbox.limits_box((np.array([0.0, -PI]), np.array([PI, 0.0]))))
     assert len(clipped) == 1
     np.testing.assert_allclose(clipped[0].lo, [2.5, -0.5])
     np.testing.assert_allclose(clipped[0].width, [PI - 2.5, 0.5])
     with pytest.raises(ArmbridgeError, match="joint 2"):
-        ft.limits_box((np.array([0.0, 1.0]), np.array([1.0, 0.5])))
+        bbox.limits_box((np.array([0.0, 1.0]), np.array([1.0, 0.5])))
 
 
 def test_runs_within_limits_get_their_own_boxes():
     a = ellipse([0.0, 1.0, 0.0], [1.0, 0.5, 0.5])
     lims = (np.array([-0.5, -PI, -PI]), np.array([2.0, PI, PI]))  # cuts joint 1 at -0.5
     smm = smm_of([a])
-    curves = ft.smm_curves(smm, 0, lims)
+    curves = bbox.smm_curves(smm, 0, lims)
     assert len(curves) == 1 and (curves[0][:, 0] >= -0.5).all()
     lims2 = (np.array([-0.5, -PI, -0.2]), np.array([2.0, PI, 0.2]))  # joint 3 too: the branch falls apart
-    pieces = ft.smm_curves(smm, 0, lims2)
+    pieces = bbox.smm_curves(smm, 0, lims2)
     assert len(pieces) > 1
-    for piece, box in zip(pieces, ft.branch_boxes(smm, 0, lims2)):
+    for piece, box in zip(pieces, bbox.branch_boxes(smm, 0, lims2)):
         assert box.contains(piece).all()
         assert (box.width[2] <= 0.4 + 1e-9) and (box.width[0] <= 2.5)
-    whole = ft.smm_curves(smm, 0, (np.full(3, -PI), np.full(3, PI)))
+    whole = bbox.smm_curves(smm, 0, (np.full(3, -PI), np.full(3, PI)))
     assert len(whole) == 1 and len(whole[0]) == len(a) + 1  # closed
 
 
@@ -127,7 +128,7 @@ def test_runs_within_limits_get_their_own_boxes():
 
 
 def test_entry_is_time_optimal_under_speed_limits():
-    box = ft.Box(np.array([2.8, -0.2, 1.0]), np.array([0.6, 0.4, 2 * PI]))
+    box = bbox.Box(np.array([2.8, -0.2, 1.0]), np.array([0.6, 0.4, 2 * PI]))
     vmax = np.array([1.0, 0.5, 2.0])
     q = np.array([-2.5, 1.0, 0.3])  # joint 1: 0.38 rad down to the arc through pi; joint 2: 0.8 down
     move = ft.entry_move(q, box, vmax)
@@ -142,7 +143,7 @@ def test_entry_is_time_optimal_under_speed_limits():
 
 
 def test_entry_under_limits_never_crosses_a_stop():
-    box = ft.Box(np.array([-3.0]), np.array([0.5]))  # just past -pi
+    box = bbox.Box(np.array([-3.0]), np.array([0.5]))  # just past -pi
     q = np.array([3.0])
     free = ft.entry_move(q, box, 1.0)  # the short way, through pi
     assert free.duration == pytest.approx(2 * PI - 6.0) and free.goal[0] == pytest.approx(2 * PI - 3.0)
@@ -155,7 +156,7 @@ def test_entry_under_limits_never_crosses_a_stop():
 
 
 def test_motion_inside_a_box_stays_inside():
-    box = ft.Box(np.array([2.0, -1.0]), np.array([4.0, 2 * PI]))  # joint 1 from 2 round past pi to 6 - 2 pi
+    box = bbox.Box(np.array([2.0, -1.0]), np.array([4.0, 2 * PI]))  # joint 1 from 2 round past pi to 6 - 2 pi
     q_from, q_to = np.array([2.2, 3.0]), np.array([-0.5, -3.0])
     move = ft.move_within(box, q_from, q_to, 1.0)
     assert box.contains(move.at(np.linspace(0, move.duration, 50))).all()
@@ -178,7 +179,7 @@ def test_locked_configurations_keep_the_value_and_reach_the_target(planar):
     arm, x, smm = planar
     assert smm.count.tolist() == [2, 1, 1]
     for l in range(len(x)):
-        for j, box in [(j, box) for j in range(3) for box in ft.branch_boxes(smm, l)]:
+        for j, box in [(j, box) for j in range(3) for box in bbox.branch_boxes(smm, l)]:
             v = float(box.lo[j] + 0.37 * box.width[j])
             configs = ft.locked_configurations(smm, l, j, v)
             assert len(configs) >= 2  # a closed branch crosses each value it takes at least twice
@@ -193,7 +194,7 @@ def test_a_lock_inside_the_box_is_always_recoverable(planar):
     arm, x, smm = planar
     rng = np.random.default_rng(3)
     for l in range(len(x)):
-        for box in ft.branch_boxes(smm, l):
+        for box in bbox.branch_boxes(smm, l):
             for _ in range(20):
                 q = box.lo + rng.uniform(0, 1, 3) * box.width
                 j = int(rng.integers(3))
@@ -205,7 +206,7 @@ def test_a_lock_inside_the_box_is_always_recoverable(planar):
 
 def test_a_lock_outside_every_range_is_not(planar):
     arm, x, smm = planar
-    loc = ft.location_box(smm, 0)  # r = 0.3: joint 2 never straightens
+    loc = bbox.location_box(smm, 0)  # r = 0.3: joint 2 never straightens
     j = 1
     assert loc.width[j] < 2 * PI
     v = float(loc.lo[j] + loc.width[j] + 0.5 * (2 * PI - loc.width[j]))
@@ -220,7 +221,7 @@ def test_a_lock_outside_every_range_is_not(planar):
 def test_approach_ends_on_the_smm_inside_its_box(planar):
     arm, x, smm = planar
     q = np.array([0.1, 0.2, 0.3])
-    curves = ft.smm_curves(smm, 1)
+    curves = bbox.smm_curves(smm, 1)
     ap = ft.approach(q, curves, 1.0)
     assert ap.box.contains(ap.entry.goal) and ap.box.contains(ap.inside.goal)
     assert ap.box.contains(ap.inside.at(np.linspace(0, ap.inside.duration, 30))).all()

@@ -60,6 +60,7 @@ from armbridge.plans.format import Plan, make_plan
 from armbridge.robots.catalog import ARM3R
 from armbridge.robots.dh import DHChain
 from armbridge.robots.planar import PlanarChain
+from armbridge.smm import bbox
 from armbridge.smm import faulttolerant as ft
 from armbridge.smm.arms import get_smm_arm
 from armbridge.smm.manifold import SmmSet
@@ -125,7 +126,7 @@ class FtScenario:
     plan: Plan
 
 
-def limits(robot: PlanarChain = ARM3R) -> ft.Limits:
+def limits(robot: PlanarChain = ARM3R) -> bbox.Limits:
     return robot.q_min.copy(), robot.q_max.copy()
 
 
@@ -150,7 +151,7 @@ def plan_scenario(x: np.ndarray, smm: SmmSet, latency: float, q0: np.ndarray,
     suit the demo (no box within limits, or too short a motion inside it)."""
     arm = get_smm_arm(robot.name)
     lims = limits(robot)
-    curves = ft.smm_curves(smm, 0, lims)
+    curves = bbox.smm_curves(smm, 0, lims)
     if not curves:
         return None
     sc = Scenario(vmax=VMAX)

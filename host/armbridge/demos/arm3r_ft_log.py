@@ -15,7 +15,7 @@ import rerun as rr
 
 from armbridge.plans.format import Plan
 from armbridge.robots.planar import PlanarChain
-from armbridge.smm import faulttolerant as ft
+from armbridge.smm import bbox
 from armbridge.telemetry.recording import Recording
 
 if TYPE_CHECKING:
@@ -31,7 +31,7 @@ class FtLog:
 
     PAIRS = ((0, 1), (1, 2), (0, 2))
 
-    def __init__(self, rec: Recording, robot: PlanarChain, sc: FtScenario, lims: ft.Limits) -> None:
+    def __init__(self, rec: Recording, robot: PlanarChain, sc: FtScenario, lims: bbox.Limits) -> None:
         self.rec = rec
         self.stream = rec.rec
         self.robot = robot
@@ -57,7 +57,7 @@ class FtLog:
     def _static(self) -> None:
         s, robot = self.stream, self.robot
         s.log("task/target", rr.Points2D([self.sc.x], colors=[(0, 200, 0)], radii=0.006), static=True)
-        curves = ft.smm_curves(self.sc.smm, 0, self.lims)
+        curves = bbox.smm_curves(self.sc.smm, 0, self.lims)
         arms = [robot.joint_points(c[i]) for c in curves for i in np.linspace(0, len(c) - 1, 6).astype(int)]
         s.log("task/smm", rr.LineStrips2D(arms, colors=[(200, 160, 255)], radii=0.0006), static=True)
         for a, b in self.PAIRS:
@@ -78,7 +78,7 @@ class FtLog:
         """The artificial joint limits: shown from the SMMs' arrival, released at the failure."""
         self.at(t)
         box = self.sc.approach.box
-        lo = ft.lift(box.lo, self.lims)
+        lo = bbox.lift(box.lo, self.lims)
         for a, b in self.PAIRS:
             path = f"{self._pair(a, b)}/box"
             if on:

@@ -36,7 +36,7 @@ def smm_cmd(
     import rich.table
 
     from armbridge.smm.arms import get_smm_arm
-    from armbridge.smm.faulttolerant import branch_boxes
+    from armbridge.smm.bbox import branch_boxes
 
     arm = get_smm_arm(robot)
     x = parse_location(at, arm.m, arm.name)

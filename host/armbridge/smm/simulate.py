@@ -43,6 +43,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.dh import DHChain
+from armbridge.smm import bbox
 from armbridge.smm import faulttolerant as ft
 from armbridge.smm.manifold import SmmSet
 
@@ -117,7 +118,7 @@ def draw_trials(arm: DHChain, count: int, seed: int, scenario: Scenario = Scenar
 
 
 def dls_path(arm: DHChain, q0: np.ndarray, x: np.ndarray, duration: float, sc: Scenario,
-             limits: ft.Limits | None = None) -> tuple[np.ndarray, np.ndarray]:
+             limits: bbox.Limits | None = None) -> tuple[np.ndarray, np.ndarray]:
     """DLS motion of a batch (B, n) toward x (B, m) for `duration` s under the
     speed limits, held within joint limits if given (the stops):
     (times (K+1,), configurations (K+1, B, n))."""
@@ -174,7 +175,7 @@ def run_trial(arm: DHChain, smm: SmmSet, l: int, trials: Trials, latency: float,
         return "out_of_reach", False
     errs = np.linalg.norm(np.asarray(arm.task_error(path, np.tile(x, (len(path), 1)))), axis=-1)
     arrived = np.nonzero(errs <= tol * arm.reach)[0]
-    curves = ft.smm_curves(smm, l)
+    curves = bbox.smm_curves(smm, l)
     plan = None
     if arrived.size:  # the DLS got there while the SMMs were computed
         t_arrive = float(times[arrived[0]])
