@@ -29,16 +29,14 @@ kept or lost); the tick machinery knows none of them.
 """
 from __future__ import annotations
 
-import os
 import select
 import threading
 import time
 import traceback
-from typing import Callable
+from typing import Any, Callable
 
 from armbridge.emulator.faults import Faults
 from armbridge.emulator.pace import PaceLog, realtime
-from armbridge.emulator.plant import PlantParams
 from armbridge.emulator.pty import Pty, open_pty
 from armbridge.emulator.registry import BoardSpec
 from armbridge.emulator.simboard import SimBoard
@@ -48,16 +46,13 @@ from armbridge.errors import ArmbridgeError
 class EmulatedBoard(SimBoard):
     """A board running its real firmware on a simulated HAL, served on a pty; see the module docstring.
 
-    device: a name in registry.BOARDS, or a BoardSpec. speed: clock mode (1.0
-    wall clock, K faster, 0 lockstep). faults: `Faults`. seed: seeds the plant
-    noise and the link faults. link: optional symlink to the pty (owned: see
-    pty.py). interpreter: the firmware runner ("cpython", "micropython"; None:
-    the spec's default). q0, plant_params: override the spec's. on_line(t, line):
-    called with every line the firmware writes (sim seconds, bytes without LF),
-    before link faults. on_note(text): what the emulator has to say while it runs
-    (a paced one that cannot keep the wall clock says so; also kept in `notes`).
-    realtime: run the emulator thread and the runner's processes at real-time
-    priority (pace.realtime; said when refused).
+    device, speed (clock mode: 1.0 wall clock, K faster, 0 lockstep), faults,
+    seed and the keyword options (interpreter, q0, plant_params, firmware_root,
+    tick_offset_ms, boot_ms, on_line, fs_dir): as SimBoard's. link: optional
+    symlink to the pty (owned: see pty.py). on_note(text): what the emulator has
+    to say while it runs (a paced one that cannot keep the wall clock says so;
+    also kept in `notes`). realtime: run the emulator thread and the runner's
+    processes at real-time priority (pace.realtime; said when refused).
     """
 
     MAX_CATCHUP_S = 0.2     # paced modes: a backlog larger than this is given up
@@ -71,16 +66,9 @@ class EmulatedBoard(SimBoard):
         seed: int = 0,
         link: str | None = None,
         *,
-        interpreter: str | None = None,
-        q0=None,
-        plant_params: PlantParams | None = None,
-        firmware_root: str | os.PathLike | None = None,
-        tick_offset_ms: int = 0,
-        boot_ms: float = 250.0,
-        on_line: Callable[[float, bytes], None] | None = None,
-        fs_dir: str | os.PathLike | None = None,
         on_note: Callable[[str], None] | None = None,
         realtime: bool = False,
+        **options: Any,
     ) -> None:
         self.link = link
         self.on_note = on_note
@@ -94,9 +82,7 @@ class EmulatedBoard(SimBoard):
         self._coupled = False  # a host in this process reads the pty (lockstep waits for it)
         self._host_read_us = 0  # sim time of the coupled host's latest read
         self.notes: list[str] = []  # what the emulator had to say while running (pace_note)
-        super().__init__(device, speed, faults, seed, interpreter=interpreter, q0=q0, plant_params=plant_params,
-                         firmware_root=firmware_root, tick_offset_ms=tick_offset_ms, boot_ms=boot_ms,
-                         on_line=on_line, fs_dir=fs_dir)
+        super().__init__(device, speed, faults, seed, **options)
         self._pace_log = PaceLog(self.device)
 
     # ------------------------------------------------------------ SimBoard's hooks
