@@ -432,7 +432,7 @@ def _broken(tmp_path: Path, kind: str) -> Path:
     return out
 
 
-@pytest.mark.parametrize("kind, words", [("d_out_of_range", "d = 0.9500 m is off the arm"),
+@pytest.mark.parametrize("kind, words", [("d_out_of_range", "waypoint 1, q[5] (d) = 0.95 m is outside [0, 0.8]"),
                                          ("corrupted", "not valid JSON")])
 def test_a_bad_plan_is_one_clear_line_and_nothing_is_sent(kind, words, tmp_path, ports):  # noqa: F811
     bad = _broken(tmp_path, kind)

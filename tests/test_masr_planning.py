@@ -293,23 +293,23 @@ def test_plan_file_round_trip_and_checks(tmp_path, e1_result):
         assert len(a["steps"]) == len(ARM.action_sequence(qa, qb))
     doc = masr_plan_document(env, res.path)
     bad = json.loads(json.dumps(doc))
-    bad["tau"] += 1.0
+    bad["masr"]["tau"] += 1.0
     with pytest.raises(ArmbridgeError, match=r"tau = .* but the path takes"):
         plan_from_document(bad, "p.json")
     bad = json.loads(json.dumps(doc))
-    bad["actions"][0]["steps"] = bad["actions"][0]["steps"][::-1]
+    bad["masr"]["actions"][0]["steps"] = bad["masr"]["actions"][0]["steps"][::-1]
     with pytest.raises(ArmbridgeError, match="action 0"):
         plan_from_document(bad, "p.json")
     # a last waypoint within d_margin of a joint is refused, in one line naming the margin
     bad = json.loads(json.dumps(doc))
-    bad.pop("environment")
+    bad["masr"].pop("environment")
     last = bad["waypoints"][-1]["q"]
     j = int(np.argmin(np.abs(ARM.r[1:] - last[-1]))) + 1
     bad["waypoints"][-1]["q"][-1] = float(ARM.r[j] - 0.002)
-    bad.pop("goal")
+    bad["masr"].pop("goal")
     fixed = masr_plan_document(env, np.array([w["q"] for w in bad["waypoints"]]))
-    fixed.pop("environment")
-    fixed.pop("goal")
+    fixed["masr"].pop("environment")
+    fixed["masr"].pop("goal")
     with pytest.raises(ArmbridgeError, match=r"^p.json: the last waypoint puts the MA at d = .*, 2.000 mm from a "
                                              r"joint, inside the robot's d_margin = 5 mm") as exc:
         plan_from_document(fixed, "p.json")
@@ -319,13 +319,13 @@ def test_plan_file_round_trip_and_checks(tmp_path, e1_result):
     x = ARM.fk(q_last)
     u = np.array([np.cos(x[2]), np.sin(x[2])])
     shifted = json.loads(json.dumps(doc))
-    shifted["goal"]["pose"] = [float(v) for v in (*(x[:2] + 0.0045 * u), x[2])]  # 4.5 mm along the link
-    shifted.pop("environment")
+    shifted["masr"]["goal"]["pose"] = [float(v) for v in (*(x[:2] + 0.0045 * u), x[2])]  # 4.5 mm along the link
+    shifted["masr"].pop("environment")
     with pytest.raises(ArmbridgeError, match=r"the last waypoint puts the MA up to (9\.[5-9]\d|1\d\.\d\d) mm .* within d_margin"):
         plan_from_document(shifted, "p.json")
     bad = json.loads(json.dumps(doc))
-    bad["environment"]["obstacles"].append([[0.0, 0.05], [0.8, 0.05], [0.8, 0.6], [0.0, 0.6]])
-    bad["environment"]["start"] = [0, 0, 0, 0, 0, 0.1]
+    bad["masr"]["environment"]["obstacles"].append([[0.0, 0.05], [0.8, 0.05], [0.8, 0.6], [0.0, 0.6]])
+    bad["masr"]["environment"]["start"] = [0, 0, 0, 0, 0, 0.1]
     with pytest.raises(ArmbridgeError):
         plan_from_document(bad, "p.json")
 

@@ -9,6 +9,7 @@ import copy
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,14 +201,14 @@ def test_segment_speed_above_vmax(tmp_path):
 
 def test_unsupported_version_and_format(tmp_path):
     doc = _doc(3)
-    doc["version"] = 2
-    assert _err(tmp_path, doc) == "unsupported version 2 (this armbridge reads version 1)"
+    doc["version"] = 3
+    assert _err(tmp_path, doc) == "unsupported version 3 (this armbridge reads versions 1, 2)"
     doc = _doc(3)
     doc["format"] = "grbl"
     assert _err(tmp_path, doc) == 'format is "grbl", expected "armbridge-plan"'
     doc = _doc(3)
     del doc["version"]
-    assert _err(tmp_path, doc) == 'missing field "version" (this armbridge reads version 1)'
+    assert _err(tmp_path, doc) == 'missing field "version" (this armbridge reads versions 1, 2)'
     assert _err(tmp_path, [1, 2]) == "a plan is a JSON object, got a list of 2"
 
 
@@ -333,3 +334,51 @@ def test_inline_robots_of_every_kind_round_trip(tmp_path):
     assert load_plan(_write(tmp_path, doc)).robot.name == "inline"  # a name may be left out
     doc["robot"]["kind"] = "delta"
     assert _err(tmp_path, doc) == "robot: unknown robot kind 'delta'; known kinds: planar, masr, dh"
+
+
+# ---------------------------------------------------------------- older files keep loading
+OLD = Path(__file__).parent / "vectors" / "old_plans"
+
+
+def test_a_version_1_soft_plan_loads_with_its_section_and_saves_as_version_2(tmp_path):
+    """Files written before the plan format's version 2 (made by that code, kept in
+    tests/vectors/old_plans): a soft plan whose section rode in provenance["soft_plan"]."""
+    from armbridge.plans.soft import soft_info
+
+    plan = load_plan(OLD / "soft-three-arm-version1.json")
+    info = soft_info(plan)
+    assert info is not None and info.scene == "three-arm" and info.planner == "wjrrt"
+    assert "soft_plan" not in plan.provenance and plan.soft is not None
+    out = save_plan(plan, tmp_path / "v2.json")
+    doc = json.loads(out.read_text())
+    assert doc["version"] == 2 and doc["soft"] == plan.soft and "soft_plan" not in doc["provenance"]
+    again = load_plan(out)
+    assert np.array_equal(again.q, plan.q) and np.array_equal(again.durations, plan.durations)
+
+
+def test_an_old_masr_plan_loads_as_a_plan_with_its_masr_section(tmp_path):
+    """The old sibling format ("armbridge-masr-plan", version 1) loads into the one format:
+    its path as the waypoints, each duration the action into it, the actions and goal as
+    its masr section; the executor turns it into the MA's commands as before."""
+    from armbridge.executor.masr import masr_commands
+    from armbridge.plans import masr as M
+
+    doc = json.loads((OLD / "masr-E1-format1.json").read_text())
+    plan = load_plan(OLD / "masr-E1-format1.json")
+    assert plan.robot.name == "masr5" and plan.masr is not None and plan.k == len(doc["waypoints"])
+    assert np.allclose(M.tau(plan), [w["tau"] for w in doc["waypoints"]])
+    assert M.total_time(plan) == pytest.approx(doc["tau"]) and M.steps(plan) == [
+        s for a in doc["actions"] for s in a["steps"]]
+    assert np.allclose(M.goal_pose(plan), doc["goal"]["pose"])
+    steps, commands = masr_commands(plan)
+    assert [v for v, _ in commands] == ["MV" if s["op"] == "move" else "ROT" for s in M.steps(plan)]
+    assert steps.k == len(commands)
+    # its own check, with its own message: a waypoint's tau off eq. (7)
+    doc["waypoints"][1]["tau"] += 0.5
+    with pytest.raises(ArmbridgeError, match=r"waypoint 1, tau = .* but eq. \(7\) along the path gives"):
+        loads_plan(json.dumps(doc), "old.json")
+    # saved again, it is version 2 of the one format, and loads the same
+    out = save_plan(plan, tmp_path / "v2.json")
+    v2 = json.loads(out.read_text())
+    assert v2["format"] == "armbridge-plan" and v2["version"] == 2 and v2["masr"]["actions"] == plan.masr["actions"]
+    assert np.array_equal(load_plan(out).q, plan.q)

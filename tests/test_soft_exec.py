@@ -253,7 +253,7 @@ def test_plan_soft_writes_a_plan_the_executor_takes_and_a_png(tmp_path):
     from typer.testing import CliRunner
 
     from armbridge.planning.command import plan_app
-    from armbridge.planning.soft.plan_file import recording_layers, soft_info
+    from armbridge.plans.soft import recording_layers, soft_info
     from armbridge.plans.format import load_plan
 
     out, png, js = tmp_path / "soft.json", tmp_path / "soft.png", tmp_path / "summary.json"
@@ -264,7 +264,7 @@ def test_plan_soft_writes_a_plan_the_executor_takes_and_a_png(tmp_path):
     plan = load_plan(out)
     info = soft_info(plan)
     assert info is not None and info.scene == "three-arm" and info.planner == "wjrrt"
-    sec = plan.provenance["soft_plan"]
+    sec = plan.soft
     assert sec["seed"] == 0 and len(sec["planned_path"]) == len(info.planned_path) >= 2
     crit = sec["waypoints"]
     assert crit["planned_nodes"] == len(info.planned_path) and crit["tolerance_m"] == 0.01
@@ -292,7 +292,7 @@ def test_the_demo_writes_its_plan_only_when_asked(tmp_path):
     from rich.console import Console
 
     from armbridge.demos import DemoOptions, default_port, get_demo, run_demo
-    from armbridge.planning.soft.plan_file import soft_info
+    from armbridge.plans.soft import soft_info
     from armbridge.plans.format import load_plan
 
     assert default_port("soft") == default_port("soft3") == "emu:arduino_pump"
@@ -394,7 +394,7 @@ def test_the_demo_settles_every_joint_in_its_dead_band_at_every_waypoint(demo):
 def test_the_recording_shows_the_obstacles_the_planned_path_and_the_executed_one(demo):
     from test_recording import layout, read
 
-    from armbridge.planning.soft.plan_file import soft_info, to_base_frame
+    from armbridge.plans.soft import soft_info, to_base_frame
 
     run = demo["run"]
     plan, scene = run.planning.plan, run.planning.scene

@@ -37,7 +37,7 @@ def execute(opts: DemoOptions, console: Any, *, tolerance: float | None = None) 
     """Plan, write (--write-plan: returns None) or run, and report (module doc)."""
     from armbridge.executor.command import run_command
     from armbridge.planning.soft.command import plan_for_pump
-    from armbridge.planning.soft.plan_file import soft_info
+    from armbridge.plans.soft import soft_info
     from armbridge.plans.format import save_plan
     from armbridge.telemetry.recording import default_rrd_path
     from armbridge.demos.soft_report import read_trace, soft_report

@@ -88,7 +88,7 @@ def _polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
 
 
 def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any) -> dict[str, Any]:
-    """The demo's summary (module doc) of `plan` (its soft section `info`, plan_file.SoftInfo) run as
+    """The demo's summary (module doc) of `plan` (its soft section `info`, plans.soft.SoftInfo) run as
     `trace`; tolerance (n,) rad per joint; checker: the scene's (tips, clearance)."""
     q_plan = np.asarray(plan.q, float)
     rows = [int(r) for r in info.pose_rows]

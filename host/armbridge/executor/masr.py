@@ -23,31 +23,27 @@ tolerance), which holds only while the wheel slips no more than that bound.
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.geometry import wrap_angle
-from armbridge.jsonfile import read_json
-from armbridge.plans.format import DURATION_MIN, Plan, load_plan, make_plan
-
-MASR_FORMAT = "armbridge-masr-plan"
+from armbridge.plans import masr as M
+from armbridge.plans.format import DURATION_MIN, Plan, make_plan
 
 
-def load_any_plan(path: str | Path):
-    """A plan file of either format: a Plan, or a MasrPlan (by its `format` field)."""
-    doc = read_json(path, "plan file")
-    if isinstance(doc, dict) and doc.get("format") == MASR_FORMAT:
-        from armbridge.planning.masr.plan_file import plan_from_document
-
-        return plan_from_document(doc, Path(path))
-    return load_plan(path)
+def _plan(mp: Any) -> Plan:
+    """The Plan of a MASR plan (a Plan with its masr section, or planning's MasrPlan view of one)."""
+    plan = getattr(mp, "plan", mp)
+    if getattr(plan, "masr", None) is None:
+        raise ArmbridgeError(f"{getattr(plan, 'source', None) or 'the plan'} is not a MASR plan (no masr section)")
+    return plan
 
 
 def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[int]]]]:
-    """(the Plan of the configuration after each step, the board commands) of a MasrPlan.
+    """(the Plan of the configuration after each step, the board commands) of a MASR plan
+    (its masr section, plans/masr.py).
 
     home: a `HOME` first (the MA drives to the base and zeroes d): what a board that does
     not know where it is (UNHOMED, after a power on) needs before any MV or ROT; then the
@@ -57,7 +53,8 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     motion is not the plan's (nothing checked it against the obstacles). Those setup
     commands are counted in the provenance's masr_plan.setup: the executed time starts at
     the last one's DONE."""
-    arm = mp.arm
+    mp = _plan(mp)
+    arm = mp.robot
     q = np.array(mp.q[0], dtype=float)
     configs: list[np.ndarray] = []
     durations: list[float] = []
@@ -78,7 +75,7 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
             setup_step("ROT", [j, int(round(q[j - 1] * 1000.0))], float(arm.r[j - 1]), turn_s)
         setup_step("MV", [int(round(start * 1000.0))], start, 0.0)
     setup = len(commands)
-    for step in mp.steps():
+    for step in M.steps(mp):
         if step["op"] == "move":
             q[-1] = step["d_to"]
             commands.append(("MV", [int(round(step["d_to"] * 1000.0))]))
@@ -93,8 +90,8 @@ def masr_commands(mp, home: bool = False) -> tuple[Plan, list[tuple[str, list[in
     if not commands:
         raise ArmbridgeError(f"{mp.source or 'MASR plan'}: the plan has no steps: nothing to run")
     prov = dict(mp.provenance)
-    prov["masr_plan"] = {"tau": mp.total_time, "steps": len(commands), "setup": setup,
-                         "goal_pose": [float(x) for x in goal_pose(mp)]}
+    prov["masr_plan"] = {"tau": M.total_time(mp), "steps": len(commands), "setup": setup,
+                         "goal_pose": [float(x) for x in M.goal_pose(mp)]}
     plan = make_plan(arm, np.array(configs), np.array(durations), prov, tool="armbridge run")
     plan.source = mp.source
     return plan, commands
@@ -120,11 +117,12 @@ def dead_reckoning(mp) -> tuple[int | None, float | None, bool]:
     stands on its joint's magnet, a move passes every magnet between its ends (the board
     re-anchors d at each, loc.py) and stops on one when it ends there. (None, None, ...) when
     the plan's steps pass no magnet."""
-    r = [float(x) for x in mp.arm.r[: mp.arm.n]]  # magnet j (1-based) at r_j
+    mp = _plan(mp)
+    r = [float(x) for x in mp.robot.r[: mp.robot.n]]  # magnet j (1-based) at r_j
     last: int | None = None
     since: float | None = None
     off = False
-    for st in mp.steps():
+    for st in M.steps(mp):
         if st["op"] == "rotate":
             last, since, off = int(st["joint"]), 0.0, False
             continue
@@ -146,28 +144,23 @@ def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, 
     rests on (`dead_reckoning`): `dead_reckoning_mm` since the magnet of joint `last_magnet`,
     and `d_bound_mm`, the board's bound there under its slip model (`board_localisation`);
     a slip beyond that model after the last magnet is not seen by the board."""
-    out: dict[str, Any] = {"tau_s": mp.total_time, "executed_s": executed_s,
-                           "time_ratio": executed_s / mp.total_time if mp.total_time > 0 else None}
+    mp = _plan(mp)
+    tau = M.total_time(mp)
+    out: dict[str, Any] = {"tau_s": tau, "executed_s": executed_s,
+                           "time_ratio": executed_s / tau if tau > 0 else None}
     last, since, off = dead_reckoning(mp)
     loc = board_localisation()
     out.update(last_magnet=last, dead_reckoning_mm=since, slip_bound=loc["s"],
                d_bound_mm=None if since is None else
                loc["w"] + loc["q"] + loc["s"] * since + (loc["stop"] if off else 0.0))
-    if mp.env is not None:
-        out.update(e_p_mm=mp.env.e_p * 1000.0, e_phi_deg=float(np.degrees(mp.env.e_phi)))
+    g = M.goal(mp)
+    if g is not None:
+        out.update(e_p_mm=g[1] * 1000.0, e_phi_deg=float(np.degrees(g[2])))
     if final_q is None:
         out.update(dp_mm=None, dphi_deg=None)
         return out
-    goal = goal_pose(mp)
-    pose = mp.arm.fk(np.asarray(final_q, float))
+    goal = M.goal_pose(mp)
+    pose = mp.robot.fk(np.asarray(final_q, float))
     out.update(dp_mm=float(np.hypot(*(pose[:2] - goal[:2])) * 1000.0),
                dphi_deg=float(np.degrees(abs(wrap_angle(pose[2] - goal[2])))))
     return out
-
-
-def goal_pose(mp) -> np.ndarray:
-    """The goal pose (x, y, phi): the environment's goal, or (no environment) the MA pose the
-    plan's last waypoint puts it in."""
-    if mp.env is not None:
-        return np.asarray(mp.env.goal_pose, dtype=float)
-    return np.asarray(mp.arm.fk(mp.q[-1]), dtype=float)

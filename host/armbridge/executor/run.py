@@ -30,7 +30,7 @@ from armbridge.executor.settle import resting
 from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, goal_check, plan_error
 from armbridge.link import protocol as P
-from armbridge.plans.format import Plan, validate
+from armbridge.plans.format import Plan, load_plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
 SETTLE_WAIT_S = 3.0  # board time the run waits, after the last DONE, for a board with a dead band to come to rest
@@ -84,13 +84,14 @@ def run_plan(
     serial device), before anything was sent and with nothing written.
     """
     # 1. Validate before anything touches a port.
-    from armbridge.executor.masr import load_any_plan, masr_commands
+    from armbridge.executor.masr import masr_commands
+    from armbridge.plans import masr as M
 
     if isinstance(plan, (str, Path)):
-        plan = load_any_plan(plan)
+        plan = load_plan(plan)
     masr: Any = None
     commands = None
-    if not isinstance(plan, Plan):  # a MASR plan: its steps as the MA's actions
+    if plan.masr is not None:  # a MASR plan: its steps as the MA's actions
         if cartesian:
             raise ArmbridgeError("--cartesian is for the drawing arm; a MASR plan's actions are MV and ROT")
         masr = plan
@@ -124,7 +125,7 @@ def run_plan(
         ik="board" if cartesian else "host",
     )
     if masr is not None:
-        summary.planned_duration_s = masr.total_time
+        summary.planned_duration_s = M.total_time(masr)
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg
     rec: Recording | None = None
@@ -136,7 +137,7 @@ def run_plan(
             return  # not this robot's board (connect() is about to say so)
         active = client.done_index + 1 if client is not None else 0
         if masr is not None:  # the board's d is an estimate (+- its bound): a mm past an end is the MA at that end
-            m.q[-1] = min(max(float(m.q[-1]), 0.0), masr.arm.total_length)
+            m.q[-1] = min(max(float(m.q[-1]), 0.0), masr.robot.total_length)
         samples.append((t, m.state, m.q, m.target, active))
         if rec is not None:
             rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
@@ -288,17 +289,18 @@ def _recording(rrd: Path, robot, plan: Plan, masr, kind: str):
     from armbridge.telemetry.layout import board_views, run_layout
     from armbridge.telemetry.recording import Recording
 
-    from armbridge.planning.soft.plan_file import recording_layers
+    from armbridge.plans import masr as M
+    from armbridge.plans.soft import recording_layers
 
     views = board_views(kind)
-    layers = recording_layers(plan) if masr is None else None  # a soft plan's scene (its provenance)
+    layers = recording_layers(plan) if masr is None else None  # a soft plan's scene (its soft section)
     if masr is None and layers is None and (not views or plan.pen is not None):
         return Recording(rrd, robot, plan)
     spatial = ["world/obstacles"] if masr is not None else list(layers or ())
     layout = run_layout(robot, spatial=spatial, views=views)
     rec = Recording(rrd, robot, plan, layout=layout)
-    if masr is not None and masr.env is not None:
-        rec.obstacles(masr.env.obstacles)
+    if masr is not None and M.obstacles(masr):
+        rec.obstacles(M.obstacles(masr))
     if layers:
         rec.layers(layers)
     return rec
@@ -403,7 +405,7 @@ def _goal(plan: Plan, masr, summary: Summary, samples) -> dict | None:
     if masr is not None and m and m.get("dp_mm") is not None and m.get("e_p_mm") is not None:
         return goal_check("MA pose", m["dp_mm"] / 1000.0, m["e_p_mm"] / 1000.0, np.radians(m["dphi_deg"]),
                           np.radians(m["e_phi_deg"]))
-    from armbridge.planning.soft.plan_file import soft_info, to_base_frame
+    from armbridge.plans.soft import soft_info, to_base_frame
 
     info = soft_info(plan)
     if info is None:

@@ -1,11 +1,20 @@
-"""The plan file: versioned JSON, loaded, validated and saved here.
+"""The plan file: versioned JSON, loaded, validated and saved here. One format for every robot.
 
 A plan is a list of joint-space waypoints for one robot; each waypoint is
 reached at the end of its `duration`, starting where the previous one ends
 (the first one starts wherever the arm is). See docs/formats.md. The robot
 is any `robots.base.Robot`: named from the registry, or described inline
 (an object with its `kind`, default "planar"); a waypoint holds its `dof`
-coordinates, each in its own unit (rad, or m for a MASR's d).
+coordinates, each in its own unit (rad, or m for a MASR's d). What a kind of
+robot needs beyond that rides in a section of its own, checked at load from
+the plan and its robot alone: per-waypoint `pen` flags (a drawing),
+`masr` (the mobile actuator's actions, tau and goal: plans/masr.py), `soft`
+(the soft arm's scene and planned path: plans/soft.py). Planners write these
+files and the executor reads them; nothing here plans again.
+
+Version 2 is written; version 1 files (a soft plan's section then in
+`provenance["soft_plan"]`) and the old MASR sibling format
+(`"armbridge-masr-plan"` version 1) are read into it.
 
 Every problem is an `ArmbridgeError` whose message names the file, the
 waypoint index, the field and the allowed range, e.g.
@@ -27,18 +36,22 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import parse_json, read_json
+from armbridge.plans import masr as masr_section
+from armbridge.plans import soft as soft_section
 from armbridge.robots import catalog
 from armbridge.robots.base import Robot
 
 FORMAT = "armbridge-plan"
-VERSION = 1
+VERSION = 2
+READS = (1, 2)  # versions this armbridge reads
 DURATION_MIN = 0.001  # s: one board tick of the ms wire unit
 DURATION_MAX = 60.0  # s: the protocol's W limit (60000 ms)
 # Relative slack on the speed check, so a segment planned at exactly v_max
 # is not refused for a rounding error in the last digit.
 SPEED_SLACK = 1e-9
 
-_TOP_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance")
+_TOP_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance", "masr", "soft")
+_V1_FIELDS = ("format", "version", "robot", "joints", "waypoints", "provenance")
 
 
 @dataclass
@@ -53,6 +66,8 @@ class Plan:
     inline_robot: bool = False  # the file described the robot inline (not a registry name)
     # Optional (k,) pen flags, one a waypoint: 1 = the move into it draws (pen down), 0 = pen up.
     pen: np.ndarray | None = None
+    masr: dict | None = None  # a MASR's actions, tau, goal (plans/masr.py), checked
+    soft: dict | None = None  # the soft arm's scene and planned path (plans/soft.py), checked
 
     @property
     def k(self) -> int:
@@ -167,18 +182,24 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
     if not isinstance(doc, dict):
         raise ctx.err(f"a plan is a JSON object, got {_describe(doc)}")
     fmt = doc.get("format")
+    if fmt == masr_section.FORMAT_V1:  # the old MASR sibling format
+        plan = plan_from_dict(masr_section.v1_to_v2(doc, source, DURATION_MIN), source)
+        masr_section.check_v1_tau(doc, plan.robot, plan.q, ctx.err)
+        return plan
     if fmt != FORMAT:
         if "format" not in doc:
             raise ctx.err(f'missing field "format" (expected "{FORMAT}")')
         raise ctx.err(f'format is {json.dumps(fmt)}, expected "{FORMAT}"')
     if "version" not in doc:
-        raise ctx.err(f'missing field "version" (this armbridge reads version {VERSION})')
+        raise ctx.err(f'missing field "version" (this armbridge reads versions {", ".join(map(str, READS))})')
     version = doc["version"]
-    if not (_is_number(version) and version == VERSION):
-        raise ctx.err(f"unsupported version {json.dumps(version)} (this armbridge reads version {VERSION})")
+    if not (_is_number(version) and version in READS):
+        raise ctx.err(f"unsupported version {json.dumps(version)} (this armbridge reads versions "
+                      f"{', '.join(map(str, READS))})")
+    allowed = _TOP_FIELDS if version == 2 else _V1_FIELDS
     for key in doc:
-        if key not in _TOP_FIELDS:
-            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(_TOP_FIELDS)})')
+        if key not in allowed:
+            raise ctx.err(f'unknown field "{key}" (allowed: {", ".join(allowed)})')
     for key in ("robot", "joints", "waypoints"):
         if key not in doc:
             raise ctx.err(f'missing field "{key}"')
@@ -221,10 +242,13 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
         if jd["unit"] != units[j]:
             raise ctx.err(f'joints[{j}] ({jnames[j]}).unit is {json.dumps(jd["unit"])}, allowed: "{units[j]}"')
 
-    # provenance
+    # provenance (a version 1 soft plan kept its section there)
     prov = doc.get("provenance", {})
     if not isinstance(prov, dict):
         raise ctx.err(f"provenance must be an object, got {_describe(prov)}")
+    prov = dict(prov)
+    soft = doc.get("soft", prov.pop(soft_section.KEY_V1, None) if version == 1 else None)
+    masr = doc.get("masr")
 
     # waypoints
     wps = doc["waypoints"]
@@ -271,7 +295,7 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
             raise ctx.err(f"{where}, duration must be a number of seconds, got {_describe(d)}")
         if not math.isfinite(d):
             raise ctx.err(f"{where}, duration is {d}: plans hold finite numbers only")
-        if not (DURATION_MIN <= d <= DURATION_MAX):
+        if not (DURATION_MIN <= d <= (math.inf if masr is not None else DURATION_MAX)):  # MA actions: no W
             raise ctx.err(
                 f"{where}, duration = {fmt_num(d)} s is outside [{fmt_num(DURATION_MIN)}, {fmt_num(DURATION_MAX)}]"
             )
@@ -287,14 +311,20 @@ def plan_from_dict(doc: Any, source: Path | str | None = None) -> Plan:
                     f"{fmt_num(d)} s = {fmt_num(speed[j])} {u}/s, above the robot's v_max "
                     f"{fmt_num(v_max[j])} {u}/s (needs duration >= {fmt_num(abs(q[i, j] - q[i - 1, j]) / v_max[j])} s)"
                 )
+    if masr is not None:
+        masr = masr_section.check_section(masr, robot, q, dur, DURATION_MIN, ctx.err)
+    if soft is not None:
+        soft_section.read_section(soft, n, k, f"{ctx.name}: soft")
     return Plan(
         robot=robot,
         q=q,
         durations=dur,
-        provenance=dict(prov),
+        provenance=prov,
         source=Path(source) if source is not None else None,
         inline_robot=inline,
         pen=np.array(pens, dtype=int) if pens else None,
+        masr=masr,
+        soft=soft,
     )
 
 
@@ -330,14 +360,16 @@ def plan_to_dict(plan: Plan) -> dict:
              **({} if plan.pen is None else {"pen": int(plan.pen[i])})} for i in range(plan.k)
         ],
         "provenance": prov,
+        **({} if plan.masr is None else {"masr": plan.masr}),
+        **({} if plan.soft is None else {"soft": plan.soft}),
     }
 
 
 def make_plan(robot: Robot, q, durations, provenance: dict | None = None, *, tool: str = "armbridge",
-              pen=None) -> Plan:
+              pen=None, masr: dict | None = None, soft: dict | None = None) -> Plan:
     """Build (and validate) a Plan in memory; fills provenance.tool and .created when missing.
     A robot that is not the registry's robot of its name is written inline. `pen`: optional
-    per-waypoint pen flags (1 down, 0 up)."""
+    per-waypoint pen flags (1 down, 0 up); `masr`, `soft`: a section (plans/masr.py, soft.py)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     durations = np.broadcast_to(np.asarray(durations, dtype=float), (q.shape[0],)).copy()
     prov = dict(provenance or {})
@@ -348,7 +380,7 @@ def make_plan(robot: Robot, q, durations, provenance: dict | None = None, *, too
     if pen is not None and len(pen) != q.shape[0]:
         raise ArmbridgeError(f"pen has {len(pen)} flags for {q.shape[0]} waypoints")
     plan = Plan(robot=robot, q=q, durations=durations, provenance=prov, inline_robot=inline,
-                pen=None if pen is None else np.array(pen, dtype=int))
+                pen=None if pen is None else np.array(pen, dtype=int), masr=masr, soft=soft)
     return validate(plan)
 
 
@@ -357,10 +389,12 @@ def save_plan(plan: Plan, path: Path | str) -> Path:
     path = Path(path)
     doc = plan_to_dict(plan)
     plan_from_dict(doc, path)  # never write a file we would refuse to load
-    head = {k: v for k, v in doc.items() if k != "waypoints"}
+    head = {k: v for k, v in doc.items() if k not in ("waypoints", "masr")}
     lines = ["{"]
     for key, value in head.items():
         lines.append(f"  {json.dumps(key)}: {json.dumps(value, allow_nan=False)},")
+    if "masr" in doc:
+        lines.append(f'  "masr": {_masr_text(doc["masr"])},')
     lines.append('  "waypoints": [')
     wps = [json.dumps(w, allow_nan=False) for w in doc["waypoints"]]
     lines.append(",\n".join("    " + w for w in wps))
@@ -369,3 +403,16 @@ def save_plan(plan: Plan, path: Path | str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
+
+
+def _masr_text(sec: dict) -> str:
+    """The masr section as it reads best: an action a line and a step a line under it."""
+    head = {k: v for k, v in sec.items() if k != "actions"}
+    parts = [f"    {json.dumps(k)}: {json.dumps(v, allow_nan=False)}" for k, v in head.items()]
+    acts = []
+    for a in sec["actions"]:
+        first = json.dumps({k: a[k] for k in ("from", "to", "cost")})[:-1]
+        steps = ",\n".join("        " + json.dumps(st, allow_nan=False) for st in a["steps"])
+        acts.append(f'      {first}, "steps": [\n{steps}\n      ]}}' if a["steps"] else f'      {first}, "steps": []}}')
+    parts.append('    "actions": [\n' + ",\n".join(acts) + "\n    ]")
+    return "{\n" + ",\n".join(parts) + "\n  }"

@@ -15,7 +15,7 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
     trace/tip                 the whole measured tip trace     LineStrips2D (3D), static, at close
     world/obstacles           a plan's obstacles (MASR, soft)  LineStrips2D, static
     plan/planned_tip          a soft plan's whole planned tip  LineStrips2D, static (Recording.layers,
-                              path (the planner's nodes)        planning/soft/plan_file.py)
+                              path (the planner's nodes)        plans/soft.py)
     plan/shapes               the planned arm at each pose     LineStrips2D, static (the same)
     drawing/target            a drawing plan's pen-down strokes LineStrips2D, static (plans with `pen`)
     drawing/trace             the measured tip while the pen is LineStrips2D, the trace so far at each
@@ -167,7 +167,7 @@ class Recording:
     def layers(self, layers: dict) -> None:
         """Static line strips in the arm's space, entity path -> (strips, colour): what a plan brings
         to draw beside the arm (a soft plan's obstacles, planned tip path and poses, in the arm's base
-        frame: planning/soft/plan_file.py recording_layers)."""
+        frame: plans/soft.py recording_layers)."""
         for path, (strips, color) in layers.items():
             strips = [np.asarray(s, float)[:, : self._dim] for s in strips]
             if strips:
