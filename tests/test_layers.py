@@ -59,3 +59,16 @@ def test_a_circle_between_files_breaks_the_contract(tmp_path):
     (pkg / "plans" / "_b.py").write_text("from armbridge.plans import _a  # noqa: F401\n")
     r = lint(tmp_path, tmp_path / "host")
     assert r.returncode != 0 and "No cycles are allowed in armbridge.plans" in r.stdout, r.stdout[-2000:]
+
+
+def test_the_architecture_map_is_the_contract():
+    """docs/architecture.md opens with the rooms in the contract's order, one row a layer."""
+    import re
+    import tomllib
+
+    layers = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"][0]["layers"]
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    rows = re.findall(r"^\| (\d+) \| (.+?) \| .+ \|$", text, flags=re.M)
+    doc = [cell.replace("`", "").replace("\\|", "|").strip() for _, cell in rows]
+    assert [int(n) for n, _ in rows] == list(range(1, len(layers) + 1))
+    assert [re.sub(r"\s+", " ", x) for x in doc] == [re.sub(r"\s+", " ", x) for x in layers]
