@@ -31,15 +31,14 @@ def wave_plan(k: int = 200, dt: float = 0.05, amp=(0.4, 0.3, 0.4), freq: float =
 
 
 @contextmanager
-def opened_ports() -> Iterator[list]:
-    """The ports `transport.open_port` opens inside the block, in a list (filled as they
-    open), so a test can look at the emulator after a run; closed on leaving. A
-    context manager, so a module-scoped fixture can keep one emulator for its tests."""
+def _spied_ports(opener) -> Iterator[list]:
+    """transport.open_port replaced by `opener(real_open_port, url, ...)` inside the block; the
+    ports it opens in a list (filled as they open), closed on leaving."""
     opened: list = []
     real = transport.open_port
 
     def spy(url, *a, **kw):
-        port = real(url, *a, **kw)
+        port = opener(real, url, *a, **kw)
         opened.append(port)
         return port
 
@@ -53,29 +52,21 @@ def opened_ports() -> Iterator[list]:
             p.close()
 
 
-@contextmanager
-def lockstep_ports() -> Iterator[list]:
+def opened_ports():
+    """The ports `transport.open_port` opens inside the block, in a list (filled as they
+    open), so a test can look at the emulator after a run; closed on leaving. A
+    context manager, so a module-scoped fixture can keep one emulator for its tests."""
+    return _spied_ports(lambda real, url, *a, **kw: real(url, *a, **kw))
+
+
+def lockstep_ports():
     """As `opened_ports`, but every `emu:` url (speed 0) opens as a lockstep port
     (emulator/lockstep.py: host and board take turns in one thread), so a run repeats
     bit for bit and a fault can be timed from an earlier run of the same plan and seed."""
     from armbridge.emulator.url import open_lockstep_port
 
-    opened: list = []
-    real = transport.open_port
-
-    def lockstep(url, *a, **kw):
-        port = open_lockstep_port(url) if url.startswith("emu:") else real(url, *a, **kw)
-        opened.append(port)
-        return port
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(transport, "open_port", lockstep)
-    try:
-        yield opened
-    finally:
-        mp.undo()
-        for p in opened:
-            p.close()
+    return _spied_ports(lambda real, url, *a, **kw: open_lockstep_port(url) if url.startswith("emu:")
+                        else real(url, *a, **kw))
 
 
 @pytest.fixture

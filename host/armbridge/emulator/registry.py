@@ -158,13 +158,12 @@ def known_boards() -> str:
 
 
 def board_spec(device: str | BoardSpec) -> BoardSpec:
-    """The spec of `device` (a name in BOARDS, or a BoardSpec, returned as is)."""
+    """The spec of `device` (a name in BOARDS, or a BoardSpec, returned as is); an unknown name
+    is boards.board's one error naming the known ones."""
     if isinstance(device, BoardSpec):
         return device
-    try:
-        return BOARDS[device]
-    except (KeyError, TypeError):
-        raise ArmbridgeError(f"unknown device {device!r}; known devices: {known_boards()}") from None
+    spec = BOARDS.get(device) if isinstance(device, str) else None
+    return spec if spec is not None else BOARDS[boards.board(device).name]
 
 
 def rig_spec(spec: BoardSpec, name: str | None) -> BoardSpec:

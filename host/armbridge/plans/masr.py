@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.plans.checks import polygon
 
 FORMAT_V1 = "armbridge-masr-plan"
 _V1_TOP = ("format", "version", "robot", "configuration", "tau", "goal", "environment", "provenance", "waypoints",
@@ -133,7 +134,10 @@ def check_section(sec: Any, robot: Any, q: np.ndarray, durations: np.ndarray, du
         if start.shape != q[0].shape or np.max(np.abs(start - q[0])) > TOL:
             raise err("waypoint 0 is not the environment's start configuration")
         for i, p in enumerate(env["obstacles"]):
-            _polygon(p, i, err)
+            try:
+                polygon(p, f"masr.environment.obstacles[{i}]", 3)
+            except ArmbridgeError as exc:
+                raise err(str(exc)) from None
     d_end = float(q[-1, n])
     if not arm.holds_margin(d_end):
         raise err(f"the last waypoint puts the MA at d = {d_end:.6f} m, {float(arm.joint_clearance(d_end)) * 1e3:.3f} mm "
@@ -150,16 +154,6 @@ def check_section(sec: Any, robot: Any, q: np.ndarray, durations: np.ndarray, du
                       f"the goal for d within d_margin = {arm.d_margin * 1e3:g} mm of its d, outside "
                       f"e_p = {g['e_p'] * 1e3:g} mm, e_phi = {math.degrees(g['e_phi']):g} deg (eq. 9)")
     return dict(sec)
-
-
-def _polygon(p: Any, i: int, err: Any) -> np.ndarray:
-    try:
-        a = np.asarray(p, dtype=float)
-    except (TypeError, ValueError):
-        a = np.zeros((0,))
-    if a.ndim != 2 or a.shape[1] != 2 or a.shape[0] < 3 or not np.all(np.isfinite(a)):
-        raise err(f"masr.environment.obstacles[{i}] must be a list of at least 3 [x, y] vertices")
-    return a
 
 
 # ------------------------------------------------------------------ reading a plan's section

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
+from armbridge.plans.checks import polygon
 
 KEY_V1 = "soft_plan"  # where version 1 kept the section: provenance["soft_plan"]
 
@@ -92,7 +93,7 @@ def read_section(sec: Any, n: int, k: int, where: str) -> SoftInfo:
     obstacles = get(sec, "scene.obstacles")
     if not isinstance(obstacles, list):
         raise ArmbridgeError(f"{where}.scene.obstacles must be a list of polygons")
-    polys = [_poly(p, i, where) for i, p in enumerate(obstacles)]
+    polys = [polygon(p, f"{where}.scene.obstacles[{i}]") for i, p in enumerate(obstacles)]
     path = arr("planned_path", (None, n))
     pose_rows = arr("pose_rows", (None,)).astype(int)
     if pose_rows.size and (pose_rows.min() < 0 or pose_rows.max() >= k):
@@ -103,16 +104,6 @@ def read_section(sec: Any, n: int, k: int, where: str) -> SoftInfo:
                     planner=str(get(sec, "planner")), planned_path=path,
                     nodes=arr("waypoints.nodes", (None,)).astype(int), pose_rows=pose_rows,
                     tolerance_m=float(get(sec, "waypoints.tolerance_m")))
-
-
-def _poly(p: Any, i: int, where: str) -> np.ndarray:
-    try:
-        a = np.asarray(p, dtype=float)
-    except (TypeError, ValueError):
-        a = np.zeros((0,))
-    if a.ndim != 2 or a.shape[1] != 2 or a.shape[0] < 2 or not np.all(np.isfinite(a)):
-        raise ArmbridgeError(f"{where}.scene.obstacles[{i}] must be a list of at least 2 [x, y] vertices")
-    return a
 
 
 def recording_layers(plan: Any) -> dict[str, tuple[list[np.ndarray], tuple[int, int, int]]] | None:
