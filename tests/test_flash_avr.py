@@ -90,3 +90,15 @@ def test_a_port_without_the_bootloader_is_one_line(silent_port):
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1 and "does not answer the stk500v2 bootloader" in lines[0], r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_micropython_image_for_the_mega_is_refused_and_nothing_is_written(tmp_path):
+    """`--micropython` names an image for a MicroPython board: on the Mega (C firmware) it is bad
+    input, one line, exit 2, before any port is touched (it was ignored, and the flash went on)."""
+    image = tmp_path / "ESP32_GENERIC.bin"
+    image.write_bytes(b"\xe9" + bytes(4095))
+    r = _flash("--port", str(tmp_path / "no-such-port"), "--micropython", str(image))
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and "--micropython is for the MicroPython boards" in lines[0], r.stderr
+    assert "Traceback" not in r.stderr

@@ -80,6 +80,9 @@ def flash_cmd(
     avrdude through the Mega's bootloader (verified)."""
     target, flash = _flasher(board)
     out = Console(stderr=True, highlight=False)
+    if target.kind == "avrdude" and micropython is not None:
+        raise ArmbridgeError(f"--micropython is for the MicroPython boards; {board} runs its C firmware "
+                             "(flash it without --micropython: avrdude writes the .hex through its bootloader)")
     if target.kind == "avrdude":
         _flash_avr(target, flash, port, firmware, timeout, out)
         return
