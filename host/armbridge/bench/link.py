@@ -37,6 +37,7 @@ from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import typer
@@ -346,18 +347,19 @@ MODBUS_URL = "modbus:emu:arduino_pump?addr=1&speed=0"
 
 
 def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: int = 2,
-        board: str = "esp32", load: float = 0.0) -> dict:
+        board: str = "esp32", load: float | None = None) -> dict:
     """Every measurement of the bench on `board` (BOARDS), the pty ones first (so the
     damage model's worker processes do not share the cores with the paced emulator);
     the syringe-pump board adds the Modbus round trip and leaves out the damage model
-    (the codec's, the same for every board). `load` > 0: throughput, round trip and
-    e-stop only, with that many busy processes per core beside them (bench/load.py)."""
+    (the codec's, the same for every board). `load` (not None): throughput, round trip
+    and e-stop only, with that many busy processes per core beside them (bench/load.py;
+    0: the same at rest, for the figures beside them)."""
     from armbridge.bench.load import Busy
 
     b = BOARDS[board]
     clock = "emulator (sim time)" if b.lockstep else "wall"
     result: dict = {"board": board, "url": b.url, "clock": clock, "load_per_core": load}
-    with Busy(load) as busy:
+    with Busy(load or 0.0) as busy:
         result["busy_processes"] = busy
         progress(f"{board}: throughput: {size.throughput_runs} x {size.waypoints} waypoints, {clock} clock"
                  + (f", {busy} busy processes beside" if busy else ""))
@@ -366,7 +368,7 @@ def run(size: LinkBenchSize, progress: Callable[[str], None] = print, workers: i
         result["round_trip"] = round_trip(size.pings, b)
         progress(f"e-stop: {size.estops} trials")
         result["estop"] = estop_latency(size.estops, b)
-    if load > 0:
+    if load is not None:
         result["size"] = size.__dict__
         return result
     progress(f"soak: {size.soak_s:g} s with {SOAK_FAULTS}, a reset every {size.reset_every_s:g} s")
@@ -423,8 +425,9 @@ def link_cmd(
     board: str = typer.Option("esp32", "--board", help="The emulated board: esp32 (the MicroPython firmware, paced "
                               "to the wall clock) or arduino_pump (the .elf in simavr in lockstep, on its clock; "
                               "adds the Modbus round trip, leaves out the damage model)."),
-    load: float = typer.Option(0.0, "--load", min=0.0, help="Busy-loop processes per core beside the run: then "
-                               "throughput, round trip and e-stop only, for the figures at load (bench load)."),
+    load: Optional[float] = typer.Option(None, "--load", min=0.0, help="Busy-loop processes per core beside the "
+                                         "run: then throughput, round trip and e-stop only, for the figures at load "
+                                         "(0: the same at rest, to stand beside them)."),
 ) -> None:
     """The line protocol: undetected errors of v1 and v2 under the UART fault mix, and,
     over a pty paced at 115200 baud, throughput, round trip, e-stop latency and a soak
@@ -436,7 +439,7 @@ def link_cmd(
     if board not in BOARDS:
         raise typer.BadParameter(f"{board!r}: use one of {', '.join(BOARDS)}", param_hint="--board")
     if json_out is None:
-        tag = ("" if board == "esp32" else f"-{board}") + (f"-load{load:g}" if load else "")
+        tag = ("" if board == "esp32" else f"-{board}") + (f"-load{load:g}" if load is not None else "")
         json_out = Path(f"runs/bench-link{tag}.json")
     size = QUICK if quick else FULL
     if soak_s is not None:
