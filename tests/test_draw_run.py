@@ -11,13 +11,8 @@ from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
 from armbridge.cli import build_app
-from armbridge.draw.error import (
-    characters,
-    drawing_error,
-    pen_strips,
-    point_polyline_distance,
-    trace_strips,
-)
+from armbridge.draw.sources import characters
+from armbridge.plans.drawing import drawing_error, pen_strips, point_polyline_distance, trace_strips
 from armbridge.emulator.plant import PlantParams
 from armbridge.errors import ArmbridgeError
 from armbridge.plans.format import load_plan

@@ -30,7 +30,7 @@ import typer
 from armbridge.bench.command import write_json
 from armbridge.emulator.micropython import bridge_script, find_micropython, find_node
 from armbridge.emulator.mpbridge import fwcost
-from armbridge.emulator.registry import MicroPythonFirmware, board_spec
+from armbridge.boards import MicroPythonFirmware, board
 from armbridge.emulator.runner import load_firmware
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir
@@ -42,7 +42,7 @@ BENCH_HEAP = 64 << 20    # room for a whole item without a collection (see fwcos
 
 
 def _firmware(device: str) -> tuple[MicroPythonFirmware, list[Path]]:
-    spec = board_spec(device)
+    spec = board(device)
     fw = spec.firmware
     if not isinstance(fw, MicroPythonFirmware):
         raise ArmbridgeError(f"the {spec.name} board's firmware is not MicroPython")
