@@ -13,6 +13,7 @@ from armbridge.emulator.board import EmulatedBoard
 from armbridge.emulator.faults import (Faults, parse_delay, parse_lanes, parse_missed, parse_rate, parse_seconds,
                                        parse_slip, parse_stall)
 from armbridge.emulator.registry import BOARDS, board_spec, rig_spec
+from armbridge.emulator.truth import check_plant
 from armbridge.errors import ArmbridgeError
 
 
@@ -58,7 +59,11 @@ def emulate_cmd(
     stall: List[str] = typer.Option([], "--stall", metavar="J@SECONDS", help="Stall joint J (1..n) at this sim time (repeatable). masr_ma: joint J's worm drive seizes (the rotation motor stalls on it), J = n: the wheel."),
     missed: List[str] = typer.Option([], "--missed-magnet", metavar="J", help="masr_ma: joint J's magnet never fires (repeatable)."),
     slip: List[str] = typer.Option([], "--slip-burst", metavar="S:D:F", help="masr_ma: from sim second S for D seconds the wheel slips by the fraction F in [0, 1]: the MA advances by its travel times 1 - F (repeatable)."),
-    seed: int = typer.Option(0, "--seed", help="Seed of sensor noise and link faults."),
+    seed: int = typer.Option(0, "--seed", help="Seed of sensor noise and link faults (and of the plant's truth)."),
+    plant: str = typer.Option("nominal", "--plant", metavar="P",
+                              help="nominal: the model the firmware assumes; random: the plant's physical "
+                                   "parameters drawn with --seed from their documented spreads "
+                                   "(docs/emulator.md, 'Hidden truth'), which host and firmware never read."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
     realtime: bool = typer.Option(False, "--realtime", help="Run the board at real-time priority (SCHED_FIFO, as "
@@ -73,6 +78,10 @@ def emulate_cmd(
                              f"{', '.join(spec.interpreters)}")
     if not speed >= 0:
         raise ArmbridgeError(f"--speed {speed} must be >= 0 (0 = as fast as it goes)")
+    try:
+        check_plant(plant)
+    except ArmbridgeError as exc:
+        raise ArmbridgeError(f"--plant: {exc}") from None
     delay_rate, delay_ms = parse_delay(delay, "--delay") if delay else (0.0, 0.0)
     faults = Faults(
         drop=parse_rate("--drop", drop),
@@ -102,7 +111,7 @@ def emulate_cmd(
         sys.stderr.write(f"warning: {text}\n")
         sys.stderr.flush()
 
-    emu = EmulatedBoard(spec, speed=speed, faults=faults, seed=seed, link=link, interpreter=interpreter,
+    emu = EmulatedBoard(spec, speed=speed, faults=faults, seed=seed, link=link, interpreter=interpreter, plant=plant,
                         on_line=None if quiet else echo, on_note=warn, realtime=realtime)
     try:
         emu.start()  # a link another emulator owns: ArmbridgeError naming the owner
@@ -117,7 +126,7 @@ def emulate_cmd(
         _say(f"note: {emu.link_note}")
     if not quiet:
         rig = f"rig {spec.rig}, " if spec.rigs else ""
-        _say(f"speed {speed:g}, seed {seed}, {rig}firmware under {emu.interpreter}, "
+        _say(f"speed {speed:g}, seed {seed}, {plant} plant, {rig}firmware under {emu.interpreter}, "
              f"faults: {faults.describe()}; "
              "Ctrl-C stops")
         for text in held or []:

@@ -50,6 +50,7 @@ class Plant(Protocol):
 
 PlantFactory = Callable[..., Plant]   # (cfg, params, q0, seed) -> Plant
 HalFactory = Callable[..., Any]       # (clock, plant, uart, persist, *, tick_offset_ms, on_line, files) -> HAL
+TruthFactory = Callable[..., Any]     # (cfg, rng) -> the plant's parameters drawn from its SPREADS (truth.py)
 
 
 def servo_plant(cfg, params: PlantParams | None, q0, seed: int) -> ServoPlant:
@@ -66,7 +67,28 @@ class Rig:
     description: str
     plant: PlantFactory
     hal: HalFactory
+    truth: TruthFactory
     interpreters: tuple[str, ...]
+
+
+def _servo_truth(cfg, rng) -> Any:
+    from armbridge.emulator.plant import hidden_truth
+    return hidden_truth(cfg, rng)
+
+
+def _pca_truth(cfg, rng) -> Any:
+    from armbridge.emulator.servo_plant import hidden_truth
+    return hidden_truth(cfg, rng)
+
+
+def _ma_truth(cfg, rng) -> Any:
+    from armbridge.emulator.ma_plant import hidden_truth
+    return hidden_truth(cfg, rng)
+
+
+def _pump_truth(cfg, rng) -> Any:
+    from armbridge.emulator.pump_plant import hidden_truth
+    return hidden_truth(cfg, rng)
 
 
 def _pca_plant(cfg, params, q0, seed: int) -> Any:
@@ -99,11 +121,11 @@ def _pump_hal(*args: Any, **kw: Any) -> Any:
     return PumpSimHal(*args, **kw)
 
 
-#: board name -> rig name -> (plant factory, HAL factory): how each rig is emulated
-EMULATIONS: dict[str, dict[str, tuple[PlantFactory, HalFactory]]] = {
-    "esp32": {"effort": (servo_plant, SimHal), "pca9685": (_pca_plant, _pca_hal)},
-    "masr_ma": {"effort": (_ma_plant, _ma_hal)},
-    "arduino_pump": {"effort": (_pump_plant, _pump_hal)},
+#: board name -> rig name -> (plant factory, HAL factory, hidden-truth factory): how each rig is emulated
+EMULATIONS: dict[str, dict[str, tuple[PlantFactory, HalFactory, TruthFactory]]] = {
+    "esp32": {"effort": (servo_plant, SimHal, _servo_truth), "pca9685": (_pca_plant, _pca_hal, _pca_truth)},
+    "masr_ma": {"effort": (_ma_plant, _ma_hal, _ma_truth)},
+    "arduino_pump": {"effort": (_pump_plant, _pump_hal, _pump_truth)},
 }
 
 
@@ -114,7 +136,8 @@ class BoardSpec:
     name: the DEVICE of `armbridge emulate DEVICE` and `emu:DEVICE`.
     identity: the firmware name the board reports (BOOT, HELLO), for messages and checks.
     plant(cfg, params, q0, seed), hal(clock, plant, uart, persist, tick_offset_ms=, on_line=):
-    factories; q0 / plant_params: defaults handed to the plant (None: the plant's own).
+    factories; q0 / plant_params: defaults handed to the plant (None: the plant's own);
+    truth(cfg, rng): the plant's parameters drawn from its spreads (`plant=random`, truth.py).
     tick_us: one emulator iteration in sim time; baud: the UART's (8N1 pacing);
     persist_bytes: memory that survives a reset (RTC memory on the ESP32).
     rig: the rig this spec emulates; rigs: every rig of the board (see rig_spec).
@@ -126,6 +149,7 @@ class BoardSpec:
     firmware: MicroPythonFirmware | ElfFirmware
     plant: PlantFactory = servo_plant
     hal: HalFactory = SimHal
+    truth: TruthFactory = _servo_truth
     q0: tuple[float, ...] | None = None
     plant_params: PlantParams | None = None
     tick_us: int = 1000
@@ -142,10 +166,10 @@ class BoardSpec:
 def _spec(b: boards.Board) -> BoardSpec:
     """The emulator's spec of board `b`: its facts and how each of its rigs is emulated."""
     emulation = EMULATIONS[b.name]
-    plant, hal = emulation[b.rig]
+    plant, hal, truth = emulation[b.rig]
     rigs = {name: Rig(fact.description, *emulation[name], fact.interpreters) for name, fact in b.rigs.items()}
     return BoardSpec(name=b.name, description=b.description, identity=b.identity, firmware=b.firmware,
-                     plant=plant, hal=hal, baud=b.baud, tick_us=b.tick_us, persist_bytes=b.persist_bytes,
+                     plant=plant, hal=hal, truth=truth, baud=b.baud, tick_us=b.tick_us, persist_bytes=b.persist_bytes,
                      rig=b.rig, rigs=rigs)
 
 
@@ -178,4 +202,4 @@ def rig_spec(spec: BoardSpec, name: str | None) -> BoardSpec:
     fw = spec.firmware
     if isinstance(fw, MicroPythonFirmware):
         fw = replace(fw, interpreters=rig.interpreters)
-    return replace(spec, plant=rig.plant, hal=rig.hal, plant_params=None, rig=name, firmware=fw)
+    return replace(spec, plant=rig.plant, hal=rig.hal, truth=rig.truth, plant_params=None, rig=name, firmware=fw)

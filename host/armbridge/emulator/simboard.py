@@ -50,6 +50,7 @@ from armbridge.emulator.registry import BoardSpec, MicroPythonFirmware, board_sp
 from armbridge.emulator.repl import Console, cooked
 from armbridge.emulator.runner import boot_from, firmware_config, make_runner
 from armbridge.emulator.simhal import PersistentMemory, SimClock
+from armbridge.emulator.truth import check_plant, truth_rng
 from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir
@@ -62,7 +63,9 @@ class SimBoard:
     wall clock, K faster, 0 lockstep: what EmulatedBoard serves it at). faults:
     `Faults`. seed: seeds the plant noise and the link faults. interpreter: the
     firmware runner ("cpython", "micropython"; None: the spec's default). q0,
-    plant_params: override the spec's. on_line(t, line): called with every line
+    plant_params: override the spec's. plant: "nominal" (the spec's parameters)
+    or "random" (drawn from the plant's spreads with `seed`: truth.py; the drawn
+    parameters are the plant's `p`, which only tests and benches read). on_line(t, line): called with every line
     the firmware writes (sim seconds, bytes without LF), before link faults.
     """
 
@@ -76,6 +79,7 @@ class SimBoard:
         interpreter: str | None = None,
         q0=None,
         plant_params: PlantParams | None = None,
+        plant: str = "nominal",
         firmware_root: str | os.PathLike | None = None,
         tick_offset_ms: int = 0,
         boot_ms: float = 250.0,
@@ -100,6 +104,11 @@ class SimBoard:
         self.cfg: Any = firmware_config(spec, root)
         self.period_ms = int(getattr(self.cfg, "PERIOD_MS", 10))
         self.clock = SimClock()
+        self.plant_kind = check_plant(plant)
+        if plant == "random":
+            if plant_params is not None:
+                raise ArmbridgeError("plant=random draws the plant's parameters; it takes no plant_params")
+            plant_params = spec.truth(self.cfg, truth_rng(seed))
         self.plant = spec.plant(self.cfg, plant_params if plant_params is not None else spec.plant_params,
                                 q0 if q0 is not None else spec.q0, seed)
         self.n = int(self.plant.n)

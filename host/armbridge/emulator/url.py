@@ -11,7 +11,10 @@ Parameters (all optional):
   drop=R corrupt=R dup=R   byte fault rates in [0, 1]
   delay=R:MS       a fraction R of bytes delayed MS milliseconds (or delay=R&delay_ms=MS)
   lanes=rx,tx      which directions get the link faults (default both)
-  seed=N           seed of plant noise and link faults
+  seed=N           seed of plant noise and link faults (and of the plant's truth)
+  plant=P          nominal (default: the model the firmware assumes) or random: the
+                   plant's physical parameters drawn with seed from their documented
+                   spreads (emulator/truth.py), which host and firmware never read
   reset_at=S[,S]   sim seconds at which the board resets
   stall=J@S[,J@S]  joint J (1..n) stalls at sim second S (masr_ma: joint J's worm
                    drive seizes, J = n: the wheel)
@@ -38,9 +41,10 @@ import serial  # type: ignore[import-untyped]
 from armbridge.emulator.faults import (Faults, parse_delay, parse_lanes, parse_missed, parse_rate, parse_seconds,
                                        parse_slip, parse_stall)
 from armbridge.emulator.registry import BoardSpec, board_spec, rig_spec
+from armbridge.emulator.truth import check_plant
 from armbridge.errors import ArmbridgeError
 
-PARAMETERS = ("servos", "speed", "interpreter", "seed", "link", "fs", "drop", "corrupt", "dup", "delay", "delay_ms",
+PARAMETERS = ("servos", "speed", "interpreter", "seed", "plant", "link", "fs", "drop", "corrupt", "dup", "delay", "delay_ms",
               "lanes", "reset_at", "stall", "missed", "slip")
 
 
@@ -62,6 +66,8 @@ def _board_kw(key: str, value: str) -> Any:
             return int(value)
         except ValueError:
             raise ArmbridgeError(f"seed {value!r} is not an integer") from None
+    if key == "plant":
+        return check_plant(value)
     return value  # link, interpreter: checked when the board is built
 
 
@@ -115,7 +121,7 @@ def parse_emu_url(url: str) -> tuple[str | BoardSpec, dict[str, Any]]:
                                      f"interpreters: {', '.join(spec.interpreters)}")
             if key == "servos":
                 continue
-            if key in ("speed", "seed", "link", "interpreter"):
+            if key in ("speed", "seed", "plant", "link", "interpreter"):
                 kw[key] = _board_kw(key, value)
             elif key == "fs":
                 kw["fs_dir"] = value

@@ -61,13 +61,15 @@ class Journal:
 
     def __init__(self, port: str) -> None:
         self.port = port
-        key = re.sub(r"[^A-Za-z0-9._-]+", "_", os.path.realpath(port) if os.path.exists(port) else port)
+        real = os.path.realpath(port) if os.path.exists(port) else port
+        key = re.sub(r"[^A-Za-z0-9._-]+", "_", real)
         self.path = cache_dir() / "flash" / (key.strip("_") + ".json")
+        self.stamp = _pty_stamp(real)
 
     def start(self, board: str, label: str, total: int) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.write({"port": self.port, "board": board, "firmware": label, "files": total, "written": 0,
-                    "started": time.strftime("%Y-%m-%d %H:%M:%S")})
+                    "started": time.strftime("%Y-%m-%d %H:%M:%S"), "pty": self.stamp})
 
     def progress(self, written: int) -> None:
         note = self.read()
@@ -85,7 +87,11 @@ class Journal:
             note = json.loads(self.path.read_text())
         except (OSError, ValueError):
             return None
-        return note if isinstance(note, dict) else None
+        if not isinstance(note, dict):
+            return None
+        if note.get("pty") != self.stamp:   # a pty since closed: its number now names another board
+            return None
+        return note
 
     def done(self) -> None:
         self.path.unlink(missing_ok=True)
@@ -99,6 +105,19 @@ class Journal:
                 f"{note.get('firmware', '?')} stopped after {note.get('written', '?')} of {note.get('files', '?')} "
                 f"files ({note.get('started', '?')}); run `armbridge flash {note.get('board', '?')} --port "
                 f"{self.port}` again")
+
+
+def _pty_stamp(real: str) -> int | None:
+    """A pseudo-terminal's birth (its inode's ctime, ns), None for any other port. A pty
+    lives as long as its emulator and its number is reused for the next one, so a note
+    about /dev/pts/N holds only while the same pty is open; a real port's note holds
+    across unplugging (a board left half-flashed stays so)."""
+    if not real.startswith("/dev/pts/"):
+        return None
+    try:
+        return os.stat(real).st_ctime_ns
+    except OSError:
+        return None
 
 
 def half_flashed(port: str) -> str | None:
