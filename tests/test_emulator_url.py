@@ -12,10 +12,10 @@ from emu_host import Codec, is_reply
 
 def test_parse_every_parameter():
     device, kw = parse_emu_url(
-        "emu:esp32?speed=4&seed=3&link=/tmp/a&interpreter=cpython&drop=0.01&corrupt=0.001&dup=0"
+        "emu:esp32?speed=4&seed=3&plant=random&link=/tmp/a&interpreter=cpython&drop=0.01&corrupt=0.001&dup=0"
         "&delay=0.01:20&lanes=rx&reset_at=2.5,5&stall=2@4,1@6")
     assert device == "esp32"
-    assert kw == {"speed": 4.0, "seed": 3, "link": "/tmp/a", "interpreter": "cpython",
+    assert kw == {"speed": 4.0, "seed": 3, "plant": "random", "link": "/tmp/a", "interpreter": "cpython",
                   "faults": Faults(drop=0.01, corrupt=0.001, dup=0.0, delay=0.01, delay_ms=20.0, lanes=("rx",),
                                    reset_at=(2.5, 5.0), stall=((2, 4.0), (1, 6.0)))}
     assert parse_emu_url("emu:esp32") == ("esp32", {})
@@ -31,6 +31,7 @@ def test_parse_every_parameter():
     ("emu:esp32?speed=-1", ["speed", ">= 0"]),
     ("emu:esp32?speed=fast", ["speed", "not a number"]),
     ("emu:esp32?seed=1.5", ["seed", "integer"]),
+    ("emu:esp32?plant=true", ["plant", "'true'", "nominal, random"]),
     ("emu:esp32?stall=9", ["stall", "JOINT@SECONDS"]),
     ("emu:esp32?lanes=up", ["lanes", "'up'"]),
     ("emu:esp32?reset_at=1,-2", ["reset_at", ">= 0"]),
