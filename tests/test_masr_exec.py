@@ -495,7 +495,8 @@ def test_bench_masr_exec_quick(tmp_path):
     assert "paper, Table II (E1)" in proc.stdout and "trapezoid ramp alone" in proc.stdout
     r = json.loads(out.read_text())
     assert r["paper_table_ii"] == {"environment": "E1", "planned_s": 46.16, "executed_mean_s": 48.78,
-                                   "executed_std_s": 1.81}
+                                   "executed_std_s": 1.81, "dp_mean_mm": 11.0, "dp_std_mm": 3.1,
+                                   "dphi_mean_deg": 1.2, "dphi_std_deg": 0.8}
     s = r["random"]["summary"]
     assert s["runs"] == s["completed"] == 3 and "fixed" not in r
     assert s["at_goal"] == 1.0 and s["log_exactly_once"]                   # the plant's truth, the board's log
