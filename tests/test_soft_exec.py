@@ -380,6 +380,10 @@ def test_the_demo_settles_every_joint_in_its_dead_band_at_every_waypoint(demo):
     # TOL moves the tip by at most TOL times its length to the tip), times ordered, no collision.
     bound = TOL * float(W.reach_of(L).sum())
     assert 0.0 <= rep["tip_error_m"]["mean"] <= rep["tip_error_m"]["max"] <= bound
+    errs = np.degrees(np.abs([p["error_rad"] for p in rep["poses"]]))
+    assert rep["settled_joint_error_deg"]["max"] == pytest.approx(errs.max(), abs=2e-3)
+    assert rep["settled_joint_error_deg"]["mean"] == pytest.approx(errs.mean(), abs=2e-3)
+    assert rep["settled_joint_error_deg"]["max"] <= np.degrees(TOL) + 1e-3
     assert 0.0 <= rep["settle_s"]["mean"] <= rep["settle_s"]["max"]
     assert 0.0 <= rep["path_deviation_m"]["mean"] <= rep["path_deviation_m"]["max"] <= bound + 0.01
     assert rep["collision_free"] and rep["min_clearance_m"] > 0

@@ -86,7 +86,8 @@ def _table(r: dict[str, Any]) -> Any:
                   _mm(p["tip_error_m"]))
     t.caption = (f"{r['waypoints']} waypoints of {r['planned_nodes']} planned nodes; every joint settled in its band: "
                  f"{'yes' if r['all_settled'] else 'NO'}; settle mean / max {r['settle_s']['mean']} / "
-                 f"{r['settle_s']['max']} s; tip error mean / max {_mm(r['tip_error_m']['mean'])} / "
+                 f"{r['settle_s']['max']} s; settled joint error mean / max {r['settled_joint_error_deg']['mean']} / "
+                 f"{r['settled_joint_error_deg']['max']} deg; tip error mean / max {_mm(r['tip_error_m']['mean'])} / "
                  f"{_mm(r['tip_error_m']['max'])} mm; executed tip path from the planned: mean / max "
                  f"{_mm(r['path_deviation_m']['mean'])} / {_mm(r['path_deviation_m']['max'])} mm; least clearance "
                  f"{_mm(r['min_clearance_m'])} mm; goal {_mm(r['goal_distance_m'])} mm off (tolerance "

@@ -112,6 +112,8 @@ def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any
                       "settle_s": None if unsettled else _f(float(times.max(initial=0.0)), 3),
                       "tip_error_m": _f(tip_err, 5)})
     tips = np.array([p["tip_error_m"] for p in poses if p["tip_error_m"] is not None])
+    joint_err = np.degrees(np.abs(np.array([p["error_rad"] for p in poses], dtype=float)))
+    joint_err = joint_err[np.isfinite(joint_err)]
     settles = np.array([p["settle_s"] for p in poses if p["settle_s"] is not None])
     measured_tips = np.array([checker.tip(q) for q in trace.q]).reshape(-1, 2)
     planned_tips = np.array([checker.tip(q) for q in info.planned_path])
@@ -129,6 +131,8 @@ def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any
         "settle_tolerance_rad": [_f(x) for x in tolerance],
         "settle_s": {"max": _f(settles.max(), 3) if settles.size else None,
                      "mean": _f(settles.mean(), 3) if settles.size else None},
+        "settled_joint_error_deg": {"max": _f(joint_err.max(), 3) if joint_err.size else None,
+                                    "mean": _f(joint_err.mean(), 3) if joint_err.size else None},
         "tip_error_m": {"max": _f(tips.max(), 5) if tips.size else None,
                         "mean": _f(tips.mean(), 5) if tips.size else None},
         "path_deviation_m": {"max": _f(dev.max(), 5) if dev.size else None,
