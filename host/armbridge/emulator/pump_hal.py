@@ -27,7 +27,7 @@ from typing import Any, Callable, cast
 
 import numpy as np
 
-from armbridge.emulator.pump_plant import PumpParams, PumpPlant
+from armbridge.emulator.pump_plant import PumpParams, PumpPlant, PumpTruth
 from armbridge.emulator.simavr import mega2560 as mega
 from armbridge.emulator.simhal import ESTOP_BYTE, SimHal
 from armbridge.errors import ArmbridgeError
@@ -35,12 +35,13 @@ from armbridge.errors import ArmbridgeError
 EEPROM_BYTES = 4096      # the ATmega2560's EEPROM
 
 
-def pump_plant(cfg: Any, params: PumpParams | None, q0: Any, seed: int) -> PumpPlant:
+def pump_plant(cfg: Any, params: PumpParams | PumpTruth | None, q0: Any, seed: int) -> PumpPlant:
     """The plant of docs/emulator.md for the firmware's config: each joint's range is its
     upper limit (LIMITS_MRAD), the sensors are calibrated as BEND_DEFAULT, and a full
-    stroke at full duty takes SYRINGE_STROKE_MS (the firmware's travel estimate)."""
+    stroke at full duty takes SYRINGE_STROKE_MS (the firmware's travel estimate).
+    params: the rig's PumpParams, or a PumpTruth (plant=random: pump_plant.hidden_truth)."""
     rng = np.asarray([hi for _lo, hi in cfg.LIMITS_MRAD], dtype=float) / 1000.0
-    p = params or PumpParams()
+    p: PumpParams | PumpTruth = params or PumpParams()
     stroke = getattr(cfg, "SYRINGE_STROKE_MS", None)
     if params is None and stroke:
         p = PumpParams(v_motor=p.travel_mm / (float(stroke) / 1000.0))
