@@ -15,6 +15,14 @@ period (`PositionalPlant.set_pulses(w, t)`):
     q stops at the hard stops                     the arm's (stop_margin beyond its limits)
     y = quantise(q + N(0, sigma))                 feedback pot through a 12-bit ADC (plant.Pots)
 
+The hidden truth (`plant=random`, truth.py) adds, per joint: the pulse
+widths at the ends of travel (pulse_min, pulse_max: the servo's map stretched
+between them), its dead band, speed and lag, the horn mounted off by
+horn_offset (the joint sits that far from the servo's angle), gear backlash
+(the joint follows the servo's shaft within +-backlash/2) and the feedback pot
+mounted off and scaled (it reads mid + pot_gain * (q - mid) + zero_offset), its
+own noise. Their defaults are neutral: the nominal plant is the model above.
+
 No pulse (PCA9685 full off, asleep) or one outside valid_us: the servo is
 limp and stays where it is (a hobby servo's gear train does not backdrive on a
 horizontal arm). The pen servo is a channel too: its angle past the midpoint
@@ -31,12 +39,18 @@ from typing import Any
 
 import numpy as np
 
-from armbridge.emulator.plant import Pots
+from armbridge.boards import joint_limits_rad
+from armbridge.emulator.plant import PerJoint, Pots, play
+from armbridge.emulator.truth import Spread, draw
+
+#: the pulse widths of a nominal servo's ends of travel (us): SERVO_CAL's frame
+NOMINAL_ENDS = (500.0, 2500.0)
 
 
 @dataclass(frozen=True)
 class ServoParams:
-    """One positional servo's numbers (defaults: DS3235 class on the arm).
+    """One positional servo's numbers (defaults: DS3235 class on the arm); the
+    PerJoint ones may be a tuple of one per joint, as the hidden truth draws them.
 
     w_max        7.0 rad/s   top speed under the arm's load (data sheet, no load:
                              0.13 s/60 deg at 5 V = 8.1 rad/s, 0.11 s at 6.8 V = 9.5)
@@ -51,23 +65,76 @@ class ServoParams:
     sigma        0.001 rad   gaussian noise of the feedback pot
     adc_bits     12          ADC codes over the stop-to-stop span
     max_dt       0.001 s     longest integration sub-step
+    hidden truth, neutral by default (see SPREADS):
+    horn_offset  0 rad       the horn sits this far off the servo's angle
+    backlash     0 rad       gear play between the servo's shaft and the joint (total)
+    zero_offset  0 rad       the feedback pot reads the joint this far off
+    pot_gain     1           the feedback pot's scale about the middle of the joint's range
     """
 
-    w_max: float = 7.0
-    tau: float = 0.040
-    deadband_us: float = 3.0
-    pulse_min: float = 500.0
-    pulse_max: float = 2500.0
+    w_max: PerJoint = 7.0
+    tau: PerJoint = 0.040
+    deadband_us: PerJoint = 3.0
+    pulse_min: PerJoint = 500.0
+    pulse_max: PerJoint = 2500.0
     valid_min: float = 400.0
     valid_max: float = 2700.0
     stop_margin: float = 0.05
-    sigma: float = 0.001
+    sigma: PerJoint = 0.001
     adc_bits: int = 12
     max_dt: float = 0.001
+    horn_offset: PerJoint = 0.0
+    backlash: PerJoint = 0.0
+    zero_offset: PerJoint = 0.0
+    pot_gain: PerJoint = 1.0
 
 
 # The pen-lift servo: 9 g, 180 deg over 500..2500 us (SG90 class), 0.1 s/60 deg.
 PEN_PARAMS = ServoParams(w_max=10.0, tau=0.020, deadband_us=10.0)
+
+#: the typical servo the spreads are about: the neutral fields at their typical values
+TYPICAL = ServoParams(backlash=0.009)
+
+#: how a real rig's servos differ from the nominal model (truth.py); sources in each
+SPREADS: tuple[Spread, ...] = (
+    Spread("horn_offset", "uniform", 0.1257, per_joint=True, lo=-0.1257, hi=0.1257, unit="rad",
+           source="horn on the DS3235's 25T spline: 14.4 deg a tooth, so up to +-7.2 deg (0.126 rad) off "
+                  "before trim (CAL)"),
+    Spread("pulse_min", "uniform", 30.0, per_joint=True, lo=470.0, hi=530.0, unit="us",
+           source="end of travel at 500 us nominal (DS3235: 500..2500 us); unit to unit +-30 us "
+                  "(hobby servo end points, measured by hobbyists)"),
+    Spread("pulse_max", "uniform", 30.0, per_joint=True, lo=2470.0, hi=2530.0, unit="us",
+           source="end of travel at 2500 us nominal, +-30 us as pulse_min"),
+    Spread("deadband_us", "uniform", 1.0, per_joint=True, lo=2.0, hi=4.0, unit="us",
+           source="dead band 3 us (DS3235 data sheet); digital hobby servos 2..4 us"),
+    Spread("w_max", "scale", 0.07, per_joint=True, lo=5.0, hi=9.0, unit="rad/s",
+           source="DS3235 0.13 s/60 deg (5 V) to 0.11 (6.8 V), +-8 % over supply; unit to unit and "
+                  "joint friction as much: sigma 7 %"),
+    Spread("tau", "scale", 0.15, per_joint=True, lo=0.025, hi=0.06, unit="s",
+           source="the servo's own position loop (gains in its firmware, load): +-15 %, our estimate"),
+    Spread("backlash", "uniform", 0.006, per_joint=True, lo=0.002, hi=0.017, unit="rad",
+           source="about 0.5 deg (9 mrad) total play: metal-gear hobby servos, 0.3..1 deg (measured by "
+                  "hobbyists; the DS3235 data sheet gives none)"),
+    Spread("zero_offset", "uniform", 0.1257, per_joint=True, lo=-0.1257, hi=0.1257, unit="rad",
+           source="feedback pot on a 25T spline: 14.4 deg a tooth, up to +-7.2 deg off"),
+    Spread("pot_gain", "scale", 0.02, per_joint=True, lo=0.94, hi=1.06,
+           source="ESP32 ADC gain error after eFuse Vref calibration (about +-2 %) plus the pot's "
+                  "linearity (+-1..3 %); bounded at +-6 % (uncalibrated Vref)"),
+    Spread("sigma", "scale", 0.3, per_joint=True, lo=0.0005, hi=0.003, unit="rad",
+           source="pot wiper noise and ESP32 ADC noise (a few LSB rms uncalibrated): 1 mrad +-30 %"),
+)
+
+
+def hidden_truth(cfg: Any, rng: np.random.Generator) -> ServoParams:
+    """The pca9685 rig's servo parameters drawn from SPREADS (about TYPICAL), one per joint of
+    `cfg`'s limits (the pen servo keeps PEN_PARAMS)."""
+    lo, _ = joint_limits_rad(cfg)
+    return draw(TYPICAL, SPREADS, rng, int(lo.size))
+
+
+def _at(x: PerJoint, k: int) -> float:
+    """Servo k's value of a PerJoint field."""
+    return float(x[k]) if isinstance(x, tuple) else float(x)
 
 
 def step(q: np.ndarray, target: np.ndarray, driven: np.ndarray, dt: float, tau: np.ndarray,
@@ -127,12 +194,17 @@ class PositionalPlant:
             servos.append((pen.mapping, pen.params))
         self._p = [sp for _, sp in servos]
         self._map = [m for m, _ in servos]
-        self.tau = np.array([sp.tau for sp in self._p])
-        self.w_max = np.array([sp.w_max for sp in self._p])
-        self.deadband = np.array([sp.deadband_us * abs((m[3] - m[1]) / (m[2] - m[0])) for m, sp in servos])
+        self.tau = np.array([_at(sp.tau, k) for k, sp in enumerate(self._p)])
+        self.w_max = np.array([_at(sp.w_max, k) for k, sp in enumerate(self._p)])
+        self.deadband = np.array([_at(sp.deadband_us, k) * abs((m[3] - m[1]) / (m[2] - m[0]))
+                                  for k, (m, sp) in enumerate(servos)])
+        self._ends = [(_at(sp.pulse_min, k), _at(sp.pulse_max, k)) for k, sp in enumerate(self._p)]
+        self._horn = np.array([_at(sp.horn_offset, k) for k, sp in enumerate(self._p)])
+        self.half_play = 0.5 * np.array([_at(sp.backlash, k) for k, sp in enumerate(self._p)])
+        self._backlash = bool(np.any(self.half_play))
         lo_all, hi_all = list(self.lo_stop), list(self.hi_stop)
         if pen is not None:
-            ends = _angle(pen.mapping, [pen.params.pulse_min, pen.params.pulse_max])
+            ends = _angle(pen.mapping, [_at(pen.params.pulse_min, 0), _at(pen.params.pulse_max, 0)])
             lo_all.append(float(ends.min()))
             hi_all.append(float(ends.max()))
             self.pen_threshold = float(_angle(pen.mapping, 0.5 * (pen.up_us + pen.down_us)))
@@ -143,31 +215,45 @@ class PositionalPlant:
         self._q[:self.n] = 0.5 * (lo + hi) if q0 is None else np.clip(np.asarray(q0, float), self.lo_stop, self.hi_stop)
         if pen is not None:
             self._q[self.n] = float(_angle(pen.mapping, pen.up_us))
+        self._jq = self._q.copy()     # the joints (with backlash; otherwise _q, the servos' shafts, is)
         self.target = np.full(m, np.nan)
         self.driven = np.zeros(m, dtype=bool)
         self._pending: tuple[float, np.ndarray] | None = None
         self.t = 0.0
         self.stall_from = np.full(m, np.inf)
         self.pots = Pots(self.lo_stop, self.hi_stop, self.p.sigma, self.p.adc_bits, np.random.default_rng(seed))
+        lo_j, hi_j = np.asarray(lo, float), np.asarray(hi, float)
+        neutral_pot = np.all(np.asarray(self.p.zero_offset) == 0.0) and np.all(np.asarray(self.p.pot_gain) == 1.0)
+        self._pot = None if neutral_pot else (
+            0.5 * (lo_j + hi_j), np.asarray(self.p.pot_gain, float), np.asarray(self.p.zero_offset, float))
         self.pen_changes: list[tuple[float, bool]] = []   # (t, down) when the pen crossed over
         self.cfg: Any = None     # the firmware config the rig was built from (pcahal.rig_plant)
 
     # state ---------------------------------------------------------------
     @property
+    def _joint(self) -> np.ndarray:
+        return self._jq if self._backlash else self._q
+
+    @property
     def q(self) -> np.ndarray:
         """Joint angles (rad), a view."""
+        return self._joint[:self.n]
+
+    @property
+    def shaft(self) -> np.ndarray:
+        """The servos' output shafts (rad, in joint angles; the joints but for backlash), a view."""
         return self._q[:self.n]
 
     @property
     def pen_q(self) -> float | None:
-        return float(self._q[self.n]) if self.pen is not None else None
+        return float(self._joint[self.n]) if self.pen is not None else None
 
     @property
     def pen_down(self) -> bool | None:
         """True when the pen is down (None: no pen servo)."""
         if self.pen is None:
             return None
-        return bool((self._q[self.n] - self.pen_threshold) * self._pen_sign > 0)
+        return bool((self._joint[self.n] - self.pen_threshold) * self._pen_sign > 0)
 
     # drive ---------------------------------------------------------------
     def targets_for(self, pulses_us) -> tuple[np.ndarray, np.ndarray]:
@@ -182,7 +268,11 @@ class PositionalPlant:
             if not sp.valid_min <= w[i] <= sp.valid_max:
                 valid[i] = False
                 continue
-            target[i] = _angle(self._map[i], min(max(w[i], sp.pulse_min), sp.pulse_max))
+            lo, hi = self._ends[i]
+            x = min(max(w[i], lo), hi)
+            if (lo, hi) != NOMINAL_ENDS:   # the servo's travel stretched between its own end points
+                x = NOMINAL_ENDS[0] + (x - lo) * (NOMINAL_ENDS[1] - NOMINAL_ENDS[0]) / (hi - lo)
+            target[i] = _angle(self._map[i], x) + self._horn[i]
         return target, valid
 
     def set_pulses(self, pulses_us, t: float) -> None:
@@ -221,8 +311,14 @@ class PositionalPlant:
                 h = self._pending[0] - self.t
             stalled = self.stall_from <= self.t + h
             was = self.pen_down
-            self._q = step(self._q, self.target, self.driven, h, self.tau, self.w_max, self.deadband,
-                           self._lo, self._hi, stalled)
+            if self._backlash:
+                hp = self.half_play
+                self._q = step(self._q, self.target, self.driven, h, self.tau, self.w_max, self.deadband,
+                               self._lo - hp, self._hi + hp, stalled)
+                self._jq = play(self._jq, self._q, hp, self._lo, self._hi)
+            else:
+                self._q = step(self._q, self.target, self.driven, h, self.tau, self.w_max, self.deadband,
+                               self._lo, self._hi, stalled)
             self.t += h
             if self.pen is not None and self.pen_down != was:
                 self.pen_changes.append((self.t, bool(self.pen_down)))
@@ -235,8 +331,17 @@ class PositionalPlant:
 
     # sensing -------------------------------------------------------------
     def measure(self) -> np.ndarray:
-        """Feedback pot readings of the joints (rad): noise, then 12-bit quantisation."""
-        return self.pots.measure(self.q)
+        """Feedback pot readings of the joints (rad): the pot's reading (zero offset,
+        gain), noise, then 12-bit quantisation."""
+        return self.pots.measure(self.pot_reading(self.q))
+
+    def pot_reading(self, q: np.ndarray) -> np.ndarray:
+        """What the feedback pots read (rad, before noise and the ADC) at joint
+        angles q: mid + pot_gain * (q - mid) + zero_offset; q itself on the nominal plant."""
+        if self._pot is None:
+            return q
+        mid, gain, off = self._pot
+        return mid + gain * (np.asarray(q, dtype=float) - mid) + off
 
     @property
     def quantum(self) -> np.ndarray:
