@@ -42,6 +42,16 @@
 #define DUTY_MIN 120
 #define DBAND_DEFAULT_MRAD 70            /* 4 deg, the paper's band for three joints */
 
+/* The settle inside the dead band (control.h seek_control): a joint seeks its set point
+ * until within SETTLE_FINE_MRAD, then rests with the pump off until its error exceeds
+ * SETTLE_RESEEK_MRAD (hysteresis); inside the dead band a ramp adds SEEK_RAMP_PERMILLE
+ * of duty per control period (2 per 10 ms: 200 per-mille/s) up to SEEK_RAMP_MAX, reset
+ * at every settle. The paper's P controller stopped at the edge of its 4 deg band. */
+#define SETTLE_FINE_MRAD 6               /* 0.34 deg */
+#define SETTLE_RESEEK_MRAD 20            /* 1.15 deg */
+#define SEEK_RAMP_PERMILLE 2
+#define SEEK_RAMP_MAX 400
+
 /* Following error |set point - angle| above FOLLOW_ERR_MRAD for FOLLOW_ERR_MS -> FAULT. */
 #define FOLLOW_ERR_MRAD 300
 #define FOLLOW_ERR_MS 2000

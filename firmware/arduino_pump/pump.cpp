@@ -72,6 +72,7 @@ void PumpBoard::begin(Hal *hal) {
         gain[j].kp = KP_DEFAULT;
         gain[j].dband = DBAND_DEFAULT_MRAD;
         ki[j] = kd[j] = 0;
+        seek_reset(seek[j]);
         u[j] = 0;
         syr_[j] = 0;
         fe_ms_[j] = 0;
@@ -88,7 +89,10 @@ void PumpBoard::begin(Hal *hal) {
 void PumpBoard::halt() {
     traj.flush();
     traj.hold = false;
-    for (uint8_t j = 0; j < N_JOINTS; j++) u[j] = 0;
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        u[j] = 0;
+        seek_reset(seek[j]);
+    }
 }
 
 /* The set point becomes the measured angle. A joint at rest on a limit reads a
@@ -233,7 +237,10 @@ void PumpBoard::control(uint8_t mode) {
         if (stops & (2u << (2 * j))) syr_[j] = 1000000L;
     }
     if (mode != CTL_DRIVE) {
-        for (uint8_t j = 0; j < N_JOINTS; j++) u[j] = 0;
+        for (uint8_t j = 0; j < N_JOINTS; j++) {
+            u[j] = 0;
+            seek_reset(seek[j]);
+        }
         blocked_ = 0;
         if (mode == CTL_ZERO)
             for (uint8_t j = 0; j < N_JOINTS; j++) hal_->write_duty(j, 0);
@@ -241,7 +248,7 @@ void PumpBoard::control(uint8_t mode) {
     }
     advance();
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        int16_t d = p_control(gain[j], round_mrad(traj.sp[j]) - q[j]);
+        int16_t d = seek_control(seek[j], gain[j], round_mrad(traj.sp[j]) - q[j]);
         bool at_ext = (stops >> (2 * j + 1)) & 1, at_ret = (stops >> (2 * j)) & 1;
         uint8_t bit = (uint8_t)(1u << j);
         if ((d > 0 && at_ext) || (d < 0 && at_ret)) {   /* an end stop stops that pump */

@@ -56,6 +56,7 @@ public:
     Link link;
     Traj traj;
     PGain gain[N_JOINTS];
+    Seek seek[N_JOINTS];                  /* each joint's settle (control.h) */
     int32_t ki[N_JOINTS], kd[N_JOINTS];   /* accepted by GAIN and read back; not used */
     int32_t hard[N_JOINTS][3];            /* min max vmax: the firmware's own */
     int32_t lim[N_JOINTS][3];             /* now in force (SETLIM narrows) */

@@ -324,13 +324,16 @@ static void dead_band_and_asymmetry() {
     CHECK(bad == 0);
     g.kp = 0;
     CHECK(p_control(g, 500) == 0);
-    /* on the board: inside the band the pumps are off */
+    /* on the board: settled (within the fine band, then the re-seek band) the pumps are off
+     * (this rig's plant is slow: 0.24 rad/s at full duty, so the P law's approach takes
+     * seconds; the pneumatic plant's is about twice as fast) */
     fresh_eeprom();
     Rig r(EE);
     r.hello(1);
     r.cmd("W 0 1000 300 300 300");
-    r.run_live(4000);
-    for (int j = 0; j < 3; j++) CHECK(r.hal.duty[j] == 0 && within(r.board.q[j], 300, 70));
+    r.run_live(6000);
+    for (int j = 0; j < 3; j++)
+        CHECK(r.hal.duty[j] == 0 && !r.board.seek[j].seeking && within(r.board.q[j], 300, SETTLE_RESEEK_MRAD));
     CHECK(r.cmd("DBAND 2 10") == "OK 32");
     r.run_live(2000);
     CHECK(within(r.board.q[1], 300, 10));
@@ -338,6 +341,44 @@ static void dead_band_and_asymmetry() {
     r.cmd("W 1 500 500 300 300");
     r.run(500);
     CHECK(r.hal.duty[0] == 0);   /* kp 0: joint 1 undriven */
+}
+
+/* The settle (control.h seek_control): hysteresis between the fine and the re-seek band,
+ * the ramp inside the dead band and its reset, a sign change ends a seek, DBAND caps both. */
+static void settle_with_hysteresis_and_ramp() {
+    PGain g;
+    g.kp = 4000;
+    g.dband = 70;
+    Seek s;
+    seek_reset(s);
+    CHECK(seek_control(s, g, SETTLE_RESEEK_MRAD) == 0 && !s.seeking);        /* resting: the re-seek band */
+    CHECK(seek_control(s, g, -SETTLE_RESEEK_MRAD) == 0 && !s.seeking);
+    int16_t u0 = seek_control(s, g, SETTLE_RESEEK_MRAD + 1);                 /* past it: seeks, inflating */
+    CHECK(s.seeking && s.dir == 1 && u0 >= DUTY_MIN);
+    int16_t u1 = seek_control(s, g, SETTLE_RESEEK_MRAD);                     /* seeking: on inside the re-seek band */
+    CHECK(u1 > 0 && s.ramp == 2 * SEEK_RAMP_PERMILLE);
+    for (int i = 0; i < 1000; i++) seek_control(s, g, SETTLE_FINE_MRAD + 1);
+    CHECK(s.ramp == SEEK_RAMP_MAX && seek_control(s, g, SETTLE_FINE_MRAD + 1) == DUTY_MIN + SEEK_RAMP_MAX);
+    CHECK(seek_control(s, g, SETTLE_FINE_MRAD) == 0 && !s.seeking && s.ramp == 0);   /* settled: off, reset */
+    CHECK(seek_control(s, g, -SETTLE_RESEEK_MRAD - 1) <= -DUTY_MIN && s.dir == -1);  /* deflating */
+    CHECK(seek_control(s, g, 3) == 0 && !s.seeking);                         /* past the set point: stop */
+    /* outside the dead band: the P law, no ramp; the ramp never passes the ceiling */
+    seek_reset(s);
+    CHECK(seek_control(s, g, 200) == p_control(g, 200) && s.ramp == 0);
+    seek_reset(s);
+    CHECK(seek_control(s, g, -100000) == -DUTY_MAX_DEFLATE);
+    seek_reset(s);
+    for (int i = 0; i < 1000; i++) seek_control(s, g, 60);
+    CHECK(seek_control(s, g, 60) <= DUTY_MAX_INFLATE);
+    /* DBAND caps both bands: 10 re-seeks past 10; 0 holds to the count */
+    g.dband = 10;
+    seek_reset(s);
+    CHECK(seek_control(s, g, 10) == 0 && seek_control(s, g, 11) > 0);
+    g.dband = 0;
+    seek_reset(s);
+    CHECK(seek_control(s, g, 1) > 0 && seek_control(s, g, 0) == 0 && !s.seeking);
+    g.kp = 0;
+    CHECK(seek_control(s, g, 500) == 0 && !s.seeking);
 }
 
 static void setlim_ramps() {
@@ -574,6 +615,7 @@ void run_board() {
     replay_executes_once();
     end_stop_stops_that_pump();
     dead_band_and_asymmetry();
+    settle_with_hysteresis_and_ramp();
     setlim_ramps();
     modbus_switch();
     modbus_frame_across_a_stall();
