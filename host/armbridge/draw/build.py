@@ -1,5 +1,9 @@
 """One drawing, start to end: lines in -> placed, tidied strokes -> the joint plan.
 
+The joints are filtered by the discrete CBF (`ik.cbf_filter`) before the plan
+is made, so every waypoint written and streamed keeps its pen at least
+`layout.margin_for(speed)` inside the safe disk, whatever the placement.
+
 Pure: no files are read or written here (the command does that), so every
 step is testable on strokes made in memory.
 """
@@ -11,6 +15,7 @@ import numpy as np
 import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.draw import layout, path, sources
+from armbridge.ik.cbf_filter import FilterReport, filter_joints
 from armbridge.ik.region import SafeRegion, pen_angle, safe_region
 from armbridge.plans.format import Plan
 from armbridge.robots.planar import PlanarChain
@@ -28,6 +33,7 @@ class Drawing:
     tidy: layout.Tidy
     region: SafeRegion  # the disk it was placed in (ik.region)
     phi: float  # the pen orientation it is drawn at, rad
+    safety: FilterReport  # what the CBF filter did to the waypoints (margin: placement.margin)
 
     @property
     def drawn_length(self) -> float:
@@ -37,17 +43,23 @@ class Drawing:
 
 def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: str,
           size: float | None = None, at=None, speed: float = 0.02, step: float = path.STEP) -> Drawing:
-    """Place lines in the robot's safe region, tidy them (vpype) and plan the joints (closed-form IK)."""
+    """Place lines in the robot's safe region (as large as fits its margin unless `size` says),
+    tidy them (vpype), plan the joints (closed-form IK) and filter them (the CBF, on the margin)."""
     reg, phi = safe_region(robot), pen_angle(robot)
-    placed, where = layout.place(lines, reg.center, reg.radius, size=size, at=at)
+    margin = layout.margin_for(speed)
+    placed, where = layout.place(lines, reg.center, reg.radius, size=size, at=at, margin=margin)
     tidied, report = layout.tidy(placed)
     strokes = sources.to_strokes(tidied)
     xy, pen = path.pen_path(strokes, step)
+    q, safety = filter_joints(robot, reg, path.joints(robot, xy, phi), margin)
+    xy = np.asarray(robot.ee_point(q))[:, :2]
     provenance = {
         "name": name,
         "drawing": {
             "source": source,
             "safe_region": {"center": list(reg.center), "radius": reg.radius},
+            "margin": margin,
+            "cbf_filter": safety.to_dict(),
             "phi": phi,
             "at": list(where.at),
             "size": where.size,
@@ -59,5 +71,5 @@ def build(lines: vp.LineCollection, robot: PlanarChain, *, name: str, source: st
             "pen_up_travel_after_sort": report.travel_after,
         },
     }
-    plan = path.joint_plan(robot, xy, pen, phi, speed, provenance)
-    return Drawing(strokes, xy, pen, plan, where, report, reg, phi)
+    plan = path.plan_from_joints(robot, q, pen, speed, provenance)
+    return Drawing(strokes, xy, pen, plan, where, report, reg, phi, safety)

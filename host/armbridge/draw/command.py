@@ -74,8 +74,12 @@ def draw_cmd(
     list_samples: bool = typer.Option(False, "--list-samples", help="List the built-in samples and exit."),
     out: Optional[Path] = typer.Option(None, "--out", help="Plan file to write (armbridge-plan JSON)."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also write a figure of the drawing and the arm."),
-    size: Optional[float] = typer.Option(None, "--size", help="The drawing's longer side in m [default: --fit]."),
-    fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region (the default)."),
+    size: Optional[float] = typer.Option(None, "--size", help="The drawing's longer side in m [default: --fit]. It "
+                                                                "must fit the safe region; what lies within the "
+                                                                "safety margin of its edge is pressed inside by the "
+                                                                "CBF filter."),
+    fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region less its safety margin (2.5 mm "
+                                                  "up to 0.1 m/s, wider faster: docs/drawing.md) (the default)."),
     at: Optional[str] = typer.Option(None, "--at", metavar="X,Y",
                                      help="Where the drawing's centre goes, m [default: the safe region's centre]."),
     speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen speed in m/s, drawing and travelling."),
@@ -94,9 +98,13 @@ def draw_cmd(
 ) -> None:
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
-    The drawing is fitted into the arm's safe region, its strokes merged and
-    sorted (vpype) to cut pen-up travel, and planned in joint space; each
-    waypoint carries a pen flag (1 draws, 0 pen up). Nothing is written when
+    The drawing is fitted into the arm's safe region less a safety margin
+    (what the executed pen strays from the commanded one, measured: 2.5 mm up
+    to 0.1 m/s), its strokes merged and sorted (vpype) to cut pen-up travel,
+    and planned in joint space; a discrete control-barrier-function filter then
+    keeps every waypoint's pen inside the margin (a point placed beyond it is
+    pressed onto it) before the plan is written and streamed. Each waypoint
+    carries a pen flag (1 draws, 0 pen up). Nothing is written when
     an input is bad or the drawing does not fit. With --port the plan is then
     run on the board as `armbridge run` does (same exit codes: 0 completed, 1
     failed, 2 bad input, 128+signal), and the summary adds the drawing error.
@@ -137,6 +145,10 @@ def draw_cmd(
                f"{d.drawn_length * 1000:.0f} mm drawn, size {p.size * 1000:.1f} mm at "
                f"({p.at[0]:.4f}, {p.at[1]:.4f}) m")
     typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
+    f = d.safety
+    typer.echo(f"safety: every waypoint {p.margin * 1000:.1f} mm inside the safe region (radius "
+               f"{d.region.radius * 1000:.1f} mm); the CBF filter moved {f.moved} waypoint{'s' * (f.moved != 1)}"
+               + (f" (up to {f.max_shift * 1000:.2f} mm)" if f.moved else ""))
     typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {speed:g} m/s"
                + (f"; figure {png}" if png is not None else ""))
     if port is not None:  # as `armbridge run` (exit codes, signals, summary)

@@ -43,6 +43,10 @@ def draw_png(d: Drawing, out: Path | str, *, title: str, dpi: int = 120) -> Path
         ax.add_patch(Circle((0, 0), robot.reach, fill=False, ls=":", color="0.6", lw=0.8, label="reach"))
         ax.add_patch(Circle((float(d.region.center[0]), float(d.region.center[1])), d.region.radius, fc="#e8f4e8", ec="#3c963c", lw=1.0,
                             label="safe region"))
+        if d.placement.margin > 0:
+            ax.add_patch(Circle((float(d.region.center[0]), float(d.region.center[1])),
+                                d.region.radius - d.placement.margin, fill=False, ls="--", color="#3c963c", lw=0.6,
+                                label=f"safety margin ({d.placement.margin * 1000:.1f} mm)"))
         for n, (a, b) in enumerate(_runs(d.pen, 1)):
             ax.plot(d.xy[a:b + 1, 0], d.xy[a:b + 1, 1], "-", color="#1f3a93", lw=1.4, zorder=3,
                     label="pen down" if n == 0 else None)

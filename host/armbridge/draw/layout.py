@@ -1,8 +1,10 @@
 """Placement and line clean-up, on vpype's LineCollection.
 
 `place` scales and moves a drawing into the safe disk (`ik.region.safe_region`)
-at the size and position the user asked for, or as large as fits; a drawing
-that cannot fit is an error naming by how much it overflows. `tidy` then runs
+at the size and position the user asked for, or as large as fits inside the
+disk less a margin (`margin_for`: what the executed pen strays from the
+commanded one, measured); a drawing that cannot fit the disk is an error
+naming by how much it overflows. `tidy` then runs
 vpype's own steps on the placed lines: merging strokes whose ends meet,
 simplifying (the shapely simplification vpype's `linesimplify` uses) and
 sorting to cut pen-up travel (vpype's `linesort`: its greedy nearest-end
@@ -21,6 +23,23 @@ MERGE_TOLERANCE = 1e-4  # m: stroke ends closer than this are joined (0.1 mm)
 SIMPLIFY_TOLERANCE = 5e-5  # m: a simplified stroke stays this close to the original (0.05 mm)
 FIT_SLACK = 1e-9  # m: rounding slack on the fit check
 
+# The margin --fit keeps inside the safe disk's edge, and the CBF filter keeps every streamed
+# waypoint inside, by pen speed (m/s -> m; linear between rows, flat beyond the ends): the
+# executed pen strays from the commanded one by servo lag and corner overshoot, the bow of a
+# joint-space segment and the potentiometer noise of the measured pen. Measured on emu:esp32
+# (docs/drawing.md, "The safety margin"): the largest distance by which the measured pen went
+# beyond the disk's edge with the drawings fitted to the edge itself (no margin), over the
+# paper's twelve samples and "HELLO WORLD": up to 0.1 m/s 2.01 mm over the nominal plant
+# (1.28 mm; --cartesian 1.25 mm) and ten drawn ones (plant=random, seeds 1-11 but 6-7), so
+# 2.5 mm; faster, the nominal plant's worst (3.51 mm at 0.15, 5.81 at 0.2, 39.7 at 0.3 m/s)
+# and at least 1 mm more.
+MARGIN_BY_SPEED = (
+    (0.10, 0.0025),
+    (0.15, 0.0045),
+    (0.20, 0.0075),
+    (0.30, 0.050),
+)
+
 
 @dataclass(frozen=True)
 class Placement:
@@ -29,7 +48,14 @@ class Placement:
     scale: float
     at: tuple[float, float]
     size: float  # the longer side of its bounding box, m
-    largest: float  # the largest size that fits at `at`, m
+    largest: float  # the largest size that fits at `at` keeping the margin (what --fit gives), m
+    margin: float = 0.0  # m: what --fit kept inside the disk's edge
+
+
+def margin_for(speed: float) -> float:
+    """The safety margin (m) for a pen speed (m/s): MARGIN_BY_SPEED, linear between its rows."""
+    v, m = zip(*MARGIN_BY_SPEED)
+    return float(np.interp(speed, v, m))
 
 
 def _points(lc: vp.LineCollection) -> np.ndarray:
@@ -51,13 +77,15 @@ def fit_scale(d: np.ndarray, a: np.ndarray, radius: float) -> float:
 
 
 def place(lc: vp.LineCollection, center, radius: float, *, size: float | None = None,
-          at=None) -> tuple[vp.LineCollection, Placement]:
+          at=None, margin: float = 0.0) -> tuple[vp.LineCollection, Placement]:
     """The drawing scaled and moved into the disk (center, radius), and where it went.
 
     The bounding box's centre goes to `at` (default: the disk's centre). With
     `size` (m) the box's longer side is that long; without it the drawing is
-    as large as fits. Raises ArmbridgeError when it does not fit, naming the
-    overflow and the largest size that would."""
+    as large as fits `margin` (m) inside the disk's edge. Raises ArmbridgeError
+    when it does not fit the disk, naming the overflow and the largest size that
+    would; with a margin, also the largest that keeps it (a drawing between the
+    two is accepted: the CBF filter presses its edge onto the margin)."""
     center = np.asarray(center, dtype=float)
     pts = _points(lc)
     if pts.size == 0:
@@ -73,24 +101,28 @@ def place(lc: vp.LineCollection, center, radius: float, *, size: float | None = 
     if off >= radius:
         raise ArmbridgeError(f"--at ({target[0]:.4f}, {target[1]:.4f}) m is outside {where}: "
                              f"{_mm(off - radius)} beyond its edge")
+    if off >= radius - margin:
+        raise ArmbridgeError(f"--at ({target[0]:.4f}, {target[1]:.4f}) m is inside {where} but within the "
+                             f"{_mm(margin)} margin its edge keeps: nothing fits there")
     if size is not None and not size > 0:
         raise ArmbridgeError(f"--size must be above 0 m, got {size}")
     d = pts - (lo + hi) / 2
-    s_fit = fit_scale(d, a, radius)
+    s_fit = fit_scale(d, a, radius - margin - FIT_SLACK)  # FIT_SLACK: the IK round trip stays inside
     s = s_fit if size is None else size / extent
     placed = np.linalg.norm(a + s * d, axis=1)
     over = float(placed.max()) - radius
     if over > FIT_SLACK:
+        keeps = f" ({s_fit * extent:.4f} m keeps the {_mm(margin)} margin, as --fit does)" if margin > 0 else ""
         raise ArmbridgeError(f"the drawing at --size {size:g} m overflows {where} by {_mm(over)}; "
                              f"the largest size that fits at ({target[0]:.4f}, {target[1]:.4f}) m "
-                             f"is {s_fit * extent:.4f} m")
+                             f"is {fit_scale(d, a, radius) * extent:.4f} m{keeps}")
     out = lc.clone()
     out.extend(lc)
     out.translate(-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2)
     out.scale(s)
     out.translate(float(target[0]), float(target[1]))
     return out, Placement(scale=s, at=(float(target[0]), float(target[1])), size=s * extent,
-                          largest=s_fit * extent)
+                          largest=s_fit * extent, margin=margin)
 
 
 def pen_up_travel(lc: vp.LineCollection) -> float:

@@ -66,9 +66,13 @@ def durations(robot: PlanarChain, xy: np.ndarray, q: np.ndarray, speed: float) -
     return np.concatenate([[APPROACH_S], d])
 
 
-def joint_plan(robot: PlanarChain, xy: np.ndarray, pen: np.ndarray, phi: float, speed: float,
-               provenance: dict) -> Plan:
-    """The joint-space plan through the pen points xy (k, 2) at orientation phi (closed-form IK)."""
-    poses = np.c_[xy, np.full(len(xy), phi)]
-    q = solve_path(robot, poses, (robot.q_min + robot.q_max) / 2)
+def joints(robot: PlanarChain, xy: np.ndarray, phi: float) -> np.ndarray:
+    """The joint path (k, 3) through the pen points xy (k, 2) at orientation phi (closed-form IK, one elbow)."""
+    return solve_path(robot, np.c_[xy, np.full(len(xy), phi)], (robot.q_min + robot.q_max) / 2)
+
+
+def plan_from_joints(robot: PlanarChain, q: np.ndarray, pen: np.ndarray, speed: float, provenance: dict) -> Plan:
+    """The plan through joint waypoints q (k, 3), timed by its pen path (FK) at `speed`."""
+    xy = np.asarray(robot.ee_point(q))[:, :2]
     return make_plan(robot, q, durations(robot, xy, q, speed), provenance, pen=pen)
+

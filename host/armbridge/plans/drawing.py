@@ -111,11 +111,22 @@ def trace_strips(points: np.ndarray, down: np.ndarray) -> list[np.ndarray]:
     return [points[a:b] for a, b in zip(edges[::2], edges[1::2])]
 
 
+def safe_excursion(points: np.ndarray, center, radius: float) -> dict:
+    """How the pen samples (n, 2) kept to the safe disc (center, radius): `safe_outside`, the samples
+    outside it; `safe_excess_max_mm`, the largest |p - c| - radius (< 0: all inside by that much)."""
+    points = np.asarray(points, float).reshape(-1, 2)
+    excess = np.linalg.norm(points - np.asarray(center, float), axis=1) - float(radius)
+    return {"safe_outside": int((excess > 0).sum()),
+            "safe_excess_max_mm": round(float(excess.max()) * 1000, 4) if len(excess) else None}
+
+
 def run_drawing_report(plan, q: np.ndarray, active: np.ndarray, duration_s: float) -> dict:
     """The drawing section of a run's summary: the error of the measured pen trace
     (FK of the measured q (n, dof) while the active segment's pen flag is 1) against
     the plan's pen-down strokes (FK of its waypoints), in mm, and for text the time
-    per character (duration_s / the characters in the plan's provenance)."""
+    per character (duration_s / the characters in the plan's provenance). A plan that names its
+    safe region (`armbridge draw`'s provenance) also gets how many samples of the executed pen,
+    pen up or down, were outside that disc and the largest excess (`safe_excursion`)."""
     robot = plan.robot
     target = pen_strips(np.asarray(plan.ee_path())[:, :2], plan.pen)
     q = np.asarray(q, float).reshape(-1, plan.n)
@@ -125,6 +136,9 @@ def run_drawing_report(plan, q: np.ndarray, active: np.ndarray, duration_s: floa
     down[ok] = plan.pen[active[ok]] == 1
     tips = np.asarray(robot.ee_point(q))[:, :2] if len(q) else np.zeros((0, 2))
     out = drawing_error(target, trace_strips(tips, down)).to_dict()
+    region = ((plan.provenance or {}).get("drawing") or {}).get("safe_region")
+    if region:
+        out |= safe_excursion(tips, region["center"], region["radius"])
     chars = ((plan.provenance or {}).get("drawing") or {}).get("characters")
     if chars:
         out["characters"] = int(chars)
