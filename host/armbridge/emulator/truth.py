@@ -61,9 +61,9 @@ class Spread:
     def sample(self, nominal: Any, rng: np.random.Generator, n: int) -> Any:
         base = np.asarray(nominal, dtype=float)
         if self.per_joint:
-            base = np.broadcast_to(base, (n,)) if base.ndim == 0 or base.size == n else None
-            if base is None:
+            if not (base.ndim == 0 or base.shape == (n,)):
                 raise ArmbridgeError(f"spread {self.field}: nominal {nominal!r} is not one value per joint ({n})")
+            base = np.broadcast_to(base, (n,))
         size = base.shape
         if self.kind == "normal":
             x = base + rng.normal(0.0, self.width, size)
