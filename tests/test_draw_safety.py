@@ -106,7 +106,7 @@ def test_a_waypoint_the_ik_cannot_press_in_holds_the_last():
 def test_the_margin_table():
     speeds = np.linspace(0.001, 0.5, 60)
     m = [layout.margin_for(v) for v in speeds]
-    assert np.all(np.diff(m) >= 0) and MARGIN == layout.MARGIN_BY_SPEED[0][1] == pytest.approx(0.0025)
+    assert np.all(np.diff(m) >= 0) and MARGIN == layout.MARGIN_BY_SPEED[0][1] == pytest.approx(0.003)
     assert safe_excursion(np.array([[0.0, 1.0], [0.0, 2.5]]), (0, 0), 2.0) == {
         "safe_outside": 1, "safe_excess_max_mm": 500.0}
 
@@ -126,10 +126,10 @@ def test_fit_keeps_the_margin_and_the_filter_presses_the_rest():
     r = np.linalg.norm(d.plan.ee_path() - C, axis=1)
     assert r.max() <= REG.radius - MARGIN and d.safety.moved > 0
     assert d.plan.provenance["drawing"]["cbf_filter"]["moved"] == d.safety.moved
-    with pytest.raises(ArmbridgeError, match=r"overflows .* is 0\.\d{4} m \(0\.\d{4} m keeps the 2\.5 mm margin"):
+    with pytest.raises(ArmbridgeError, match=r"overflows .* is 0\.\d{4} m \(0\.\d{4} m keeps the 3\.0 mm margin"):
         build(lc, ARM, name="sq", source="shape square", size=edge * 1.05)
     near = C + [REG.radius - MARGIN / 2, 0]
-    with pytest.raises(ArmbridgeError, match="within the 2.5 mm margin"):
+    with pytest.raises(ArmbridgeError, match="within the 3.0 mm margin"):
         build(lc, ARM, name="sq", source="shape square", at=tuple(near))
 
 
@@ -151,7 +151,8 @@ def _draw(tmp_path, args):
 
 
 def test_hello_world_fitted_stays_in_the_safe_disc(tmp_path):
-    """Before the fix 62 samples of this drawing were outside, up to 1.13 mm (issue 23)."""
+    """Before the fix, fitted to the edge, 62 samples of this drawing were outside, up to 1.13 mm (issue 23;
+    64 and 1.12 mm on this emulator), and 479 of the paper's CSV circle."""
     plan, s, tip = _draw(tmp_path, ["HELLO WORLD", "--fit"])
     excess = np.linalg.norm(tip - C, axis=1) - REG.radius
     assert len(tip) > 1000 and s["completed"]
@@ -170,7 +171,7 @@ def test_a_csv_at_the_edge_stays_in_the_safe_disc(tmp_path):
     _, where = layout.place(lines, C, REG.radius, at=tuple(at))  # no margin: as large as the disc itself
     _, fitted = layout.place(lines, C, REG.radius, at=tuple(at), margin=MARGIN)  # what --fit would draw
     plan, s, tip = _draw(tmp_path, ["--csv", str(csv), "--at", f"{at[0]},{at[1]}", "--size", f"{where.size}",
-                                    "--speed", "0.1"])  # the fastest speed of the 2.5 mm margin
+                                    "--speed", "0.1"])  # the fastest speed of the 3 mm margin
     info = plan.provenance["drawing"]
     assert where.size > fitted.size and info["cbf_filter"]["moved"] > 0
     assert 0 < info["cbf_filter"]["max_shift_mm"] <= MARGIN * 1000 + 2e-4  # (+ EPS, rounded to 0.1 um)

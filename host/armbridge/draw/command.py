@@ -78,7 +78,7 @@ def draw_cmd(
                                                                 "must fit the safe region; what lies within the "
                                                                 "safety margin of its edge is pressed inside by the "
                                                                 "CBF filter."),
-    fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region less its safety margin (2.5 mm "
+    fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region less its safety margin (3 mm "
                                                   "up to 0.1 m/s, wider faster: docs/drawing.md) (the default)."),
     at: Optional[str] = typer.Option(None, "--at", metavar="X,Y",
                                      help="Where the drawing's centre goes, m [default: the safe region's centre]."),
@@ -99,7 +99,7 @@ def draw_cmd(
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
     The drawing is fitted into the arm's safe region less a safety margin
-    (what the executed pen strays from the commanded one, measured: 2.5 mm up
+    (what the executed pen strays from the commanded one, measured: 3 mm up
     to 0.1 m/s), its strokes merged and sorted (vpype) to cut pen-up travel,
     and planned in joint space; a discrete control-barrier-function filter then
     keeps every waypoint's pen inside the margin (a point placed beyond it is
