@@ -17,6 +17,11 @@ Loco: effort u = PID(v_cmd - v) + kff (v_cmd + kaff a), v_cmd = ramp.v +
 kpos (ramp.x - d): the speed loop, with the position it has fallen behind added
 as speed; kaff (the drive's lag, s) feeds the reference's acceleration forward
 so that a lagging drive brakes in time. The joint loop feeds forward the same way.
+Two details keep the speed within a few per cent of vmax at the ramp's corner
+(it overshot by 20 %): the acceleration fed forward is the next period's,
+which stops at vmax (not the last step's 800 mm/s^2 once more), and the speed
+error is taken against the command as it was when the speed was measured
+(the encoder's SPEED_TICKS window is `delay` old: v_cmd - delay * a).
 
 Joint angle through the worm's play (`play`): the gear encoder measures the
 worm; the joint follows it only once the play of BACKLASH_MRAD is taken up
@@ -105,6 +110,7 @@ class Loco:
         self.pid = PID(cfg.LOCO_KP, cfg.LOCO_KI, cfg.LOCO_KD, cfg.LOCO_KFF)
         self.kpos = cfg.LOCO_KPOS
         self.kaff = cfg.LOCO_KAFF
+        self.delay = cfg.SPEED_TICKS * cfg.PERIOD_MS / 2000.0   # s: the measured speed's age (its window's middle)
         self.ramp = Ramp()
         self.u = 0.0
 
@@ -124,7 +130,13 @@ class Loco:
             v_cmd = -vmax
         self.pid.out_min = -cap
         self.pid.out_max = cap
-        self.u = self.pid.update(v_cmd, v, dt, v_cmd + self.kaff * r.a)
+        a = r.a                     # the ramp's acceleration, fed forward for the next period:
+        if a > 0.0 and r.v + a * dt > vmax:      # not past vmax, where it stops accelerating
+            a = (vmax - r.v) / dt if r.v < vmax else 0.0
+        elif a < 0.0 and r.v + a * dt < -vmax:
+            a = (-vmax - r.v) / dt if r.v > -vmax else 0.0
+        # the speed error against the command as it was when v was measured (delay ago)
+        self.u = self.pid.update(v_cmd - self.delay * r.a, v, dt, v_cmd + self.kaff * a)
         return self.u
 
     def off(self) -> None:

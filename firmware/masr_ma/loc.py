@@ -6,12 +6,16 @@ is on (the largest j with r_j <= d) and d_link its distance along that link.
 d_link is integrated from the wheel encoder and re-zeroed at every magnet: at a
 hall rising edge, latched with the wheel count c_e, the magnet k that can have
 fired there is identified from the estimate (|d(c_e) - r_k| <= w + e) and the
-estimate is re-anchored, d := r_k at c_e. The passage is direction-aware
+estimate is re-anchored where the edge fires: w before the magnet on the way
+the wheel was counting (`way`), d := r_k - way * w at c_e (anchoring on r_k
+itself put the estimate w ahead of the MA, on the side it came from, and a
+reversal doubled it). The passage is direction-aware
 because the counts are signed: going down the arm the same edge makes j_d the
 link below. Slip therefore never accumulates past one magnet.
 
-Error bound. With the hall window w (the sensor fires somewhere within +-w of a
-magnet), the encoder quantum q (one count: the latched count is a floor) and a
+Error bound. With the hall window w (calibrated where the sensor turns on: the
+anchor r_k - way w is within w of the truth for a turn-on point anywhere from
+the magnet to 2w before it), the encoder quantum q (one count: the latched count is a floor) and a
 slip bound s (|wheel travel - MA travel| <= s * wheel travel), the estimate
 after a wheel travel T since the last magnet satisfies
 
@@ -66,6 +70,7 @@ class Loc:
         self.mag = 0                  # the anchor's magnet (1-based), 0: none
         self.side = 0                 # which side of it the MA has gone to (+-1), 0: not yet
         self.travel = 0               # wheel counts travelled since the anchor
+        self.way = 0                  # the way the wheel last counted (+-1; 0: not yet)
         self.jump = 0.0               # what the last re-zero moved the estimate by (mm)
 
     # ------------------------------------------------------------ estimate
@@ -130,8 +135,7 @@ class Loc:
     def update(self, count: int, level: int):
         """The wheel count of this period and the hall level -> (OK, 0) or
         (MISSED, k)."""
-        self.travel += abs(count - self.c)
-        self.c = count
+        self._counted(count)
         if not self.known:
             return OK, 0
         return self._check(self.at(count), level)
@@ -139,9 +143,9 @@ class Loc:
     def edge(self, count: int):
         """A hall rising edge latched at `count` -> (OK, k) the magnet re-zeroed
         at, (MISSED, k) a magnet passed before it, (SPURIOUS, k) no magnet can
-        be there (k: the nearest), or (OK, 0) while d is unknown (ignored)."""
-        self.travel += abs(count - self.c)
-        self.c = count
+        be there (k: the nearest), or (OK, 0) while d is unknown (ignored).
+        The edge fires w before the magnet on the way the MA comes: d := r_k - way w."""
+        self._counted(count)
         if not self.known:
             return OK, 0
         est = self.at(count)
@@ -151,9 +155,16 @@ class Loc:
         k = self.near(est)
         if abs(est - self.r[k - 1]) > self.w + self.err():
             return SPURIOUS, k
-        self.jump = self.r[k - 1] - est
-        self._anchor(self.r[k - 1], count, self.w, k)
+        d = self.r[k - 1] - self.way * self.w
+        self.jump = d - est
+        self._anchor(d, count, self.w, k)
         return OK, k
+
+    def _counted(self, count: int) -> None:
+        if count != self.c:
+            self.way = 1 if count > self.c else -1
+            self.travel += abs(count - self.c)
+        self.c = count
 
     def _check(self, est: float, level: int):
         tol = self.w + self.err()

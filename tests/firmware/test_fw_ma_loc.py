@@ -76,7 +76,8 @@ def test_magnet_positions_and_links():
 def test_bound_holds_with_slip_and_drops_at_each_magnet():
     # the worst slip the bound allows, over the whole arm and back
     for slip in (CFG.SLIP_MAX, -CFG.SLIP_MAX):
-        for fire in (1.0, -0.8):      # the edge early or late in the window
+        for fire in (1.0, 0.1):       # the edge on entering the window (where the board anchors: w before the
+                                      # magnet), or late, 0.1 w before the magnet (a true window of 0.1 w)
             loc = _loc()
             loc.home(0)
             walk = _Walk(loc, 0.0, slip, fire)

@@ -32,161 +32,37 @@ not driven holds its joint (self-locking); a seized joint (stall fault) or a
 joint at its hard stop stops the worm once the play is taken up.
 
 The pure step functions (numpy in, numpy out, the random draws passed in) are
-`loco_step`, `slip_step`, `hall_step`, `engaged`, `backlash`, `rot_step`,
-`counts`; `MaPlant` holds the state, the faults and the seeded noise. The arm's
-pose is `robots.masr.MasrArm`'s (`MaPlant.points()`, `MaPlant.ma_point()`).
+ma_steps.py's, with MaParams (re-exported here): `loco_step`, `slip_step`,
+`hall_step`, `engaged`, `backlash`, `rot_step`, `counts`; `MaPlant` holds the
+state, the faults and the seeded noise. The arm's pose is
+`robots.masr.MasrArm`'s (`MaPlant.points()`, `MaPlant.ma_point()`).
+
+Hidden truth (`plant=random`, truth.py): MaParams' wheel_scale, magnet_mm,
+hall_window_mm, backlash_mrad and joint_friction (neutral by default: the
+plant above) say where this MA differs from its config: the wheel's true travel
+per count (WHEEL_MM_PER_COUNT * wheel_scale), magnet j at r_j + magnet_mm[j]
+(the gear stays at r_j), the sensor's true window, each worm's true play, and
+a dead band of friction on the rotation effort while the worm turns joint j.
+`SPREADS` says how each varies (and v_full, w_full, slip_sigma), and
+`hidden_truth(cfg, rng)` draws one MA (docs/emulator.md, "Hidden truth").
 """
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
+from armbridge.emulator.ma_steps import (MaParams, backlash, count, counts, drive_step, engaged, friction,
+                                         ground_step, hall_step, loco_step, per_joint, rot_step, slip_step)
+from armbridge.emulator.truth import Spread, draw
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.masr import MasrArm
 
-
-@dataclass(frozen=True)
-class MaParams:
-    """The MA's physical numbers that the firmware config does not hold (ours).
-
-    v_full        0.12 m/s    MA speed at full locomotion effort (the firmware's 100 mm/s is 83 %)
-    tau           0.040 s     speed lag of the drive (motor + gearbox + the MA's mass)
-    a_max         1.0 m/s^2   acceleration limit (wheel traction)
-    slip_bound    0.010       |slip| <= 1 % of the wheel's travel (rubber wheel on the link)
-    slip_sigma    0.004       stationary std of the slip process before clipping
-    slip_tau      0.20 s      its correlation time
-    hall_hyst_mm  0.5 mm      the hall sensor's hysteresis beyond its window
-    engage_mm     3.0 mm      the worm meshes with joint j's gear while |d - r_j| <= this
-    w_full        0.35 rad/s  joint rate at full rotation effort (the firmware's 0.28 rad/s is 80 %)
-    rot_tau       0.030 s     the rotation drive's speed lag
-    rot_a_max     5.0 rad/s^2 its acceleration limit
-    stop_margin   0.05 rad    the joints' hard stops this far beyond the firmware's limits
-    grip_s        0.30 s      gripper servo travel, closed <-> open
-    rest_frac     0.001       a drive without effort stops dead below this fraction of its
-                              full speed (static friction: the lag alone never reaches 0)
-    edge_ring     16          hall edges the IRQ ring holds between two reads
-    max_dt        0.001 s     longest integration sub-step
-    """
-
-    v_full: float = 0.12
-    tau: float = 0.040
-    a_max: float = 1.0
-    slip_bound: float = 0.010
-    slip_sigma: float = 0.004
-    slip_tau: float = 0.20
-    hall_hyst_mm: float = 0.5
-    engage_mm: float = 3.0
-    w_full: float = 0.35
-    rot_tau: float = 0.030
-    rot_a_max: float = 5.0
-    stop_margin: float = 0.05
-    grip_s: float = 0.30
-    rest_frac: float = 0.001
-    edge_ring: int = 16
-    max_dt: float = 0.001
-
-
-def drive_step(x: float, v: float, u: float, dt: float, v_full: float, tau: float, a_max: float,
-               stalled: bool = False) -> tuple[float, float]:
-    """One drive (the wheel: x = its travel in m; the worm: x = its angle in joint
-    rad) after dt under effort u: plant.step's model (v follows u * v_full through
-    the lag tau, its change clipped to a_max dt, x integrates v by the trapezoid;
-    stalled: v = 0) on floats, since the MA steps its two drives every
-    millisecond and numpy's one-element arrays cost 60 times as much
-    (tests/test_ma_plant.py holds it equal to plant.step). Pure."""
-    u = min(max(u, -1.0), 1.0)
-    dv = (u * v_full - v) * (1.0 - math.exp(-dt / tau))
-    lim = a_max * dt
-    v1 = v + min(max(dv, -lim), lim)
-    if stalled:
-        return x, 0.0
-    return x + 0.5 * (v + v1) * dt, v1
-
-
-def loco_step(s: float, v: float, u: float, dt: float, p: MaParams, stalled: bool = False) -> tuple[float, float]:
-    """The wheel's travel s (m) and speed v (m/s) after dt under effort u. Pure."""
-    return drive_step(s, v, u, dt, p.v_full, p.tau, p.a_max, stalled)
-
-
-def rot_step(w: float, om: float, u: float, dt: float, p: MaParams) -> tuple[float, float]:
-    """The worm's angle w (joint-equivalent rad) and rate om after dt under effort u. Pure."""
-    return drive_step(w, om, u, dt, p.w_full, p.rot_tau, p.rot_a_max)
-
-
-def slip_step(slip: float, z: float, dt: float, p: MaParams) -> float:
-    """Next slip fraction: AR(1) with correlation time slip_tau and stationary
-    std slip_sigma, driven by the standard normal draw z, clipped to +-slip_bound. Pure."""
-    a = math.exp(-dt / p.slip_tau)
-    nxt = slip * a + p.slip_sigma * math.sqrt(1.0 - a * a) * z
-    return min(max(nxt, -p.slip_bound), p.slip_bound)
-
-
-def ground_step(d: float, ds: float, slip: float, length: float) -> tuple[float, float, bool]:
-    """Ground truth d after the wheel travels ds with `slip`: (d, the wheel travel
-    that happened, at_end). At a hard end (0 or l) the MA stops and the wheel
-    with it: only the travel up to the end counts. Pure."""
-    nd = d + ds * (1.0 + slip)
-    if 0.0 <= nd <= length:
-        return nd, ds, False
-    end = 0.0 if nd < 0.0 else length
-    k = 1.0 + slip
-    return end, ((end - d) / k if k > 0 else 0.0), True
-
-
-def counts(x: Any, quantum: float) -> np.ndarray:
-    """Encoder counts of x (same unit as quantum): floor(x / quantum), numpy in and out. Pure."""
-    return np.floor(np.asarray(x, dtype=float) / quantum + 1e-9).astype(np.int64)
-
-
-def count(x: float, quantum: float) -> int:
-    """`counts` of one float (the plant's per-step call)."""
-    return math.floor(x / quantum + 1e-9)
-
-
-def hall_step(level: bool, d: float, r: Sequence[float], window: float, hyst: float,
-              present: Sequence[bool]) -> tuple[bool, int]:
-    """The hall sensor at d: (new level, 0-based joint of a rising edge or -1).
-    On within +-window of a present magnet r_j, off beyond window + hyst,
-    unchanged between (hysteresis). Pure."""
-    k, near = -1, math.inf
-    for j, rj in enumerate(r):
-        if present[j] and abs(rj - d) < near:
-            k, near = j, abs(rj - d)
-    if near <= window:
-        return True, (-1 if level else k)
-    if near > window + hyst:
-        return False, -1
-    return level, -1
-
-
-def engaged(d: float, r: Sequence[float], tol: float) -> int:
-    """The 0-based joint whose gear the worm meshes with at d (|d - r_j| <= tol), or -1. Pure."""
-    for j, rj in enumerate(r):
-        if abs(rj - d) <= tol:
-            return j
-    return -1
-
-
-def backlash(theta: float, gap: float, dw: float, half: float, lo: float, hi: float,
-             seized: bool) -> tuple[float, float, float]:
-    """The worm turns dw (joint rad) against joint angle theta through play of
-    +-half (gap: worm minus joint, in [-half, half]). -> (theta, gap, refused):
-    the gap takes dw up first, what goes past it turns the joint; what the joint
-    cannot take (seized, or at its hard stop lo/hi) is `refused` (the worm
-    stops short by that much). Pure."""
-    g = gap + dw
-    push = g - half if g > half else (g + half if g < -half else 0.0)
-    if push == 0.0:
-        return theta, g, 0.0
-    target = theta + push
-    moved = target if not seized else theta
-    moved = min(max(moved, lo), hi)
-    refused = target - moved
-    return moved, (half if push > 0 else -half), refused
+__all__ = ["MaParams", "MaPlant", "SPREADS", "backlash", "count", "counts", "drive_step", "engaged", "ground_step",
+           "hall_step", "hidden_truth", "loco_step", "ma_plant", "nominal_params", "rot_step", "slip_step"]
 
 
 class MaPlant:
@@ -205,11 +81,16 @@ class MaPlant:
         nj = arm.n
         self.n = nj + 1
         self.length = arm.total_length
-        self.r = tuple(float(x) for x in arm.r)   # magnets and gears at r_j (eq. (1)), m
-        self.wheel_q = float(wheel_mm) / 1000.0
+        p = self.p
+        self.r = tuple(float(x) for x in arm.r)   # gears at r_j (eq. (1)), m
+        self.magnets = tuple(rj + m / 1000.0 for rj, m in zip(self.r, per_joint(p.magnet_mm, nj, "magnet_mm")))
+        self.wheel_q = float(wheel_mm) / 1000.0 * p.wheel_scale   # the true travel per count
         self.gear_q = float(gear_mrad) / 1000.0
-        self.window = float(hall_mm) / 1000.0
-        self.half = 0.5 * float(backlash_mrad) / 1000.0
+        self.window = float(hall_mm if p.hall_window_mm is None else p.hall_window_mm) / 1000.0
+        play = per_joint(backlash_mrad if p.backlash_mrad is None else p.backlash_mrad, nj, "backlash_mrad")
+        self.halves = [0.5 * b / 1000.0 for b in play]
+        self.half = max(self.halves)
+        self.friction = per_joint(p.joint_friction, nj, "joint_friction")
         lo = -np.asarray(arm.theta_b, float) if lo is None else np.asarray(lo, float)
         hi = np.asarray(arm.theta_b, float) if hi is None else np.asarray(hi, float)
         self.lo_stop = [float(x) - self.p.stop_margin for x in lo]
@@ -220,7 +101,8 @@ class MaPlant:
             raise ArmbridgeError(f"MA q0 needs {self.n} values (theta_1..theta_{nj}, d), got {q.shape}")
         self.theta = [min(max(float(x), a), b) for x, a, b in zip(q[:nj], self.lo_stop, self.hi_stop)]
         self.d = min(max(float(q[nj]), 0.0), self.length)
-        self.gap = [float(x) for x in self.rng.uniform(-self.half, self.half, nj)]  # worm minus joint, rad
+        h = np.asarray(self.halves)
+        self.gap = [float(x) for x in self.rng.uniform(-h, h, nj)]  # worm minus joint, rad
         self.s = 0.0          # wheel travel (m)
         self.v = 0.0          # wheel speed (m/s)
         self.w = 0.0          # worm angle (joint rad)
@@ -235,7 +117,8 @@ class MaPlant:
         self.stall_from = [math.inf] * self.n       # joints 0..nj-1 seized, index nj: the wheel
         self.bursts: list[tuple[float, float, float]] = []  # (from s, for s, fraction F)
         self.engaged = engaged(self.d, self.r, self.p.engage_mm / 1000.0)
-        self.level, _ = hall_step(False, self.d, self.r, self.window, self.p.hall_hyst_mm / 1000.0, self.present)
+        self.level, _ = hall_step(False, self.d, self.magnets, self.window, self.p.hall_hyst_mm / 1000.0,
+                                  self.present)
         self._ring: deque[int] = deque()
         self.edges: list[tuple[float, int, int, float]] = []   # (t, joint 1.., latched count, true d)
         self.ring_overflows = 0
@@ -350,7 +233,8 @@ class MaPlant:
         self.s += ds
         self.v = 0.0 if at_end or (self.u_loco == 0.0 and abs(v1) < p.rest_frac * p.v_full) else v1
         # hall sensor
-        self.level, k = hall_step(self.level, self.d, self.r, self.window, p.hall_hyst_mm / 1000.0, self.present)
+        self.level, k = hall_step(self.level, self.d, self.magnets, self.window, p.hall_hyst_mm / 1000.0,
+                                  self.present)
         if k >= 0:
             c = self.wheel_count()
             if len(self._ring) < p.edge_ring:
@@ -361,13 +245,14 @@ class MaPlant:
         # joint rotation through the worm
         j = engaged(self.d, self.r, p.engage_mm / 1000.0)
         if j != self.engaged and j >= 0:
-            self.gap[j] = float(self.rng.uniform(-self.half, self.half))  # a fresh mesh: the play anywhere
+            self.gap[j] = float(self.rng.uniform(-self.halves[j], self.halves[j]))  # a fresh mesh: the play anywhere
         self.engaged = j
-        w1, om1 = rot_step(self.w, self.om, self.u_rot, h, p)
-        if self.u_rot == 0.0 and abs(om1) < p.rest_frac * p.w_full:
+        u_rot = self.u_rot if j < 0 else friction(self.u_rot, self.friction[j])
+        w1, om1 = rot_step(self.w, self.om, u_rot, h, p)
+        if u_rot == 0.0 and abs(om1) < p.rest_frac * p.w_full:
             om1 = 0.0
         if j >= 0:
-            th, self.gap[j], refused = backlash(self.theta[j], self.gap[j], w1 - self.w, self.half,
+            th, self.gap[j], refused = backlash(self.theta[j], self.gap[j], w1 - self.w, self.halves[j],
                                                 self.lo_stop[j], self.hi_stop[j], self.stall_from[j] <= t)
             self.theta[j] = th
             if refused != 0.0:
@@ -388,18 +273,59 @@ class MaPlant:
         self._next_stall = min(later) if later else math.inf
 
 
+def nominal_params(cfg: Any) -> MaParams:
+    """MaParams with the config's SLIP_MAX as slip_bound and HALL_RING as edge_ring
+    when it has them (the numbers the firmware was built for)."""
+    params = MaParams()
+    if hasattr(cfg, "SLIP_MAX"):
+        params = replace(params, slip_bound=float(cfg.SLIP_MAX))
+    if hasattr(cfg, "HALL_RING"):
+        params = replace(params, edge_ring=int(cfg.HALL_RING))
+    return params
+
+
+#: MaParams' hidden truth (`plant=random`, truth.py): what varies from MA to MA. The masr
+#: paper gives no tolerances; its Table II (E1: 11 +- 3.1 mm, 1.2 +- 0.8 deg, 48.78 +- 1.81 s
+#: over ten roll-outs, the errors "due to fabrication uncertainties") is what they are sized
+#: against (docs/emulator.md, "Hidden truth"). Nominals: the config's where it has the number.
+SPREADS: tuple[Spread, ...] = (
+    Spread("wheel_scale", "scale", 0.004, lo=0.99, hi=1.01,
+           source="rubber tyre on a printed hub: diameter within +-1 % (ours); WHEEL_MM_PER_COUNT uncalibrated"),
+    Spread("magnet_mm", "normal", 0.5, per_joint=True, lo=-1.0, hi=1.0, unit="mm",
+           source="a magnet glued into each printed joint, within +-1 mm of r_j (ours)"),
+    Spread("hall_window_mm", "normal", 0.15, lo=1.0, hi=2.0, unit="mm",
+           source="hall switch operate point (A3144-class data sheets: B_OP spreads tens of %) about HALL_WINDOW_MM"),
+    Spread("backlash_mrad", "normal", 6.0, per_joint=True, lo=1.0, hi=30.0, unit="mrad",
+           source="printed worm and gear: play about 15 mrad (0.9 deg), not the config's 3 (ours, sized to "
+                  "Table II's 1.2 +- 0.8 deg)"),
+    Spread("slip_sigma", "scale", 0.3, lo=0.001, hi=0.008,
+           source="rubber on the link, load and dirt (ours); clipped at SLIP_MAX as ever"),
+    Spread("v_full", "scale", 0.08, lo=0.097, hi=0.14, unit="m/s",
+           source="motor constant and supply (ours); down to 97 % of the firmware's 100 mm/s"),
+    Spread("w_full", "scale", 0.05, lo=0.30, hi=0.40, unit="rad/s",
+           source="rotation motor (ours); kept above the firmware's 0.28 rad/s with the friction"),
+    Spread("joint_friction", "uniform", 0.03, per_joint=True, lo=0.0, hi=0.06,
+           source="each joint's friction through its worm: 0-6 % of full effort, about 0.03 (ours)"),
+)
+#: the truth's centre where it is not the config's or MaParams' neutral default
+TRUTH_NOMINAL: dict[str, Any] = {"backlash_mrad": 15.0, "joint_friction": 0.03}
+
+
+def hidden_truth(cfg: Any, rng: np.random.Generator) -> MaParams:
+    """One MA's hidden truth: `nominal_params(cfg)` with the config's hall window and
+    backlash as the nominals, every SPREADS field drawn from rng (truth.truth_rng)."""
+    centre = {"hall_window_mm": float(cfg.HALL_WINDOW_MM), "backlash_mrad": float(cfg.BACKLASH_MRAD)} | TRUTH_NOMINAL
+    nominal = replace(nominal_params(cfg), **centre)
+    return draw(nominal, SPREADS, rng, len(cfg.LINK_LENGTHS_MM))
+
+
 def ma_plant(cfg: Any, params: MaParams | None, q0, seed: int) -> MaPlant:
     """The MA's plant from its firmware config (the registry's plant factory).
-    Without `params`, MaParams with the config's SLIP_MAX as slip_bound and
-    HALL_RING as edge_ring when it has them (the numbers the firmware was built for)."""
+    Without `params`, `nominal_params(cfg)`."""
     if params is not None and not isinstance(params, MaParams):
         raise ArmbridgeError(f"the masr_ma plant takes MaParams, not {type(params).__name__}")
     if params is None:
-        params = MaParams()
-        if hasattr(cfg, "SLIP_MAX"):
-            params = replace(params, slip_bound=float(cfg.SLIP_MAX))
-        if hasattr(cfg, "HALL_RING"):
-            params = replace(params, edge_ring=int(cfg.HALL_RING))
+        params = nominal_params(cfg)
     need = ("LINK_LENGTHS_MM", "WHEEL_MM_PER_COUNT", "GEAR_MRAD_PER_COUNT", "HALL_WINDOW_MM", "BACKLASH_MRAD")
     missing = [k for k in need if not hasattr(cfg, k)]
     if missing:
