@@ -18,9 +18,10 @@ What is measured, against the truth the host cannot see (the plant):
   * localisation: |board estimate - true d| at every telemetry sample of the
     plan (50 Hz; the estimate loc.py makes of the wheel's count at that
     instant, so that a period's staleness is not counted), with the board's
-    own bound e (loc.py); and right after each
-    magnet, where the board re-anchors d = r_j at the latched count:
-    |r_j - true d at the edge| (the plant's hall log);
+    own bound e (loc.py); and right after each magnet, where the board
+    re-anchors its estimate at the latched count (loc.py: where the edge fires,
+    r_j less the hall window on the side it came from): the error at the first
+    sample after each edge of the plant's hall log;
   * what the ramps and the loops add over eq. (8), per action: executed minus
     planned (DONE to DONE), by kind (MV onto a joint, other MV, ROT), beside the
     time a trapezoidal ramp alone adds (|x|/v + v/a, or 2 sqrt(|x|/a) for a
@@ -101,7 +102,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
     setup = int(plan.provenance["masr_plan"]["setup"])
     durs = [max(1, int(round(d * 1000))) for d in plan.durations]
     port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant={plant}")
-    samples: list[tuple[float, float, float, int]] = []  # true d, estimate, bound (mm), done index
+    samples: list[tuple[float, float, float, int, float]] = []  # true d, estimate, bound (mm), done index, t
     try:
         emu = port.emulator
         client: BoardClient | None = None
@@ -109,7 +110,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
         def on_telemetry(t: float, m: Any) -> None:
             b, pl = emu.board, emu.plant
             if b is not None and client is not None and b.loc.known:  # the estimate at the wheel's count now
-                samples.append((pl.d * 1000.0, b.loc.at(pl.wheel_count()), b.loc.err(), client.done_index))
+                samples.append((pl.d * 1000.0, b.loc.at(pl.wheel_count()), b.loc.err(), client.done_index, pl.t))
 
         client = BoardClient(port, plan.robot, on_telemetry=on_telemetry)
         client.connect()
@@ -146,9 +147,11 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
         else:
             kinds["ROT"].append((over, ramp_extra(step["theta_to"] - step["theta_from"], w, a_th)))
     # localisation: every sample of the plan proper, and the re-anchoring error at each magnet
-    s = np.array([x for x in samples if x[3] >= setup - 1], float).reshape(-1, 4)
+    s = np.array([x for x in samples if x[3] >= setup - 1], float).reshape(-1, 5)
     err = np.abs(s[:, 1] - s[:, 0])
-    after = [abs(r[j - 1] * 1000.0 - d * 1000.0) for t, j, _, d in hall if t >= t0]
+    edges = [t for t, _j, _c, _d in hall if s.size and t >= s[0, 4]]
+    first = np.searchsorted(s[:, 4], edges)            # the first sample after each edge
+    after = [float(err[i]) for i in first if i < len(err)]
     return {"environment": mp.env.name, "seed": seed, "plant": plant, "actions": len(commands) - setup, "tau_s": mp.total_time,
             "executed_s": executed, "time_ratio": executed / mp.total_time, "dp_mm": dp * 1000.0,
             "dphi_deg": math.degrees(dphi), "e_p_mm": mp.env.e_p * 1000.0, "e_phi_deg": math.degrees(mp.env.e_phi),
