@@ -184,3 +184,52 @@ def test_the_pca_servo_sits_off_by_its_horn_and_stretches_its_travel_between_its
     plant.set_pulses(w, 0.0)
     plant.advance(1.0)
     assert np.all(np.abs(plant.q - t) <= 0.5 * np.array(p.backlash) + plant.deadband[:3] + 1e-9)
+
+
+# ---------------------------------------------------------------- the speed limit (issue 23)
+
+def speed_run(plant: str, seed: int, verb: tuple, cap: bool = True, s: float = 1.2):
+    """The effort rig's board runs `verb` (SETLIM or W) from mid-range; returns
+    (peak true joint speeds, peak pot-read speeds, the emulator, its Lockstep host), speeds
+    in rad/s from 1 ms samples of the plant."""
+    from test_emulator import Lockstep
+    emu = board(plant=plant, seed=seed)
+    h = Lockstep(emu)
+    h.wait("T")
+    h.hello(3)
+    emu.advance(0.2)
+    if not cap:      # the firmware as it was: the PID's output free up to +-1
+        for c in emu.board.caps:
+            c.umin, c.kv = 1.0, 0.0
+    assert h.request(*verb)[1] == "OK"
+    p = emu.plant
+    q, m = [emu.positions()], [p.pot_reading(p.q)]
+    for _ in range(int(s * 1000)):
+        emu.advance(0.001)
+        q.append(emu.positions())
+        m.append(p.pot_reading(p.q))
+    v = np.abs(np.diff(np.array(q), axis=0)).max(axis=0) / 0.001
+    vm = np.abs(np.diff(np.array(m), axis=0)).max(axis=0) / 0.001
+    return v, vm, emu, h
+
+
+@pytest.mark.parametrize("plant,seed", [("nominal", 0), ("random", 5)])
+@pytest.mark.parametrize("verb", [("SETLIM", 1, 3000, 3142, 3000), ("SETLIM", 1, 0, 200, 3000),
+                                  ("W", 1, 100, 3000, -1571, 0)], ids=["setlim-up", "setlim-down", "w"])
+def test_a_joint_at_vmax_does_not_pass_it(plant, seed, verb):
+    """A ramp at vmax (a SETLIM narrowing, or a W stretched to vmax) leaves the lagging joint
+    no room to catch up: the firmware's speed cap holds it within 5 % of vmax, in truth and
+    in the pots' terms, and the move still ends where it should, without a fault."""
+    v, vm, emu, h = speed_run(plant, seed, verb)
+    assert v[0] <= 1.05 * 3.0 and vm[0] <= 1.05 * 3.0, (v, vm)
+    assert v[0] >= 0.9 * 3.0                               # it did run at (about) vmax
+    assert emu.state == "IDLE" and h.find("EV", lambda a: a[1] == "FAULT") is None
+    end = 3.0 if verb[2] == 3000 or verb[0] == "W" else 0.2
+    assert abs(emu.plant.pot_reading(emu.positions())[0] - end) < 0.03
+
+
+def test_without_the_cap_the_joint_overshoots_vmax():
+    """The issue's premise, kept as a check that the test above measures something: the
+    firmware's PID free up to +-1 catches up past vmax (3.9 rad/s against 3.0 nominal)."""
+    v, _, _, _ = speed_run("nominal", 0, ("SETLIM", 1, 3000, 3142, 3000), cap=False)
+    assert v[0] > 1.2 * 3.0

@@ -22,11 +22,22 @@ module (firmware/esp32/config.py) or any object with its attribute names. The
 ones read here and in link.py: FW_NAME, FW_VERSION, N_JOINTS, LIMITS_MRAD,
 VMAX_MRAD_S, PERIOD_MS, QSIZE, TELEMETRY_HZ, WDOG_MS, PID_KP, PID_KI, PID_KD,
 PID_KFF, FOLLOW_ERR_MRAD, FOLLOW_ERR_MS, PEN_SETTLE_MS, IK_WEIGHTS,
-IK_THETA_MRAD (pins and ADC/PWM/servo calibration are read by the HALs only).
+IK_THETA_MRAD, and (optional) SPEED_KV, SPEED_KI, SPEED_TRIM, SPEED_UMIN (pins and
+ADC/PWM/servo calibration are read by the HALs only).
 
 The set point changes only by the trajectory (segments stretched to vmax, a
 ramp at vmax into a narrowed range) or by being put at the measured position
 (a stop where the arm is, which moves nothing): never in a jump.
+
+The joints keep to vmax too (effort rig): a set point moving at vmax leaves
+the lagging joint no room to catch up, and the PID's correction on top of the
+feed-forward would drive it past vmax (3.9 rad/s against 3.0 on a SETLIM
+ramp). `SpeedCap` bounds each PID's output to the effort that holds vmax: the
+feed-forward's effort at vmax, corrected by the measured speed (SPEED_KV) and
+by a trim learned while the cap holds (SPEED_KI, within +-SPEED_TRIM of kff:
+the servo's real speed per effort). The joint then lags a set point at vmax
+and catches up when it stops. Speeds are the pots', so a pot that reads g
+times the joint's travel holds the joint at vmax / g.
 """
 
 import ik3r
@@ -39,6 +50,72 @@ from traj import Traj
 
 def _milli(x: float) -> int:
     return int(round(x * 1000.0))
+
+
+class SpeedCap:
+    """One joint's speed limit on its effort (see the module docstring).
+
+    update(q, dt) measures the speed (first-order filtered difference of the
+    pot); bound(vmax, kff) is the most effort either way: the feed-forward's
+    effort at vmax, (kff + trim) * vmax but at least umin (a slow vmax must not
+    leave the joint too little effort to break its static friction or hold),
+    less kv times the speed the joint has over vmax that way.
+    learn(u, hi, lo, vmax, kff, dt) moves the trim while the output has sat at
+    the cap for HOLD ticks (the joint's speed settled), toward the effort that
+    holds vmax.
+    """
+
+    HOLD = 20
+
+    def __init__(self, kv: float, ki: float, trim: float, umin: float) -> None:
+        self.kv = kv
+        self.umin = umin
+        self.ki = ki
+        self.trim_max = trim
+        self.trim = 0.0         # s/rad, added to kff at the cap
+        self.v = 0.0            # filtered measured speed, rad/s
+        self.prev = 0.0         # last position, rad ...
+        self.primed = False     # ... once there is one
+        self.held = 0           # ticks the output has sat at the cap
+        self.alpha = 0.7        # the speed filter: the new difference's weight
+
+    def reset(self, q: float) -> None:
+        self.prev = q
+        self.primed = True
+        self.v = 0.0
+        self.held = 0
+
+    def update(self, q: float, dt: float) -> None:
+        if self.primed and dt > 0:
+            self.v += self.alpha * ((q - self.prev) / dt - self.v)
+        self.prev = q
+        self.primed = True
+
+    def bound(self, vmax: float, kff: float) -> tuple:
+        base = (kff + self.trim) * vmax
+        if base < self.umin:
+            base = self.umin
+        v = self.v
+        hi = base - self.kv * (v - vmax) if v > vmax else base
+        lo = base - self.kv * (-v - vmax) if -v > vmax else base
+        return (hi if hi > 0.0 else 0.0), (lo if lo > 0.0 else 0.0)
+
+    def learn(self, u: float, hi: float, lo: float, vmax: float, kff: float, dt: float) -> None:
+        v = self.v
+        if u >= hi - 1e-9 and v > 0.0:
+            err = (vmax - v) / vmax
+        elif u <= -lo + 1e-9 and v < 0.0:
+            err = (vmax + v) / vmax
+        else:
+            self.held = 0
+            return
+        self.held += 1
+        base = (kff + self.trim) * vmax
+        if self.held < self.HOLD or base < self.umin or base >= 1.0:   # the cap is not what binds
+            return
+        t = self.trim + self.ki * kff * err * dt
+        m = self.trim_max * kff
+        self.trim = m if t > m else (-m if t < -m else t)
 
 
 class Board(L.LinkedBoard):
@@ -57,6 +134,9 @@ class Board(L.LinkedBoard):
             self.traj.set_range(j, self.lim[j][0], self.lim[j][1], self.lim[j][2])
         self.pids = [PID(cfg.PID_KP[j], cfg.PID_KI[j], cfg.PID_KD[j], cfg.PID_KFF[j])
                      for j in range(n)]
+        self.caps = [SpeedCap(getattr(cfg, "SPEED_KV", 0.5), getattr(cfg, "SPEED_KI", 2.0),
+                              getattr(cfg, "SPEED_TRIM", 0.5), getattr(cfg, "SPEED_UMIN", 0.1))
+                     for _ in range(n)]
         self.q = [0.0] * n        # measured positions, rad
         self.u = [0.0] * n        # outputs, [-1, 1]
         self._fe_ms = [0] * n     # time each joint's following error has been too big
@@ -180,6 +260,7 @@ class Board(L.LinkedBoard):
             p.reset()
         for j in range(self.n):
             self._fe_ms[j] = 0
+            self.caps[j].reset(self.q[j])
 
     def set_hold(self, on: bool) -> None:
         self.traj.hold = on
@@ -187,16 +268,25 @@ class Board(L.LinkedBoard):
     def control(self, mode: int) -> None:
         self.hal.read_positions(self.q)
         u = self.u
+        dt = self.period_ms / 1000.0
+        for j in range(self.n):
+            self.caps[j].update(self.q[j], dt)
         if mode == L.DRIVE:
             self._advance()
             sp = self.traj.sp
             if self.positional:
                 self.hal.write_positions([x / 1000.0 for x in sp])
             else:
-                dt = self.period_ms / 1000.0
                 vel = self.traj.vel
                 for j in range(self.n):
-                    u[j] = self.pids[j].update(sp[j] / 1000.0, self.q[j], dt, vel[j] / 1000.0)
+                    pid = self.pids[j]
+                    cap = self.caps[j]
+                    vmax = self.lim[j][2] / 1000.0
+                    hi, lo = cap.bound(vmax, pid.kff)
+                    pid.out_max = hi if hi < 1.0 else 1.0
+                    pid.out_min = -lo if lo < 1.0 else -1.0
+                    u[j] = pid.update(sp[j] / 1000.0, self.q[j], dt, vel[j] / 1000.0)
+                    cap.learn(u[j], pid.out_max, -pid.out_min, vmax, pid.kff, dt)
                 self.hal.write_outputs(u)
             self._check_following()
             return

@@ -29,6 +29,16 @@ PID_KI = (2.0, 2.0, 2.0)            # 1/(rad s)
 PID_KD = (0.15, 0.15, 0.15)         # s/rad (on the measurement)
 PID_KFF = (0.2, 0.2, 0.2)           # s/rad (on the set-point velocity)
 
+# Speed cap on the PID's output (arm.SpeedCap), so that a joint catching up
+# with a set point at vmax does not pass vmax: at most the feed-forward's
+# effort at vmax, (kff + trim) * vmax (never below SPEED_UMIN), less SPEED_KV
+# per rad/s of measured speed over vmax; the trim (within +-SPEED_TRIM * kff)
+# learns, at SPEED_KI, the effort that holds vmax while the output sits at the cap.
+SPEED_KV = 0.5                      # effort per rad/s over vmax
+SPEED_KI = 2.0                      # 1/s: the trim's learning rate (relative to kff, per relative speed error)
+SPEED_TRIM = 0.5                    # the trim's bound, a fraction of kff
+SPEED_UMIN = 0.1                    # the cap is never below this effort (a slow vmax still moves and holds)
+
 # Following error |set point - measured| above this for this long -> FAULT.
 FOLLOW_ERR_MRAD = 350
 FOLLOW_ERR_MS = 300
