@@ -27,6 +27,10 @@ def test_bench_soft_exec_runs_the_demo_on_a_nominal_and_a_random_plant(tmp_path)
         assert run["completed"] and 0 <= run["joint_mean_deg"] <= run["joint_max_deg"]
         assert 0 <= run["tip_mean_mm"] <= run["tip_max_mm"] and run["planned_s"] > 0
         assert run["goal_reached"] == (run["goal_mm"] <= run["goal_tol_mm"])
+    # The nominal board's sensors read the truth; a drawn one's read it through their offset and gain.
+    assert nominal["true_joint_max_deg"] == pytest.approx(nominal["joint_max_deg"], abs=1e-3)
+    assert nominal["true_tip_max_mm"] == pytest.approx(nominal["tip_max_mm"], abs=0.05)
+    assert drawn["true_joint_max_deg"] != pytest.approx(drawn["joint_max_deg"], abs=1e-3)
     # Another board is another run: the hidden truth changed what the arm did.
     assert (drawn["joint_mean_deg"], drawn["tip_max_mm"]) != (nominal["joint_mean_deg"], nominal["tip_max_mm"])
     s = r["random"]["summary"]

@@ -8,7 +8,11 @@ K = 0..plants-1: emulator/truth.py), as a user's rig differs from the model.
 Each run is judged by the demo's own report (demos/soft_report.py, from the
 run's recording): the settled joint error (deg, every waypoint's joints), the
 tip error at the waypoints, the goal's distance against its tolerance, and the
-executed time against the planned. The issue's targets (after calibration):
+executed time against the planned. Those are what the board's bend sensors
+read; on a drawn board the bench also judges the truth the host cannot see:
+the sensor reads offset + gain theta (pump_plant.sensor_mv), so the settled
+readings are turned back into the true angles with the drawn offset and gain
+(`true_*` figures; on the nominal board they are the readings). The issue's targets (after calibration):
 settled joint error at most 1 deg mean and 2 deg max, tip error at most 10 mm
 max; the paper's own P controller used a 2 deg (two-arm) and 4 deg (three-arm)
 threshold.
@@ -47,12 +51,34 @@ def run_one(plant: str, seed: int, folder: Path) -> dict[str, Any]:
         return {"plant": plant, "seed": seed, "error": str(exc) or type(exc).__name__}
     assert done is not None
     r = done.report
-    return {"plant": plant, "seed": seed, "completed": bool(done.summary.completed),
+    truth = true_errors(r["poses"], plant, seed, done.planning.scene.checker())
+    return {"plant": plant, "seed": seed, "completed": bool(done.summary.completed), **truth,
             "joint_mean_deg": r["settled_joint_error_deg"]["mean"], "joint_max_deg": r["settled_joint_error_deg"]["max"],
             "tip_mean_mm": 1000.0 * r["tip_error_m"]["mean"], "tip_max_mm": 1000.0 * r["tip_error_m"]["max"],
             "goal_mm": 1000.0 * r["goal_distance_m"], "goal_tol_mm": 1000.0 * r["goal_tol_m"],
             "goal_reached": r["goal_distance_m"] <= r["goal_tol_m"], "all_settled": r["all_settled"],
             "planned_s": r["planned_arrival_s"], "executed_s": r["executed_s"]}
+
+
+def true_errors(poses: list[dict[str, Any]], plant: str, seed: int, checker: Any) -> dict[str, float]:
+    """The settled poses' true joint error (deg) and true tip error (mm): the readings turned back
+    through the drawn sensor's offset and gain (identity on the nominal board)."""
+    from armbridge.boards import config
+    from armbridge.emulator.pump_plant import hidden_truth
+    from armbridge.emulator.truth import truth_rng
+
+    read = np.asarray([p["settled"] for p in poses], float)
+    target = np.asarray([p["target"] for p in poses], float)
+    true = read
+    if plant == "random":
+        t = hidden_truth(config("arduino_pump"), truth_rng(seed))
+        off = np.asarray(t.offset_mrad if t.offset_mrad is not None else 0.0, float) / 1000.0
+        gain = np.asarray(t.gain if t.gain is not None else 1.0, float)
+        true = (read - off) / gain
+    err = np.degrees(np.abs(true - target))
+    tips = [float(np.linalg.norm(checker.tip(q) - checker.tip(g))) * 1000.0 for q, g in zip(true, target)]
+    return {"true_joint_mean_deg": float(err.mean()), "true_joint_max_deg": float(err.max()),
+            "true_tip_max_mm": float(max(tips))}
 
 
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -64,11 +90,14 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     def col(key: str) -> np.ndarray:
         return np.asarray([r[key] for r in ok], float)
 
-    meets = [r["joint_mean_deg"] <= TARGETS["joint_mean_deg"] and r["joint_max_deg"] <= TARGETS["joint_max_deg"]
-             and r["tip_max_mm"] <= TARGETS["tip_max_mm"] for r in ok]
+    meets = [r["true_joint_mean_deg"] <= TARGETS["joint_mean_deg"] and r["true_joint_max_deg"] <= TARGETS["joint_max_deg"]
+             and r["true_tip_max_mm"] <= TARGETS["tip_max_mm"] for r in ok]
     return {"runs": len(runs), "completed": len(ok),
             "joint_mean_deg": float(col("joint_mean_deg").mean()), "joint_max_deg": float(col("joint_max_deg").max()),
             "tip_mean_mm": float(col("tip_mean_mm").mean()), "tip_max_mm": float(col("tip_max_mm").max()),
+            "true_joint_mean_deg": float(col("true_joint_mean_deg").mean()),
+            "true_joint_max_deg": float(col("true_joint_max_deg").max()),
+            "true_tip_max_mm": float(col("true_tip_max_mm").max()),
             "goal_mm_max": float(col("goal_mm").max()), "goal_reached": float(np.mean([r["goal_reached"] for r in ok])),
             "time_ratio_max": float(np.max(col("executed_s") / col("planned_s"))),
             "meet_targets": float(np.mean(meets))}
@@ -107,7 +136,8 @@ def soft_exec_cmd(
     json_out: Path = typer.Option(Path("runs/bench-soft-exec.json"), "--json", help="Where to write the results."),
 ) -> None:
     """The soft demo's plan executed on the nominal pump board and on N boards of hidden truth: settled joint
-    error, tip error and the goal, against issue 23's targets (1 deg mean, 2 deg max, 10 mm)."""
+    error and tip error (as the board reads them, and true), and the goal, against issue 23's targets (1 deg
+    mean, 2 deg max, 10 mm)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -115,18 +145,20 @@ def soft_exec_cmd(
     result = run(plants, progress=lambda text: console.print(f"[dim]bench soft-exec: {text}[/]"))
     write_json(result, json_out)
     t = Table(title="the soft demo's plan on the pump board (true figures from the run's recording)")
-    for c in ("plant", "runs", "joint error mean (deg)", "joint error max (deg)", "tip error mean / max (mm)",
-              "goal max (mm)", "goal reached", "executed / planned (max)", "meet the targets"):
+    for c in ("plant", "runs", "joint error mean / max, read (deg)", "true (deg)", "tip error max, read (mm)",
+              "true (mm)", "goal max (mm)", "goal reached", "executed / planned (max)", "meet the targets (true)"):
         t.add_column(c, justify="left" if c == "plant" else "right")
-    t.add_row("target (issue 23)", "-", f"<= {TARGETS['joint_mean_deg']:g}", f"<= {TARGETS['joint_max_deg']:g}",
-              f"- / <= {TARGETS['tip_max_mm']:g}", "-", "-", "-", "-")
+    t.add_row("target (issue 23)", "-", f"<= {TARGETS['joint_mean_deg']:g} / {TARGETS['joint_max_deg']:g}",
+              f"<= {TARGETS['joint_mean_deg']:g} / {TARGETS['joint_max_deg']:g}", f"<= {TARGETS['tip_max_mm']:g}",
+              f"<= {TARGETS['tip_max_mm']:g}", "-", "-", "-", "-")
     for key, label in (("nominal", "nominal"), ("random", f"{plants} random")):
         s = result[key]["summary"]
         if not s.get("completed"):
-            t.add_row(label, f"0/{s['runs']}", *["-"] * 7)
+            t.add_row(label, f"0/{s['runs']}", *["-"] * 8)
             continue
-        t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['joint_mean_deg']:.2f}", f"{s['joint_max_deg']:.2f}",
-                  f"{s['tip_mean_mm']:.1f} / {s['tip_max_mm']:.1f}", f"{s['goal_mm_max']:.1f}",
-                  f"{s['goal_reached']:.0%}", f"{s['time_ratio_max']:.3f}", f"{s['meet_targets']:.0%}")
+        t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['joint_mean_deg']:.2f} / {s['joint_max_deg']:.2f}",
+                  f"{s['true_joint_mean_deg']:.2f} / {s['true_joint_max_deg']:.2f}", f"{s['tip_max_mm']:.1f}",
+                  f"{s['true_tip_max_mm']:.1f}", f"{s['goal_mm_max']:.1f}", f"{s['goal_reached']:.0%}",
+                  f"{s['time_ratio_max']:.3f}", f"{s['meet_targets']:.0%}")
     console.print(t)
     console.print(f"wrote {json_out}")
