@@ -1,11 +1,14 @@
 """The settle times' tolerance and the wait for an arm to come to rest (executor/run.py).
 
 A board with a dead band (the syringe-pump board: the soft-arm paper's P controller,
-eq. 24, drives nothing while |theta_r - theta_c| is inside it) leaves each joint
-resting anywhere in the band, typically near its edge, where the bend sensor's
-reading dithers by one ADC count. The tolerance is therefore the dead band plus one
-count of the joint's sensor (its calibration's mrad per count), so that a reading
-flipping by a count at the edge is not taken for the joint leaving the band.
+eq. 24, drives nothing while |theta_r - theta_c| is inside it) is only
+promised to rest inside the band: its firmware's finer settle (control.h
+seek_control: within 6 mrad, re-seek past 20) is the board's business, and a joint
+of a drawn rig or one still re-seeking may rest anywhere in the band, where the
+bend sensor's reading dithers by one ADC count at the edge. The tolerance is
+therefore the dead band plus one count of the joint's sensor (its calibration's
+mrad per count), so that a reading flipping by a count at the edge is not taken
+for the joint leaving the band.
 
 Both are read from the board where its protocol can (Modbus: holding registers 12..14
 and the calibration 24..35, docs/modbus.md); the line protocol has no query for them,
