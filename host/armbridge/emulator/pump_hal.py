@@ -27,7 +27,7 @@ from typing import Any, Callable, cast
 
 import numpy as np
 
-from armbridge.emulator.pump_plant import PumpParams, PumpPlant, PumpTruth
+from armbridge.emulator.pump_plant import PumpParams, PumpPlant, PumpTruth, nominal_rig
 from armbridge.emulator.simavr import mega2560 as mega
 from armbridge.emulator.simhal import ESTOP_BYTE, SimHal
 from armbridge.errors import ArmbridgeError
@@ -41,10 +41,7 @@ def pump_plant(cfg: Any, params: PumpParams | PumpTruth | None, q0: Any, seed: i
     stroke at full duty takes SYRINGE_STROKE_MS (the firmware's travel estimate).
     params: the rig's PumpParams, or a PumpTruth (plant=random: pump_plant.hidden_truth)."""
     rng = np.asarray([hi for _lo, hi in cfg.LIMITS_MRAD], dtype=float) / 1000.0
-    p: PumpParams | PumpTruth = params or PumpParams()
-    stroke = getattr(cfg, "SYRINGE_STROKE_MS", None)
-    if params is None and stroke:
-        p = PumpParams(v_motor=p.travel_mm / (float(stroke) / 1000.0))
+    p: PumpParams | PumpTruth = params if params is not None else nominal_rig(cfg)
     if q0 is not None:
         raise ArmbridgeError("the syringe-pump plant starts deflated (straight joints); it takes no q0")
     plant = PumpPlant(rng, cfg.BEND_DEFAULT, p, seed=seed)

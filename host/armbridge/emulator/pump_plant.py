@@ -173,15 +173,18 @@ SPREADS = (
 )
 
 
-def hidden_truth(cfg: Any, rng: np.random.Generator) -> PumpTruth:
-    """The plant of one random rig (plant=random): the nominal rig of `pump_hal.pump_plant` (its
-    motor speed from SYRINGE_STROKE_MS) with SPREADS drawn per joint."""
-    n = int(cfg.N_JOINTS)
-    rig = PumpParams()
+def nominal_rig(cfg: Any) -> PumpParams:
+    """The rig the firmware's config was built for: PumpParams with the motor's speed such that
+    a full stroke at full duty takes SYRINGE_STROKE_MS (the firmware's travel estimate)."""
     stroke = getattr(cfg, "SYRINGE_STROKE_MS", None)
-    if stroke:
-        rig = PumpParams(v_motor=rig.travel_mm / (float(stroke) / 1000.0))
-    return draw(PumpTruth.nominal(rig, n), SPREADS, rng, n)
+    rig = PumpParams()
+    return PumpParams(v_motor=rig.travel_mm / (float(stroke) / 1000.0)) if stroke else rig
+
+
+def hidden_truth(cfg: Any, rng: np.random.Generator) -> PumpTruth:
+    """The plant of one random rig (plant=random): `nominal_rig(cfg)` with SPREADS drawn per joint."""
+    n = int(cfg.N_JOINTS)
+    return draw(PumpTruth.nominal(nominal_rig(cfg), n), SPREADS, rng, n)
 
 
 def pressure(x: np.ndarray, theta: np.ndarray, p: Any, air: np.ndarray | None = None) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 from armbridge import boards
 from armbridge.boards import ElfFirmware, MicroPythonFirmware, joint_limits_rad
 from armbridge.emulator.plant import PlantParams, ServoPlant
+from armbridge.emulator.plant import hidden_truth as servo_truth
 from armbridge.emulator.simhal import RTC_MEMORY_SIZE, SimHal
 from armbridge.errors import ArmbridgeError
 
@@ -69,11 +70,6 @@ class Rig:
     hal: HalFactory
     truth: TruthFactory
     interpreters: tuple[str, ...]
-
-
-def _servo_truth(cfg, rng) -> Any:
-    from armbridge.emulator.plant import hidden_truth
-    return hidden_truth(cfg, rng)
 
 
 def _pca_truth(cfg, rng) -> Any:
@@ -123,7 +119,7 @@ def _pump_hal(*args: Any, **kw: Any) -> Any:
 
 #: board name -> rig name -> (plant factory, HAL factory, hidden-truth factory): how each rig is emulated
 EMULATIONS: dict[str, dict[str, tuple[PlantFactory, HalFactory, TruthFactory]]] = {
-    "esp32": {"effort": (servo_plant, SimHal, _servo_truth), "pca9685": (_pca_plant, _pca_hal, _pca_truth)},
+    "esp32": {"effort": (servo_plant, SimHal, servo_truth), "pca9685": (_pca_plant, _pca_hal, _pca_truth)},
     "masr_ma": {"effort": (_ma_plant, _ma_hal, _ma_truth)},
     "arduino_pump": {"effort": (_pump_plant, _pump_hal, _pump_truth)},
 }
@@ -149,7 +145,7 @@ class BoardSpec:
     firmware: MicroPythonFirmware | ElfFirmware
     plant: PlantFactory = servo_plant
     hal: HalFactory = SimHal
-    truth: TruthFactory = _servo_truth
+    truth: TruthFactory = servo_truth
     q0: tuple[float, ...] | None = None
     plant_params: PlantParams | None = None
     tick_us: int = 1000
