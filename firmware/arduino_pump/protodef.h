@@ -90,7 +90,16 @@ static const ab_arg_spec AB_ARGS_DBAND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"mra
 static const ab_arg_spec AB_ARGS_BEND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_MODBUS 22
 static const ab_arg_spec AB_ARGS_MODBUS[] = {{"addr", AB_ARG_INT, 1, 247}};
-#define AB_N_COMMANDS 23
+#define AB_VERB_IDENT 23
+#define AB_VERB_CALID 24
+static const ab_arg_spec AB_ARGS_CALID[] = {{"id", AB_ARG_INT, 1, 1073741823L}};
+#define AB_VERB_RELAY 25
+static const ab_arg_spec AB_ARGS_RELAY[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"amp", AB_ARG_INT, 1, 1000}, {"hyst", AB_ARG_INT, 0, 1000}, {"cycles", AB_ARG_INT, 1, 50}};
+#define AB_VERB_MAG 26
+static const ab_arg_spec AB_ARGS_MAG[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"pos", AB_ARG_INT, 0, 1000000L}, {"win", AB_ARG_INT, 0, 10000}};
+#define AB_VERB_WHEEL 27
+static const ab_arg_spec AB_ARGS_WHEEL[] = {{"nm", AB_ARG_INT, 1, 1000000L}};
+#define AB_N_COMMANDS 28
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -115,6 +124,11 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"DBAND", AB_ARGS_DBAND, 2, 0, -1, -1},
     {"BEND", AB_ARGS_BEND, 5, 0, 1, 3},
     {"MODBUS", AB_ARGS_MODBUS, 1, 0, -1, -1},
+    {"IDENT", 0, 0, 1, -1, -1},
+    {"CALID", AB_ARGS_CALID, 1, 0, -1, -1},
+    {"RELAY", AB_ARGS_RELAY, 4, 0, -1, -1},
+    {"MAG", AB_ARGS_MAG, 3, 0, -1, -1},
+    {"WHEEL", AB_ARGS_WHEEL, 1, 0, -1, -1},
 };
 
 static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH", "UNHOMED"};

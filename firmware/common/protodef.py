@@ -81,9 +81,14 @@ COMMANDS = {
     'DBAND': (('joint', 1, 0), ('mrad', 0, 1000)),
     'BEND': (('joint', 1, 0), ('adc_a', 0, 1023), ('a', -1000000, 1000000), ('adc_b', 0, 1023), ('b', -1000000, 1000000)),
     'MODBUS': (('addr', 1, 247),),
+    'IDENT': (),
+    'CALID': (('id', 1, 1073741823),),
+    'RELAY': (('joint', 1, 0), ('amp', 1, 1000), ('hyst', 0, 1000), ('cycles', 1, 50)),
+    'MAG': (('joint', 1, 0), ('pos', 0, 1000000), ('win', 0, 10000)),
+    'WHEEL': (('nm', 1, 1000000),),
 }
 
-READ_ONLY = ('STAT', 'LIM', 'PING')
+READ_ONLY = ('STAT', 'LIM', 'PING', 'IDENT')
 
 ORDERED = {
     'SETLIM': (('min', 'max'),),
@@ -96,6 +101,7 @@ REPLIES = {
     'LIM': ('joint', 'min', 'max', 'vmax'),
     'STAT': ('state', 'done', 'queued', 'ms'),
     'PING': ('ms',),
+    'IDENT': ('uid', 'cal'),
 }
 
 BOARD_LINES = {
@@ -110,4 +116,4 @@ STATES = ('IDLE', 'RUN', 'HOLD', 'ESTOP', 'WDOG', 'FAULT')
 
 LATCHED_STATES = ('ESTOP', 'WDOG', 'FAULT')
 
-EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN', 'MAGNET', 'ENDSTOP')
+EVENTS = ('START', 'DONE', 'SLOW', 'LIMIT', 'ESTOP', 'WDOG', 'FAULT', 'HOLD', 'RESUME', 'CLEAR', 'PEN', 'MAGNET', 'ENDSTOP', 'RELAY')

@@ -162,6 +162,11 @@ SPEC = {
     "BEND": [("joint", 1, None), ("adc_a", 0, 1023), ("a", -1000000, 1000000), ("adc_b", 0, 1023),
              ("b", -1000000, 1000000)],
     "MODBUS": [("addr", 1, 247)],
+    "IDENT": [],
+    "CALID": [("id", 1, 2 ** 30 - 1)],
+    "RELAY": [("joint", 1, None), ("amp", 1, 1000), ("hyst", 0, 1000), ("cycles", 1, 50)],
+    "MAG": [("joint", 1, None), ("pos", 0, 1000000), ("win", 0, 10000)],
+    "WHEEL": [("nm", 1, 1000000)],
 }
 # value i <= value j, else RANGE (docs/protocol.md §3: SETLIM's min <= max, CAL's us_a <= us_b)
 ORDER = {"SETLIM": (1, 2), "CAL": (1, 3), "BEND": (1, 3)}
@@ -169,7 +174,8 @@ ORDER = {"SETLIM": (1, 2), "CAL": (1, 3), "BEND": (1, 3)}
 TYPICAL = {"proto": 2, "session": 4242, "epoch": 1, "joint": 2, "id": 7, "dur": 500, "q": 0,
            "hz": 25, "kp": 2000, "ki": 0, "kd": 50, "min": -3000, "max": 3000, "vmax": 2000, "ms": 1000,
            "x": 76000, "y": 190000, "theta": 0, "down": 1, "us_a": 1000, "a": -785, "us_b": 2000, "b": 2356,
-           "d": 400, "angle": -453, "open": 1, "mrad": 35, "adc_a": 100, "adc_b": 900, "addr": 1}
+           "d": 400, "angle": -453, "open": 1, "mrad": 35, "adc_a": 100, "adc_b": 900, "addr": 1,
+           "amp": 300, "hyst": 5, "cycles": 4, "pos": 120000, "win": 1500, "nm": 16000}
 
 
 def expanded(verb: str, n: int) -> list:

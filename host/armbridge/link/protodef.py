@@ -102,10 +102,24 @@ COMMANDS = {
     "BEND": (("joint", 1, 0), ("adc_a", 0, 1023), ("a", -1000000, 1000000), ("adc_b", 0, 1023),
              ("b", -1000000, 1000000)),
     "MODBUS": (("addr", 1, 247),),
+    # Calibration (docs/calibration.md), every board. IDENT: the board's unique id and
+    # the id of the calibration it holds (0: none). CALID: persist every setting the
+    # calibration covers (gains, servo, bend, dead band, magnets, wheel) under `id`;
+    # a boot loads it back. RELAY: relay auto-tune (Astrom-Hagglund) of joint j's loop:
+    # effort +-amp (per mille) about the set point, switching at +-hyst (mrad); after
+    # `cycles` whole cycles the board reports `EV RELAY j period_ms amp_mrad` and holds.
+    "IDENT": (),
+    "CALID": (("id", 1, 1073741823),),
+    "RELAY": (("joint", 1, 0), ("amp", 1, 1000), ("hyst", 0, 1000), ("cycles", 1, 50)),
+    # The MASR actuator's localisation. MAG: joint j's magnet centre (um from home, in
+    # the wheel's frame) and its hall window's half width (um). WHEEL: travel per
+    # wheel encoder count (nm).
+    "MAG": (("joint", 1, 0), ("pos", 0, 1000000), ("win", 0, 10000)),
+    "WHEEL": (("nm", 1, 1000000),),
 }
 
 # Verbs that change nothing: a retransmitted copy is answered afresh, not replayed.
-READ_ONLY = ("STAT", "LIM", "PING")
+READ_ONLY = ("STAT", "LIM", "PING", "IDENT")
 
 # Cross-argument rules, checked after every argument's own range: verb ->
 # ((a, b), ...) meaning value a <= value b, else RANGE. (min == max is allowed:
@@ -122,6 +136,7 @@ REPLIES = {
     "LIM": ("joint", "min", "max", "vmax"),
     "STAT": ("state", "done", "queued", "ms"),
     "PING": ("ms",),
+    "IDENT": ("uid", "cal"),
 }
 
 # Board -> host line kinds: verb -> the fields after the board's seq ("..." = a
@@ -137,7 +152,7 @@ BOARD_LINES = {
 STATES = ("IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT")
 LATCHED_STATES = ("ESTOP", "WDOG", "FAULT")  # released only by CLR, never by HELLO or a reset
 
-EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET", "ENDSTOP")
+EVENTS = ("START", "DONE", "SLOW", "LIMIT", "ESTOP", "WDOG", "FAULT", "HOLD", "RESUME", "CLEAR", "PEN", "MAGNET", "ENDSTOP", "RELAY")
 
 # A latch's reason (STAT's fifth field; the board's kind adds its own, docs/protocol.md
 # §3.2, §9) -> (what happened, what EV FAULT's value `v` is: "error" in the joint's
