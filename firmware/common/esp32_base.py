@@ -1,7 +1,7 @@
 """What every ESP32 board's HAL shares over MicroPython's `machine`
 (docs/architecture.md, "The HAL"): the clock, the link UART at UART_BAUD
 (non-blocking reads), persistence in RTC memory (survives a reset, not a power
-cycle) and the filesystem. The 3R arm's HALs (firmware/esp32/hal_esp32.py,
+cycle), the chip's unique id and the filesystem. The 3R arm's HALs (firmware/esp32/hal_esp32.py,
 hal_pca9685.py) and the MASR actuator's (firmware/masr_ma/hal_ma.py) add their
 sensors and outputs.
 
@@ -50,6 +50,11 @@ class Esp32Base:
     def save_persist(self, data: bytes) -> None:
         self._rtc.memory(data)
 
+    # ------------------------------------------------------------ identity
+    def uid(self) -> str:
+        """The chip's unique id (its MAC on an ESP32), hex: names the board in IDENT."""
+        return machine.unique_id().hex()
+
     # ------------------------------------------------------------ files
     def read_file(self, name: str):
         """A file of the board's filesystem (the IK weights), or None if missing."""
@@ -58,3 +63,8 @@ class Esp32Base:
                 return f.read()
         except OSError:
             return None
+
+    def write_file(self, name: str, data: bytes) -> None:
+        """Writes a file of the board's filesystem whole (the calibration, calstore.py)."""
+        with open(name, "wb") as f:
+            f.write(data)

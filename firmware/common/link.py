@@ -3,7 +3,7 @@
 Everything a board does for the protocol (docs/protocol.md), whatever it
 drives: the line reader and the e-stop byte, decode with the link epoch, the
 session rules (session.py), the common verbs (HELLO LIM HOLD RESUME CLR RATE
-WDOG STAT PING), the states and their latches, persisted across resets, the
+WDOG STAT PING, and calstore.py's IDENT CALID), the states and their latches, persisted across resets, the
 watchdog, telemetry pacing, events, and the control period's schedule. A board
 (firmware/esp32/arm.py; the MASR actuator next) adds its own verbs and its
 control tick through the small interface below, and reuses this file unchanged.
@@ -65,6 +65,7 @@ except ImportError:
     def const(x):  # type: ignore[no-redef,misc]
         return x
 
+import calstore
 import proto
 import protodef as P
 import session as sess
@@ -188,6 +189,9 @@ class BoardLink:
         }
         for verb in board.verbs:
             self._verbs[verb] = board.verbs[verb]
+        self.cal = calstore.CalStore(hal, board)   # IDENT, CALID; the saved settings before anything moves
+        self.cal.load()
+        self._verbs.update(self.cal.verbs)
         self._motion = ("HOLD", "RESUME") + tuple(board.motion_verbs)
         now = hal.ticks_ms()
         self.last_ok = now

@@ -108,6 +108,12 @@ class BoardFs:
                 self._mirror(lambda p: p.unlink(missing_ok=True), path)
                 self._mirror_write(dest, self.files[dest])
 
+    def put(self, path: str, data: bytes) -> None:
+        """A data file the running firmware wrote (its calibration): kept for the
+        next boot and mirrored. It is not a change of firmware, so `pristine` stays."""
+        self.files[_norm(path)] = bytes(data)
+        self._mirror_write(_norm(path), self.files[_norm(path)])
+
     def _mirror(self, f: Any, path: str) -> None:
         if self.folder is not None:
             f(self.folder / path)

@@ -192,7 +192,7 @@ class MicroPythonBoard:
 
     def _flash(self, hal: Any) -> None:
         """The HAL's optional parts and its files into the fresh interpreter (F, H requests)."""
-        caps = json.dumps({"has_pen": bool(getattr(hal, "has_pen", False))}).encode()
+        caps = json.dumps({"has_pen": bool(getattr(hal, "has_pen", False)), "uid": hal.uid()}).encode()
         calls = ["H 0 0 " + caps.hex()]
         for name, data in (getattr(hal, "files", None) or {}).items():
             if not name or any(c.isspace() for c in name):
@@ -238,6 +238,9 @@ class MicroPythonBoard:
             elif kind == "N":
                 if hasattr(hal, "write_pen"):
                     hal.write_pen(body == "1")
+            elif kind == "W":
+                name, _, data = body.partition(" ")
+                hal.write_file(name, bytes.fromhex(data))
             elif kind == "D":
                 if self.on_done is not None:
                     self.on_done(*json.loads(body))

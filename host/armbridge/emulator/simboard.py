@@ -37,6 +37,7 @@ import os
 import threading
 import traceback
 import types
+import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -55,6 +56,13 @@ from armbridge.emulator.uart import PacedUart
 from armbridge.errors import ArmbridgeError
 from armbridge.resources import firmware_dir
 
+
+def board_uid(device: str, plant: str, seed: int) -> str:
+    """The chip id an emulated board reports (IDENT): one per physical board it
+    stands for, so a drawn plant (plant=random, its seed) is another board and
+    the nominal one is the same board whatever the noise seed."""
+    key = f"{device}:{plant}:{seed}" if plant == "random" else f"{device}:{plant}"
+    return "%08x" % zlib.crc32(key.encode())
 
 class SimBoard:
     """A board running its real firmware on a simulated HAL, stepped in sim time; see the module docstring.
@@ -126,11 +134,13 @@ class SimBoard:
         self.persist = PersistentMemory(size=spec.persist_bytes)
         self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,
                             tick_offset_ms=tick_offset_ms, on_line=self._tap, files=board_files(self.cfg))
+        self.hal.uid_hex = board_uid(self.device, self.plant_kind, seed)
         self.fs: BoardFs | None = None
         self.console: Console | None = None
         if isinstance(spec.firmware, MicroPythonFirmware):
             self.fs = BoardFs.for_board([root / d for d in spec.firmware.dirs], self.hal.files, fs_dir)
             self.console = Console(self.fs, self.uart.bytes_per_s, self._interrupt, self._repl_reset)
+            self.hal.on_file = self.fs.put
 
         # (board_ms, id, (q1..qn) in milli-units as the W line carried them) of every
         # completed waypoint (the firmware's on_done hook), across resets.

@@ -23,6 +23,10 @@ Files: `read_file(name)` serves the board's filesystem from `files` (name ->
 bytes; None for a name it lacks); an emulated board starts with
 `boards.files.board_files(cfg)`: the config's IK_WEIGHTS -> the shipped
 models/onnx/arm3r-ik/int8.bin (the board IK's net, firmware/esp32/ik3r.py).
+`write_file(name, data)` (the firmware's calibration, calstore.py) replaces
+one and hands it to `on_file` (the board's filesystem, so a reset keeps it).
+`uid()` is the chip id IDENT reports: `uid_hex`, which the emulated board sets
+from what it emulates (a drawn plant is another physical board).
 """
 from __future__ import annotations
 
@@ -96,6 +100,8 @@ class SimHal:
         files: dict[str, bytes] | None = None,
     ) -> None:
         self.files: dict[str, bytes] = dict(files) if files is not None else {}
+        self.on_file: Callable[[str, bytes], None] | None = None
+        self.uid_hex = "00000000"
         self.clock = clock
         self.plant = plant
         self.uart = uart
@@ -172,6 +178,14 @@ class SimHal:
     def read_file(self, name) -> bytes | None:
         """A file of the board's filesystem, None when it has none of that name."""
         return self.files.get(str(name))
+
+    def write_file(self, name, data) -> None:
+        self.files[str(name)] = bytes(data)
+        if self.on_file is not None:
+            self.on_file(str(name), bytes(data))
+
+    def uid(self) -> str:
+        return self.uid_hex
 
     # uart ----------------------------------------------------------------
     def uart_read(self) -> bytes | None:

@@ -14,14 +14,15 @@ Request lines (one per round trip, from armbridge.emulator.micropython):
                                 interpreter's filesystem (the board's files: the IK
                                 weights); answered `OK`
     H 0 0 CAPS                  before a boot: the emulator HAL's optional parts, a
-                                JSON object in hex ({"has_pen": bool}); answered `OK`
+                                JSON object in hex ({"has_pen": bool, "uid": str});
+                                answered `OK`
     B ms us PERSIST q1 .. qn    boot: import the firmware, construct the board
     S ms us RX q1 .. qn         one pass of the main loop: board.poll()
     E ms us - q1 .. qn          the board's estop()
 PERSIST and RX are hex, "-" for none. The answer is one line of tab-separated
 fields: the board's state, then the log in order: `T<hex>` UART bytes,
 `O<e1>,..,<en>` outputs written, `X` outputs off, `P<hex>` persisted memory
-written, `N1` / `N0` pen down / up, `D<json list>` the arguments of the completion hook; and last, when
+written, `N1` / `N0` pen down / up, `W<name> <hex>` a file the firmware wrote, `D<json list>` the arguments of the completion hook; and last, when
 the firmware raised, `!<json string>` its traceback.
 """
 
@@ -45,13 +46,15 @@ OFF = 2
 PERSIST = 3
 DONE = 4
 PEN = 5
+FILE = 6
 
 
 class BridgeHal:
     """The HAL of docs/architecture.md over values set from outside."""
 
-    def __init__(self, n, persist=b"", has_pen=False):
+    def __init__(self, n, persist=b"", has_pen=False, uid="0"):
         self.has_pen = bool(has_pen)
+        self._uid = str(uid)
         self.ms = 0
         self.us = 0
         self.rx = None
@@ -109,6 +112,15 @@ class BridgeHal:
         except OSError:
             return None
 
+    def write_file(self, name, data):
+        """Writes the interpreter's file, and tells the emulator (its board filesystem keeps it)."""
+        with open(name, "wb") as f:
+            f.write(data)
+        self.ops.append((FILE, (name, bytes(data))))
+
+    def uid(self):
+        return self._uid
+
     def on_done(self, *args):
         """The board's completion hook (its arguments are passed on as they are)."""
         self.ops.append((DONE, args))
@@ -150,6 +162,8 @@ def _drain(hal, state, error=None):
             out.append("P" + _hex(v))
         elif kind == PEN:
             out.append("N1" if v else "N0")
+        elif kind == FILE:
+            out.append("W%s %s" % (v[0], _hex(v[1])))
         else:
             out.append("D" + json.dumps(list(v)))
     if tx:
@@ -185,7 +199,7 @@ def step(line):
         return "OK"
     q = [float(x) for x in parts[4:]]
     if cmd == "B":
-        _hal = BridgeHal(len(q), data or b"", _caps.get("has_pen", False))
+        _hal = BridgeHal(len(q), data or b"", _caps.get("has_pen", False), _caps.get("uid", "0"))
     hal = _hal
     if hal is None:
         return "RESET\t!" + json.dumps("the bridge got %r before a boot" % cmd)
