@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "masr-plan": "armbridge.bench.masr_plan:masr_plan_cmd",
     "masr-exec": "armbridge.bench.masr_exec:masr_exec_cmd",
     "soft-exec": "armbridge.bench.soft_exec:soft_exec_cmd",
+    "arm3r-servo": "armbridge.bench.arm3r_servo:arm3r_servo_cmd",
     "smm": "armbridge.bench.smm:smm_cmd",
     "firmware": "armbridge.bench.firmware_cost:firmware_cmd",
     "arm3r": "armbridge.bench.arm3r:arm3r_cmd",
