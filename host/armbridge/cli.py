@@ -62,6 +62,7 @@ def build_app() -> typer.Typer:
 
 def _register() -> None:
     from armbridge.bench.command import bench_app
+    from armbridge.calibrate.command import calibrate_cmd
     from armbridge.console.command import board_app
     from armbridge.demo import demo_cmd
     from armbridge.draw.command import draw_cmd
@@ -73,6 +74,7 @@ def _register() -> None:
     from armbridge.telemetry.command import view_cmd
     from armbridge.train.command import train_app
 
+    app.command("calibrate")(calibrate_cmd)
     app.command("demo")(demo_cmd)
     app.command("draw")(draw_cmd)
     app.command("emulate")(emulate_cmd)

@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 from armbridge.errors import ArmbridgeError
+from armbridge.link.protodef import COMMANDS
 
 #: board name -> the module of its procedure (imported when used: each pulls numpy/scipy pieces)
 PROCEDURES = {
@@ -60,3 +62,81 @@ def check_steps(board: str, only: list[str] | tuple[str, ...] | None) -> frozens
     if bad:
         raise ArmbridgeError(f"calibration step {bad[0]!r} is not one of {board}'s: {', '.join(steps)}")
     return frozenset(only or ())
+
+
+@dataclass
+class CalReport:
+    """What `calibrate_board` did: the board, its chip id, the calibration's id, the
+    host file, and everything found (this run's and, kept, earlier steps' settings)."""
+
+    board: str
+    uid: str
+    id: int
+    path: str
+    found: Found
+    settings: list[tuple[str, tuple[int, ...]]]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"board": self.board, "uid": self.uid, "id": self.id, "file": self.path,
+                "settings": [[v, *a] for v, a in self.settings], "found": self.found.values,
+                "lines": self.found.lines}
+
+
+def _key(verb: str, args: tuple[int, ...]) -> tuple:
+    """Settings replace each other per verb, and per joint for a verb whose first argument is one."""
+    specs = COMMANDS.get(verb, ())
+    return (verb, args[0]) if specs and specs[0][0] == "joint" and args else (verb,)
+
+
+def merged(old: list[tuple[str, tuple[int, ...]]], new: list[tuple[str, tuple[int, ...]]]):
+    """Earlier settings (a previous calibration's) overridden by this run's, in order."""
+    out = {_key(v, a): (v, a) for v, a in old}
+    for v, a in new:
+        out.pop(_key(v, a), None)
+        out[_key(v, a)] = (v, a)
+    return list(out.values())
+
+
+def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] | None = None,
+                    cal_dir: Path | None = None, connect_timeout: float = 5.0) -> CalReport:
+    """The whole flow (module docstring): who the board is, its procedure, the
+    settings sent, CALID, IDENT read back, the host file written. Nothing is
+    persisted unless every step and every setting succeeded (the settings sent
+    before a failure stay in the board's RAM until its next reset). With `only`,
+    the settings of the steps not run are kept from this host's earlier file,
+    when the board still holds that calibration."""
+    from armbridge import boards
+    from armbridge.boards import calfile
+    from armbridge.executor import calcheck
+    from armbridge.executor.session import open_session
+
+    steps = check_steps(board, only)
+    _, run = procedure(board)
+    cfg = boards.config(board)
+    with open_session(port, None, latched="refuse", calibration="report", connect_timeout=connect_timeout) as client:
+        fw = client.info.fw
+        if calcheck.board_name(fw) != board:
+            raise ArmbridgeError(f"the board on {port} runs firmware {fw!r}, not the {board} board's")
+        got = calcheck.ident(client)
+        if got is None:
+            raise ArmbridgeError(f"the {board} board on {port} runs firmware {fw} {client.info.version} without "
+                                 f"IDENT/CALID: flash it (armbridge flash {board} --port {port}) to calibrate it")
+        uid, held = got
+        previous = calfile.find(board, uid, cal_dir)
+        if previous is not None and previous.id != held:
+            previous = None   # the board no longer holds it: start afresh
+        found = run(client, cfg, steps)
+        for verb, args in found.settings:
+            client.command(verb, *args)
+        settings = merged(list(previous.settings) if previous is not None else [], found.settings)
+        cid = calfile.cal_id(board, uid, settings)
+        client.command("CALID", cid)
+        back = calcheck.ident(client)
+        if back != (uid, cid):
+            raise ArmbridgeError(f"the board did not keep the calibration: IDENT says {back}, expected ({uid}, {cid})")
+        version = client.info.version
+    values = {**(previous.found if previous is not None else {}), **found.values}
+    cal = calfile.CalFile(board=board, uid=uid, id=cid, fw=fw, fwver=version, settings=tuple(settings),
+                          found=values)
+    path = calfile.write(cal, cal_dir)
+    return CalReport(board, uid, cid, str(path), found, settings)

@@ -33,12 +33,14 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Optional
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from armbridge.boards import calfile
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.signals import Stopped, stop_on_signals
 from armbridge.link.protodef import COMMANDS, LATCHED_STATES
@@ -115,7 +117,24 @@ def _latch_hint(state: str, port: str) -> str:
 
 
 # ---------------------------------------------------------------------- info
-def info_dict(info) -> dict[str, Any]:
+def calibration_dict(cal) -> dict[str, Any] | None:
+    """The board's calibration as `board info` shows it: its chip id, the calibration
+    id it holds, how that compares with this host's file (executor/calcheck.py),
+    and the file's settings when there is one."""
+    if cal is None or cal.uid is None:
+        return None
+    d = cal.to_json()
+    if cal.file:
+        try:
+            host = calfile.read(Path(cal.file))
+            d["settings"] = [[v, *a] for v, a in host.settings]
+            d["created"] = host.created
+        except ArmbridgeError as exc:
+            d["file_error"] = str(exc)
+    return d
+
+
+def info_dict(info, cal=None) -> dict[str, Any]:
     joints = [
         {"joint": j + 1, "min_mrad": lo, "max_mrad": hi, "vmax_mrad_s": vmax,
          "min_rad": lo / 1000, "max_rad": hi / 1000, "vmax_rad_s": vmax / 1000}
@@ -123,7 +142,7 @@ def info_dict(info) -> dict[str, Any]:
     ]
     return {"fw": info.fw, "fw_version": info.version, "protocol": info.proto, "joints": info.n,
             "queue": info.qsize, "rate_hz": info.rate, "watchdog_ms": info.wdog_ms, "state": info.state,
-            "limits": joints}
+            "limits": joints, "calibration": calibration_dict(cal)}
 
 
 @board_app.command("info")
@@ -131,7 +150,7 @@ def info_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), t
              as_json: bool = _json_opt()) -> None:
     """Identity, protocol, joints and their limits, queue size, telemetry rate, watchdog."""
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
-        d = info_dict(client.info)
+        d = info_dict(client.info, client.calibration)
     if as_json:
         _print_json(d)
         return
@@ -145,6 +164,13 @@ def info_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), t
     t.add_row("telemetry rate", f"{d['rate_hz']} Hz")
     t.add_row("watchdog", f"{d['watchdog_ms']} ms")
     t.add_row("state", d["state"] + _latch_hint(d["state"], port))
+    cal = d["calibration"]
+    if cal is not None:
+        t.add_row("chip id", cal["uid"])
+        held = f"id {cal['id']}" if cal["id"] else "none saved"
+        t.add_row("calibration", f"{held}: {cal['status']}" + (f" ({cal['file']})" if cal["file"] else ""))
+        for s in cal.get("settings", []):
+            t.add_row("", " ".join(map(str, s)))
     lim = Table(title="joint limits", show_header=True, header_style="bold")
     for col in ("joint", "min (rad)", "max (rad)", "vmax (rad/s)"):
         lim.add_column(col, justify="right")

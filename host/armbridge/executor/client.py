@@ -38,6 +38,7 @@ import random
 import time
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
+from typing import Any
 
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.faults import fault_text
@@ -114,6 +115,7 @@ class BoardClient(Streaming):
                        interrupt=interrupt)
         self.board_clock = BoardClock()
         self.info: BoardInfo | None = None
+        self.calibration: Any = None   # executor/calcheck.Calibration, set by open_session
         self.state: str | None = None  # last state seen (HELLO, BOOT, telemetry, STAT, events)
         self.last_event: str | None = None
         self.fault_reason: str | None = None  # a latch's cause in words (EV FAULT, then STAT's reason)

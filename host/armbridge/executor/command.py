@@ -45,16 +45,20 @@ def run_cmd(
                                                     "and zeroes d; a board just powered on does not know where it is), "
                                                     "then every joint and d to the plan's start; the executed time "
                                                     "counts from there."),
+    no_cal_check: bool = typer.Option(False, "--no-calibration-check",
+                                      help="Run on a board whose calibration is not the one this host made for it "
+                                           "(docs/calibration.md)."),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
-    run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, home=home)
+    run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, home=home,
+                calibration="ignore" if no_cal_check else "check")
 
 
 def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
-                home=False, goal_exit=True) -> Summary:
+                home=False, goal_exit=True, calibration="check") -> Summary:
     """What `armbridge run` does with its options (also `armbridge draw --port`, the demos); the
     Summary of a completed run (any other outcome exits with its code)."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
@@ -62,13 +66,13 @@ def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=F
     try:
         with stop_on_signals():
             return run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian,
-                                  pen=pen, home=home, goal_exit=goal_exit)
+                                  pen=pen, home=home, goal_exit=goal_exit, calibration=calibration)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto", home=False, goal_exit=True) -> Summary:
+                   pen="auto", home=False, goal_exit=True, calibration="check") -> Summary:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
     and the exit code (1: the run failed, 3: it completed with the arm outside the
     plan's goal, unless `goal_exit` is False (the caller reports it), 128 + n: stopped
@@ -76,7 +80,7 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
-                           cartesian=cartesian, pen=pen, home=home)
+                           cartesian=cartesian, pen=pen, home=home, calibration=calibration)
     except RunFailed as exc:
         failed, summary = exc, exc.summary
     with holding():

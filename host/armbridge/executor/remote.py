@@ -201,6 +201,7 @@ class RemoteClient:
         self.fault_reason: str | None = None
         self.done_index = -1
         self.info: Any = None
+        self.calibration: Any = None
         self.stats = LinkStats()
         self.connected = False
         self.session: int | None = None

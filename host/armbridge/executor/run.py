@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError, BoardFailure
+from armbridge.executor.calcheck import CalibrationMismatch
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.settle import resting
 from armbridge.executor.signals import holding, stop_on_signals
@@ -63,8 +64,12 @@ def run_plan(
     cartesian: bool = False,
     pen: str = "auto",
     home: bool = False,
+    calibration: str = "check",
 ) -> Summary:
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
+
+    `calibration`: "check" refuses a board whose calibration is not the one this
+    host made for it (executor/calcheck.py), "ignore" does not ask.
 
     `clear`: send CLR first when the board is latched (ESTOP/WDOG/FAULT) from
     before; without it a latched board fails the run.
@@ -164,11 +169,12 @@ def run_plan(
         summary.rrd = str(rrd)
         try:
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
-                              session=session, on_telemetry=on_telemetry, on_event=on_event, on_error=on_error,
+                              session=session, calibration=calibration, on_telemetry=on_telemetry, on_event=on_event, on_error=on_error,
                               on_stop=lambda c, stop: _stop(c, summary, rec, stop)) as c:
                 client = c
                 assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
+                summary.calibration = c.calibration.to_json() if c.calibration is not None else None
                 if cartesian:
                     _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
@@ -207,6 +213,10 @@ def run_plan(
                             executed = d[plan.k - 1] - d[s0] if s0 in d and plan.k - 1 in d else float("nan")
                         summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
                     summary.goal = _goal(plan, masr, summary, samples)
+        except CalibrationMismatch:  # nothing was sent: one line, no summary, no recording
+            _discard(rec, rrd)
+            summary.rrd = None
+            raise
         except PortError as exc:
             if exc.usage:  # the --port value names no serial device: bad input, nothing ran
                 _discard(rec, rrd)

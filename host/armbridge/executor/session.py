@@ -29,6 +29,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from armbridge.errors import ArmbridgeError
+from armbridge.executor import calcheck
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 
 LATCH_POLICIES = ("refuse", "clear", "allow")
@@ -103,13 +104,16 @@ def open_client(port: str, robot, engine: str = "auto", *, callbacks: dict | Non
 def open_session(port: str, robot, *, latched: str = "refuse", rate_hz: int | None = None,
                  session: int | None = None, on_telemetry=None, on_event=None, on_error=None,
                  connect_timeout: float = 5.0, engine: str = "auto",
-                 on_stop: Callable[[Any, KeyboardInterrupt], None] | None = None) -> Iterator[BoardClient]:
+                 on_stop: Callable[[Any, KeyboardInterrupt], None] | None = None,
+                 calibration: str | None = None) -> Iterator[BoardClient]:
     """Open the port, connect (HELLO, identity, limits; robot None: version and
     limits only), apply the latch policy, set the telemetry rate, and yield the
     connected client (BoardClient's surface; `engine`: where it runs, open_client);
     the port is closed on exit, whatever happens. `on_stop(client, stop)`: a stop
     signal while connecting (the run's e-stop path: the byte goes out even to a board
-    that has not answered HELLO yet), before the stop goes on up."""
+    that has not answered HELLO yet), before the stop goes on up. `calibration`: the
+    policy of executor/calcheck.py (default: "check" with a robot, a run; "report"
+    without), its result left on `client.calibration`."""
     if latched not in LATCH_POLICIES:
         raise ArmbridgeError(f"latch policy {latched!r}: expected one of {', '.join(LATCH_POLICIES)}")
     if rate_hz is not None and not (isinstance(rate_hz, int) and 0 <= rate_hz <= 100):
@@ -120,6 +124,7 @@ def open_session(port: str, robot, *, latched: str = "refuse", rate_hz: int | No
         try:
             client.connect()
             apply_latch_policy(client, latched)
+            client.calibration = calcheck.check(client, calibration or ("check" if robot is not None else "report"))
             if rate_hz is not None:
                 client.set_rate(rate_hz)
         except KeyboardInterrupt as stop:

@@ -78,6 +78,7 @@ class Summary:
     fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None
     fw_version: str | None = None
+    calibration: dict | None = None  # executor/calcheck.Calibration: the board's chip id and calibration
     drawing: dict | None = None  # a plan with pen flags: plans/drawing.py run_drawing_report
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
@@ -128,6 +129,9 @@ class Summary:
         if self.fault:
             t.add_row("fault", self.fault)
         t.add_row("board", f"{self.fw} {self.fw_version}" if self.fw else "-")
+        if self.calibration and self.calibration.get("uid"):
+            cal = self.calibration
+            t.add_row("calibration", f"{cal['status']} (board {cal['uid']}, id {cal['id']})")
         t.add_row("waypoints done / total", f"{self.waypoints_done} / {self.waypoints_total}")
         t.add_row("waypoints sent / acknowledged", f"{self.waypoints_sent} / {self.waypoints_acked}")
         t.add_row("waypoints retransmitted", str(self.waypoints_retransmitted))

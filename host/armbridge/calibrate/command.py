@@ -1,0 +1,53 @@
+"""`armbridge calibrate BOARD --port URL`: the CLI of calibrate/base.py's flow."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from armbridge.calibrate.base import PROCEDURES, calibrate_board
+from armbridge.jsonfile import write_json
+
+
+def calibrate_cmd(
+    board: str = typer.Argument(..., help=f"The board: {', '.join(sorted(PROCEDURES))}."),
+    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT",
+                             help="Serial device, pyserial URL or emu:BOARD (emu:BOARD?plant=random&seed=N: a board "
+                                  "of hidden physical truth) (env ARMBRIDGE_PORT)."),
+    only: Optional[list[str]] = typer.Option(None, "--only", metavar="STEP",
+                                             help="Run only this step (repeatable); the others' settings are kept "
+                                                  "from this host's earlier calibration of the board."),
+    cal_dir: Optional[Path] = typer.Option(None, "--dir", help="Where the host's calibration files are "
+                                                                "[default: $ARMBRIDGE_CALIBRATION_DIR, else "
+                                                                "~/.config/armbridge/calibration]."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
+                                           help="Also write what was found as JSON to FILE ('-': stdout)."),
+) -> None:
+    """Measure a board from its own sensors, set and persist what was found (on the board, CALID,
+    and in a host file that later runs check the board against). docs/calibration.md.
+
+    Steps: esp32: gains, servo (jig); masr_ma: magnets, wheel, gains; arduino_pump: bend, gains.
+
+    Exit codes: 0 calibrated, 1 the board failed or refused, 2 bad input."""
+    console = Console(stderr=json_out == "-")
+    with console.status(f"calibrating the {board} board on {port} ..."):
+        report = calibrate_board(port, board, only=only, cal_dir=cal_dir)
+    if json_out is not None:
+        if json_out == "-":
+            sys.stdout.write(json.dumps(report.to_json(), indent=2) + "\n")
+        else:
+            write_json(Path(json_out), report.to_json(), "the calibration report")
+    t = Table(title=f"{board} {report.uid}: calibration {report.id}", show_header=False)
+    t.add_column("", style="bold")
+    t.add_column("")
+    for line in report.found.lines:
+        what, _, value = line.partition(": ")
+        t.add_row(what, value)
+    t.add_row("saved on the board", f"CALID {report.id}")
+    t.add_row("host file", report.path)
+    console.print(t)
