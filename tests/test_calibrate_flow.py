@@ -79,7 +79,7 @@ def test_a_run_checks_the_board_against_the_host_file(tmp_path, standin, monkeyp
     s = run_plan(plan, url(fs), tmp_path / "a.rrd", progress=False)
     assert s.completed and s.calibration == {"status": "calibrated", "uid": report.uid, "id": report.id,
                                              "file": report.path}
-    # re-flashed: the board's filesystem lost cal.txt; the run refuses it before sending anything
+    # erased: the board's filesystem lost cal.txt; the run refuses it before sending anything
     (fs / "cal.txt").unlink()
     with pytest.raises(ArmbridgeError, match=r"holds no calibration, but this host calibrated it as"):
         run_plan(plan, url(fs), tmp_path / "b.rrd", progress=False)

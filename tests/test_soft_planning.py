@@ -306,3 +306,33 @@ def test_scenes_round_trip_and_missing_files(tmp_path):
     with pytest.raises(ArmbridgeError, match="unknown fixed scene 'four-arm'"):
         fixed_scene("four-arm")
     assert scene_from_dict(_doc()).name == "three-arm" and (FORMAT, VERSION) == ("armbridge-chain-env", 1)
+
+
+@pytest.mark.parametrize("name,seed", [("three-arm", 0), ("three-arm", 2), ("two-arm", 1)])
+def test_the_plan_ends_on_the_goal_point_not_on_the_goal_discs_rim(name, seed):
+    """WJRRT stops at the first state inside the goal disc, about its rim (1.95 of
+    2 mm on three-arm seed 0); ik.onto_goal adds one short, checked state on the
+    point, so the last pump waypoint the board is sent is within tol / 4."""
+    from armbridge.planning.soft.command import plan_for_pump
+
+    sp = plan_for_pump(name, seed=seed)
+    scene, ch = sp.scene, sp.scene.checker()
+    path = sp.result.path
+    assert np.linalg.norm(ch.tip(path[-1]) - scene.goal_point) <= scene.goal_tol / 4
+    assert ch.motion_valid(path[-2], path[-1]) and ch.is_valid(path[-1])
+    assert sp.summary()["tip_error_m"] <= scene.goal_tol / 4
+    assert sp.summary()["planner_tip_error_m"] <= scene.goal_tol
+
+
+def test_onto_goal_leaves_a_path_whose_goal_state_is_blocked():
+    """When the state on the goal point (or the edge to it) is not free, the path stays as it is."""
+    from armbridge.planning.soft.ik import onto_goal
+
+    scene = fixed_scene("three-arm")
+    ch = scene.checker()
+    path = planners.plan(scene, "wjrrt", seed=0).path
+    assert len(onto_goal(path, ch, scene.goal_point, scene.goal_tol)) == len(path) + 1
+    blocked = dataclasses.replace(scene, obstacles=scene.obstacles + [
+        np.array([scene.goal_point + [-0.004, -0.004], scene.goal_point + [0.004, -0.004],
+                  scene.goal_point + [0.004, 0.004], scene.goal_point + [-0.004, 0.004]])])
+    assert onto_goal(path, blocked.checker(), scene.goal_point, scene.goal_tol) is path

@@ -5,7 +5,7 @@ Why on the host as well as on the board: the board keeps its calibration
 file; the host keeps the same calibration, under the same id, so a run can
 tell that the board in front of it is the one that was calibrated, with the
 calibration it was calibrated with: a board swapped on the same port, one
-re-flashed (which wipes the saved file) or one calibrated from another host
+whose saved calibration was erased, or one calibrated from another host
 does not match, and the run refuses it with one line (executor/session.py).
 
 A file is JSON: {"format": FORMAT, "board", "uid", "id", "fw", "fwver",

@@ -9,7 +9,7 @@ calibration file of that board (boards/calfile.py). The decision:
 | none                       | 0           | "uncalibrated": runs (the firmware's defaults) |
 | none                       | id          | "calibrated elsewhere": runs (the board carries it) |
 | id                         | same id     | "calibrated": runs |
-| id                         | other / 0   | refused, one line: re-flashed, swapped or calibrated elsewhere |
+| id                         | other / 0   | refused, one line: its calibration erased, or made elsewhere since |
 | (board answers IDENT VERB) |             | "unknown": firmware before calibration; runs |
 
 `policy` "check" refuses a mismatch (a run); "report" returns it as status
@@ -88,6 +88,6 @@ def check(client: Any, policy: str = "check", folder: Path | None = None) -> Cal
     if host.id != held:
         what = f"calibration {held}" if held else "no calibration"
         raise CalibrationMismatch(f"the {board} board {uid} holds {what}, but this host calibrated it as {host.id} "
-                             f"({path}): re-flashed or calibrated elsewhere? Run `armbridge calibrate {board} "
+                             f"({path}): erased, or calibrated elsewhere since? Run `armbridge calibrate {board} "
                              f"--port PORT` again, or pass --no-calibration-check")
     return Calibration("calibrated", uid, held, str(path))

@@ -7,10 +7,11 @@ armbridge-plan that `armbridge run` executes (planning/soft/plan_file.py).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 import typer
 
 from armbridge.errors import ArmbridgeError
@@ -34,13 +35,17 @@ class SoftPlanning:
                 "planned_nodes": w.planned_nodes, "waypoints": int(len(w.q)), "plan_rows": self.plan.k,
                 "tolerance_m": w.tolerance_m, "max_tracking_error_m": float(w.error_m.max(initial=0.0)),
                 "snapped_joints": int(w.snapped.sum()), "planned_duration_s": round(self.plan.total_duration, 3),
-                "tip_error_m": r.stats.get("tip_error_m"), **{k: v for k, v in r.stats.items() if k != "tip_error_m"}}
+                **{k: v for k, v in r.stats.items() if k != "tip_error_m"},
+                "planner_tip_error_m": r.stats.get("tip_error_m"),
+                # the last pump waypoint's tip (after ik.onto_goal and the dead-band snap): what the board is sent
+                "tip_error_m": float(np.linalg.norm(self.scene.checker().tip(w.q[-1]) - self.scene.goal_point))}
 
 
 def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations: Optional[int] = None,
                   tolerance: Optional[float] = None, tool: str = "armbridge plan soft") -> SoftPlanning:
     """Load the scene (a file or a fixed scene's name), plan, pick and time the pump waypoints."""
     from armbridge.planning.soft import waypoints as W
+    from armbridge.planning.soft.ik import onto_goal
     from armbridge.planning.soft.planners import PLANNERS, plan
     from armbridge.planning.soft.plan_file import soft_plan
     from armbridge.planning.soft.pump_timing import board_timing
@@ -58,6 +63,7 @@ def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations
     if result.path is None:
         raise ArmbridgeError(f"{planner} found no path to the goal of {scene.name} in {result.iterations} iterations "
                              f"(seed {seed}); try more --iterations or another --seed; no plan written")
+    result = replace(result, path=onto_goal(result.path, scene.checker(), scene.goal_point, scene.goal_tol))
     timing = board_timing(scene.robot)
     wp = W.subsample(result.path, scene.checker(), timing, tol)
     return SoftPlanning(scene, result, wp, timing, soft_plan(scene, result, wp, timing, planner=planner, seed=seed,
