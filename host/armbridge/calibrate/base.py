@@ -114,12 +114,14 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
     _, run = procedure(board)
     cfg = boards.config(board)
     with open_session(port, None, latched="refuse", calibration="report", connect_timeout=connect_timeout) as client:
-        fw = client.info.fw
+        info = client.info
+        assert info is not None  # open_session yields a connected client
+        fw = info.fw
         if calcheck.board_name(fw) != board:
             raise ArmbridgeError(f"the board on {port} runs firmware {fw!r}, not the {board} board's")
         got = calcheck.ident(client)
         if got is None:
-            raise ArmbridgeError(f"the {board} board on {port} runs firmware {fw} {client.info.version} without "
+            raise ArmbridgeError(f"the {board} board on {port} runs firmware {fw} {info.version} without "
                                  f"IDENT/CALID: flash it (armbridge flash {board} --port {port}) to calibrate it")
         uid, held = got
         previous = calfile.find(board, uid, cal_dir)
@@ -134,7 +136,7 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
         back = calcheck.ident(client)
         if back != (uid, cid):
             raise ArmbridgeError(f"the board did not keep the calibration: IDENT says {back}, expected ({uid}, {cid})")
-        version = client.info.version
+        version = info.version
     values = {**(previous.found if previous is not None else {}), **found.values}
     cal = calfile.CalFile(board=board, uid=uid, id=cid, fw=fw, fwver=version, settings=tuple(settings),
                           found=values)
