@@ -32,7 +32,7 @@ from armbridge.ik.cbf import (  # noqa: E402
     lyapunov,
     track,
 )
-from armbridge.ik.fabrik import clip_angle, fabrik  # noqa: E402
+from armbridge.ik.fabrik import clip_angle, fabrik, fabrik_oriented  # noqa: E402
 from armbridge.ik.region import SafeRegion, pen_angle, safe_region  # noqa: E402
 from armbridge.robots import get_robot  # noqa: E402
 
@@ -112,6 +112,46 @@ def test_fabrik_reports_unreachable_targets():
     np.testing.assert_allclose(res.q[:2, 0], [np.arctan2(0.1, 0.5), PI / 2])
     assert res.iterations[:2].tolist() == [0, 0]
     assert res.error[2] > 0.05 and ARM.within_limits(res.q).all()
+
+
+def test_fabrik_oriented_hand_worked_target():
+    # tip (0.19, 0.19) at phi = 0: the wrist joint on (0.12, 0.19), links 1-2 solved there, q3 = -(q1 + q2)
+    res = fabrik_oriented(ARM, [[0.19, 0.19]], 0.0, [[1.3, -1.2, 0.4]], tol=1e-9)
+    assert res.ok[0] and res.oriented[0] and res.error[0] <= 1e-9
+    np.testing.assert_allclose(res.q[0], [PI / 2, -PI / 2, 0.0], atol=1e-8)
+    assert abs(res.q[0].sum()) < 1e-12
+    np.testing.assert_allclose(ARM.joint_points(res.q[0])[2], [0.12, 0.19], atol=1e-9)
+
+
+def test_fabrik_oriented_holds_the_pen_angle_in_the_drawing_disc():
+    """Every point of the disc at the pen angle: the tip within tol, theta = q1 + q2 + q3 exact, the
+    joints inside the limits, the same answer as the closed form (arm3r has one elbow branch)."""
+    xy = disc_points(3000, 23)
+    q_true = safe_starts(xy)
+    init = q_true + np.random.default_rng(24).normal(0, 0.15, q_true.shape)
+    res = fabrik_oriented(ARM, xy, THETA, init, tol=1e-6, max_iter=200)
+    assert res.ok.all() and res.oriented.all() and res.error.max() <= 1e-6 and ARM.within_limits(res.q).all()
+    assert np.abs(res.q.sum(axis=1) - THETA).max() < 1e-12
+    np.testing.assert_allclose(res.q, q_true, atol=1e-4)
+    # FABRIK on position alone reaches the same points but spends the orientation
+    free = fabrik(ARM, xy, init, tol=1e-6)
+    assert free.ok.all() and np.rad2deg(np.sqrt(np.mean((free.q.sum(axis=1) - THETA) ** 2))) > 1.25
+
+
+def test_fabrik_oriented_reports_what_it_cannot_hold():
+    # (0.30, 0.05) at phi = pi: the wrist point (0.37, 0.05) is beyond l1 + l2 = 0.31 m (step 2 fails);
+    # (0.25, 0) at phi = pi/2: the wrist point (0.25, -0.07) is within reach, not with q1 in [0, pi]
+    t = np.array([[0.30, 0.05], [0.25, 0.0]])
+    phi = np.array([PI, PI / 2])
+    res = fabrik_oriented(ARM, t, phi, np.tile([1.0, -1.0, 0.3], (2, 1)))
+    assert res.reachable.tolist() == [False, True]
+    assert not res.converged.any() and not res.oriented.any() and ARM.within_limits(res.q).all()
+    assert (res.error > 0.01).all()
+    assert not closed_form(ARM, np.c_[t, phi])[1].any()  # the closed form agrees: no answer at phi
+    with pytest.raises(ArmbridgeError, match=r"targets must have shape \(B, 2\)"):
+        fabrik_oriented(ARM, [0.1, 0.2], 0.0, [[0.0, 0.0, 0.0]])
+    with pytest.raises(ArmbridgeError, match="q_init must have shape"):
+        fabrik_oriented(ARM, [[0.1, 0.2]], 0.0, [[0.0, 0.0]])
 
 
 def test_fabrik_bad_shapes_are_one_clear_error():
@@ -236,6 +276,19 @@ def test_pipeline_with_cbf_has_no_violations_on_random_targets(ann):
     assert inside.sum() > n // 8  # the disc is ~20 % of the square
     # targets inside the disc are reached (to the tracking's residual after 1.5 s at K = 5/s)
     assert tip_errors(ARM, out.q[inside], xy[inside]).max() < 2e-3
+
+
+def test_pipeline_holds_the_pen_angle_and_falls_back_to_position(ann):
+    """ANN + FABRIK (`pipe.solve`): in the disc at the pen angle every target is solved with theta
+    held; targets no configuration reaches at theta are solved on position alone (oriented False)."""
+    xy = np.concatenate([disc_points(500, 31), [[0.30, 0.05], [0.25, 0.0]]])
+    theta = np.r_[np.full(500, THETA), PI, PI / 2]
+    res = pipe.solve(ARM, ann.predict, xy, theta)
+    assert res.ok.all() and res.error.max() <= 1e-6 and ARM.within_limits(res.q).all()
+    assert res.oriented[:500].all() and not res.oriented[500:].any()
+    assert np.abs(res.q[:500].sum(axis=1) - THETA).max() < 1e-12
+    free = pipe.solve(ARM, ann.predict, xy, theta, orient=False)
+    assert free.oriented is None and free.ok.all()
 
 
 def test_ann_bad_input_and_bad_card(tmp_path, ann):

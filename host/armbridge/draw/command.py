@@ -85,6 +85,9 @@ def draw_cmd(
     speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen speed in m/s, drawing and travelling."),
     font: str = typer.Option("futural", "--font", help="Hershey font for TEXT (vpype's fonts)."),
     robot_name: str = typer.Option("arm3r", "--robot", help="The drawing arm (a planar 3R robot)."),
+    ik: str = typer.Option("closed", "--ik", metavar="closed|paper",
+                           help="How the joints are planned: closed (the closed-form IK) or paper (the 3R "
+                                "paper's ANN + FABRIK with the pen angle held + CBF; arm3r only)."),
     port: Optional[str] = typer.Option(None, "--port", help="Also run the plan on this board (as `armbridge run`: "
                                                             "a serial device, pyserial URL or emu:DEVICE)."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="With --port: the recording [default: runs/<time>-<plan>.rrd]."),
@@ -120,12 +123,15 @@ def draw_cmd(
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
     from armbridge.draw.build import build
+    from armbridge.draw.path import check_ik
     from armbridge.plans.format import save_plan
+
+    ik = check_ik(ik)
     from armbridge.robots import get_robot
 
     lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
     d = build(lines, get_robot(robot_name), name=name, source=source, size=size,
-              at=None if at is None else _parse_at(at), speed=speed)
+              at=None if at is None else _parse_at(at), speed=speed, ik=ik)
     written = text.replace("\\n", "\n") if text is not None else _sample_text(sample)
     if written is not None:
         from armbridge.draw.sources import characters
@@ -145,10 +151,17 @@ def draw_cmd(
                f"{d.drawn_length * 1000:.0f} mm drawn, size {p.size * 1000:.1f} mm at "
                f"({p.at[0]:.4f}, {p.at[1]:.4f}) m")
     typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
+    if d.ik["method"] == "paper":
+        k = d.ik
+        typer.echo(f"joints: the paper's ANN + FABRIK + CBF ({k['model']}): {k['oriented']} of {k['waypoints']} "
+                   f"waypoints at the pen angle, ANN {k['ann_tip_mean_mm']:.2f} mm mean -> {k['tip_max_mm']:.4f} mm "
+                   f"max tip error, wrist angle within {k['theta_max_deg']:.2g} deg")
+    else:
+        typer.echo("joints: the closed-form IK")
     f = d.safety
     typer.echo(f"safety: every waypoint {p.margin * 1000:.1f} mm inside the safe region (radius "
                f"{d.region.radius * 1000:.1f} mm); the CBF filter moved {f.moved} waypoint{'s' * (f.moved != 1)}"
-               + (f" (up to {f.max_shift * 1000:.2f} mm)" if f.moved else ""))
+               + (f" (up to {f.max_shift * 1000:.2g} mm)" if f.moved else ""))
     typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {speed:g} m/s"
                + (f"; figure {png}" if png is not None else ""))
     if port is not None:  # as `armbridge run` (exit codes, signals, summary)

@@ -66,9 +66,31 @@ def durations(robot: PlanarChain, xy: np.ndarray, q: np.ndarray, speed: float) -
     return np.concatenate([[APPROACH_S], d])
 
 
-def joints(robot: PlanarChain, xy: np.ndarray, phi: float) -> np.ndarray:
-    """The joint path (k, 3) through the pen points xy (k, 2) at orientation phi (closed-form IK, one elbow)."""
-    return solve_path(robot, np.c_[xy, np.full(len(xy), phi)], (robot.q_min + robot.q_max) / 2)
+IK_METHODS = ("closed", "paper")  # `armbridge draw --ik`: the closed form, or the paper's ANN + FABRIK + CBF
+
+
+def check_ik(method: str) -> str:
+    """The --ik value, checked: one of IK_METHODS (case-insensitive), else one clear line."""
+    m = str(method).strip().lower()
+    if m not in IK_METHODS:
+        raise ArmbridgeError(f"--ik {method!r}: expected {' or '.join(IK_METHODS)} (closed: the closed-form IK; "
+                             f"paper: the paper's ANN + FABRIK + CBF)")
+    return m
+
+
+def joints(robot: PlanarChain, xy: np.ndarray, phi: float, ik: str = "closed") -> tuple[np.ndarray, dict]:
+    """The joint path (k, 3) through the pen points xy (k, 2) at orientation phi, and what made it.
+
+    ik "closed": the closed-form IK, one elbow (`ik.analytic3r.solve_path`); "paper": the
+    3R paper's ANN + FABRIK with the pen angle held + CBF-QP (`ik.arm3r_pipeline.plan_joints`)."""
+    ik = check_ik(ik)
+    if ik == "paper":
+        from armbridge.ik.arm3r_pipeline import plan_joints
+
+        q, report = plan_joints(robot, xy, phi)
+        return q, {**report.to_dict(), "method": "paper"}
+    q = solve_path(robot, np.c_[xy, np.full(len(xy), phi)], (robot.q_min + robot.q_max) / 2)
+    return q, {"method": "closed", "solver": "closed-form 3R IK at the pen angle (ik/analytic3r.py)"}
 
 
 def plan_from_joints(robot: PlanarChain, q: np.ndarray, pen: np.ndarray, speed: float, provenance: dict) -> Plan:

@@ -16,6 +16,16 @@ Reachability is reported per target: `reachable` is step 2's test
 (|p_1 - t| <= sum d_i); `converged` is |p_n - t| <= tol within max_iter
 passes (a target inside the reach but outside the joint-limited workspace
 is reachable and not converged). Pure numpy: arrays in, arrays out.
+
+`fabrik_oriented` is FABRIK with the paper's orientation constraint: the
+drawing arm holds its end-effector orientation phi = q1 + ... + qn (eq. 4;
+section 4.2.1 keeps the wrist fixed while the others move), so the last joint
+is placed at the target less the last link along phi, t - l_n (cos phi,
+sin phi), the chain without its last link is solved to that point by the
+FABRIK above, and the last joint makes up phi, q_n = phi - (q1 + ... + q_{n-1})
+(clipped into its limits). Plain FABRIK on the whole chain reaches the
+position only: it spends the orientation freely, which is what the 3R paper's
+theta error (Tables 5 and 8) measures.
 """
 from __future__ import annotations
 
@@ -39,6 +49,7 @@ class FabrikResult:
     iterations: np.ndarray
     reachable: np.ndarray
     converged: np.ndarray
+    oriented: np.ndarray | None = None  # per target: solved with the orientation held (None: position only)
 
     @property
     def ok(self) -> np.ndarray:
@@ -157,3 +168,38 @@ def _fabrik(chain: PlanarChain, targets: Any, q_init: Any, tol: float, max_iter:
         active, p = active[keep], p[keep]
     return FabrikResult(q=q, error=error, iterations=iterations, reachable=reachable,
                         converged=error <= tol)
+
+
+def _without_last_link(chain: PlanarChain) -> PlanarChain:
+    return PlanarChain(name=f"{chain.name}[:-1]", link_lengths=chain.link_lengths[:-1], q_min=chain.q_min[:-1],
+                       q_max=chain.q_max[:-1], v_max=chain.v_max[:-1], joint_names=chain.joint_names[:-1])
+
+
+def fabrik_oriented(chain: PlanarChain, targets: Any, phi: Any, q_init: Any, tol: float = 1e-6,
+                    max_iter: int = 50, restarts: int = 4) -> FabrikResult:
+    """Refine q_init (B, n) so the tip reaches targets (B, 2) with orientation phi (scalar or (B,),
+    rad): the last joint on t - l_n (cos phi, sin phi), the rest of the chain solved there by
+    `fabrik`, the last joint making up phi (module docstring). `error` is the tip's distance from
+    the target; `converged` is error <= tol with the last joint inside its limits (the orientation
+    then exact to rounding); `reachable` is step 2's test for the wrist point on the shorter chain.
+    """
+    t = np.asarray(targets, dtype=float)
+    if t.ndim != 2 or t.shape[1] != 2:
+        raise ArmbridgeError(f"FABRIK targets must have shape (B, 2), got {t.shape}")
+    q0 = np.asarray(q_init, dtype=float)
+    if q0.shape != (t.shape[0], chain.n):
+        raise ArmbridgeError(f"FABRIK q_init must have shape ({t.shape[0]}, {chain.n}), got {q0.shape}")
+    if chain.n < 2:
+        raise ArmbridgeError(f"FABRIK with the orientation held needs at least 2 joints, robot {chain.name!r} has {chain.n}")
+    phi = np.broadcast_to(np.asarray(phi, dtype=float), t.shape[:1])
+    ln = chain.link_lengths[-1]
+    wrist = t - ln * np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+    res = fabrik(_without_last_link(chain), wrist, q0[:, :-1], tol=tol, max_iter=max_iter, restarts=restarts)
+    want = phi - res.q.sum(axis=-1)
+    last = clip_angle(want, chain.q_min[-1], chain.q_max[-1])
+    q = np.concatenate([res.q, last[:, None]], axis=-1)
+    error = np.linalg.norm(chain.ee_point(q) - t, axis=-1)
+    held = np.abs(np.mod(want - last + np.pi, TWO_PI) - np.pi) <= 1e-12
+    converged = (error <= tol) & held
+    return FabrikResult(q=q, error=error, iterations=res.iterations, reachable=res.reachable,
+                        converged=converged, oriented=converged)
