@@ -12,7 +12,9 @@ board without one answers its verb VERB, docs/protocol.md §3):
     (ik3r.py), when the weights file cfg.IK_WEIGHTS is on the filesystem;
   * PEN: the pen-lift servo (hal.has_pen), modal: the pen state rides with the
     waypoints queued after it (traj's aux), a change dwells PEN_SETTLE_MS;
-  * CAL: positional servo calibration (hal.POSITIONAL, the PCA9685 rig).
+  * CAL: positional servo calibration (hal.POSITIONAL, the PCA9685 rig);
+    on the effort rig the pots' calibration, and RELAY (relay auto-tune of
+    one joint's loop): arm_cal.py, which also gives CALID its settings.
     On that rig the servos close their own loops: the board writes the set
     point as positions (hal.write_positions) instead of running its PIDs, and
     the watchdog's ZERO mode holds the frozen set point.
@@ -22,7 +24,9 @@ module (firmware/esp32/config.py) or any object with its attribute names. The
 ones read here and in link.py: FW_NAME, FW_VERSION, N_JOINTS, LIMITS_MRAD,
 VMAX_MRAD_S, PERIOD_MS, QSIZE, TELEMETRY_HZ, WDOG_MS, PID_KP, PID_KI, PID_KD,
 PID_KFF, FOLLOW_ERR_MRAD, FOLLOW_ERR_MS, PEN_SETTLE_MS, IK_WEIGHTS,
-IK_THETA_MRAD, and (optional) SPEED_KV, SPEED_KI, SPEED_TRIM, SPEED_UMIN (pins and
+IK_THETA_MRAD, and (optional) SPEED_KV, SPEED_KI, SPEED_TRIM, SPEED_UMIN,
+SERVO_LEAD_MS (the pca9685 rig: the set point sent that far ahead along its
+velocity, for the servos' own lag) (pins and
 ADC/PWM/servo calibration are read by the HALs only).
 
 The set point changes only by the trajectory (segments stretched to vmax, a
@@ -42,6 +46,7 @@ times the joint's travel holds the joint at vmax / g.
 
 import ik3r
 import link as L
+from arm_cal import ArmCal
 import proto
 import protodef as P
 from pid import PID
@@ -145,6 +150,7 @@ class Board(L.LinkedBoard):
         # board's own log of executed waypoints with it.
         self.on_done = None
         self.positional = getattr(hal, "POSITIONAL", False)
+        self.lead_s = getattr(cfg, "SERVO_LEAD_MS", 0) / 1000.0
         self.verbs = {"W": self._cmd_w, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim}
         self.motion_verbs = ["W"]
         self.ik = _load_ik(hal, cfg)
@@ -159,8 +165,14 @@ class Board(L.LinkedBoard):
         if getattr(hal, "has_pen", False):
             self.verbs["PEN"] = self._cmd_pen
             self.motion_verbs.append("PEN")
-        if self.positional and hasattr(hal, "set_calibration"):
-            self.verbs["CAL"] = self._cmd_cal
+        self.cal = ArmCal(self)   # RELAY, CAL, what CALID saves (arm_cal.py)
+        if self.positional:
+            if hasattr(hal, "set_calibration"):
+                self.verbs["CAL"] = self.cal.cmd_cal
+        else:
+            self.verbs["CAL"] = self.cal.cmd_cal      # the pots' calibration (arm_cal.py)
+            self.verbs["RELAY"] = self.cal.cmd_relay
+            self.motion_verbs.append("RELAY")
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls hold_here() and sends BOOT
 
     # ------------------------------------------------------------ verbs
@@ -199,6 +211,7 @@ class Board(L.LinkedBoard):
                 dwell = left if left > 0 else 0
         if not self.traj.push(wid, dur, targets, dwell, aux):
             raise proto.ProtocolError(P.FULL)
+        self.cal.finish()           # a waypoint ends a relay test
         self.link.queued = wid
 
     def _cmd_pen(self, v: list) -> list:
@@ -206,13 +219,6 @@ class Board(L.LinkedBoard):
         self.pen_next = v[0]
         if not self.traj.busy() and v[0] != self.pen:
             self._set_pen(v[0])
-        return []
-
-    def _cmd_cal(self, v: list) -> list:
-        j, us_a, a, us_b, b = v
-        if us_a == us_b or a == b:
-            raise proto.ProtocolError(P.RANGE, "", str(j))
-        self.hal.set_calibration(j - 1, us_a, a, us_b, b)
         return []
 
     def _set_pen(self, down: int) -> None:
@@ -245,7 +251,18 @@ class Board(L.LinkedBoard):
     def busy(self) -> bool:
         return self.traj.busy()
 
+    def cal_text(self) -> list:
+        return self.cal.cal_text()
+
+    def cal_apply(self, tokens: list) -> None:
+        self.cal.cal_apply(tokens)
+
+    def _read(self) -> None:
+        self.hal.read_positions(self.q)
+        self.cal.correct(self.q)
+
     def halt(self) -> None:
+        self.cal.finish()
         self.traj.flush()
         self.traj.hold = False
         self.pen_next = self.pen
@@ -254,7 +271,7 @@ class Board(L.LinkedBoard):
 
     def hold_here(self) -> None:
         self.halt()
-        self.hal.read_positions(self.q)
+        self._read()
         self.traj.set_point([_milli(x) for x in self.q])
         for p in self.pids:
             p.reset()
@@ -266,7 +283,7 @@ class Board(L.LinkedBoard):
         self.traj.hold = on
 
     def control(self, mode: int) -> None:
-        self.hal.read_positions(self.q)
+        self._read()
         u = self.u
         dt = self.period_ms / 1000.0
         for j in range(self.n):
@@ -275,7 +292,9 @@ class Board(L.LinkedBoard):
             self._advance()
             sp = self.traj.sp
             if self.positional:
-                self.hal.write_positions([x / 1000.0 for x in sp])
+                lead = self.lead_s      # the servos' own lag, sent ahead along the set point's velocity
+                vel = self.traj.vel
+                self.hal.write_positions([(sp[j] + lead * vel[j]) / 1000.0 for j in range(self.n)])
             else:
                 vel = self.traj.vel
                 for j in range(self.n):
@@ -287,6 +306,7 @@ class Board(L.LinkedBoard):
                     pid.out_min = -lo if lo < 1.0 else -1.0
                     u[j] = pid.update(sp[j] / 1000.0, self.q[j], dt, vel[j] / 1000.0)
                     cap.learn(u[j], pid.out_max, -pid.out_min, vmax, pid.kff, dt)
+                self.cal.tick(u, self.q, self.period_ms)
                 self.hal.write_outputs(u)
             self._check_following()
             return

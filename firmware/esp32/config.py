@@ -74,7 +74,17 @@ I2C_SCL = 22
 I2C_SDA = 21
 I2C_FREQ = 400000
 PCA9685_ADDR = 0x40
+# The PWM frame (Hz) of every PCA9685 channel. One count is a 4096th of the
+# frame: at 50 Hz 4.88 us, 11.5 mrad of a 270 deg servo (about 2 mm at the pen);
+# at 200 Hz 1.22 us (2.9 mrad). 50 is the default because every hobby servo,
+# the analog SG90-class pen lift included, takes it; a rig whose servos are all
+# digital (the DS3235 takes up to 333 Hz) should use 200: finer steps and a
+# shorter frame (docs/drawing.md "Calibration").
 SERVO_FREQ_HZ = 50
+# The positional servos trail their pulse by their own loop's lag (about 40 ms,
+# first order: v * tau along a ramp); the board sends each set point this far
+# ahead along its velocity (0: none). Only while the set point moves.
+SERVO_LEAD_MS = 40
 SERVO_CHANNELS = (0, 1, 2)          # PCA9685 channel of each joint
 # Per joint: pulse us_a (us) at angle a (mrad) and us_b at b; linear between.
 # A 270 deg servo (500..2500 us) mounted with its centre at the middle of the

@@ -1,0 +1,224 @@
+"""`armbridge bench arm3r-servo`: the drawing arm on boards of hidden truth, uncalibrated beside calibrated (issue 23 §2).
+
+For each rig (effort: continuous servos, pots, the board's PIDs; pca9685: the
+paper's positional servos) and each of `plants` boards drawn from the
+documented spreads (`emu:esp32?servos=RIG&plant=random&seed=K`,
+emulator/truth.py), a drawing (the text `TEXT` through the draw pipeline:
+Hershey text fitted to the safe region, closed-form joint plan at the pen
+speed, as `armbridge draw` builds it) runs with `run_plan` twice:
+
+* uncalibrated: the firmware's defaults;
+* calibrated: first `armbridge calibrate`'s procedure (calibrate/arm3r.py:
+  relay gains on the effort rig, the jig step with the emulated user,
+  calibrate/jig.py EmuJig), its settings sent and saved (CALID) in the board's
+  filesystem (the emulator's `fs=` folder), then the same drawing on a fresh
+  boot of that board (it loads cal.txt).
+
+Judged by the truth the host cannot see: every 10 ms of board time the
+plant's true joint angles are taken (a tap on the emulator's tick), with the
+board's set point then. Stroke error: the true pen's trace while the pen
+servo really touched the paper against the drawing's strokes, and back
+(plans/drawing.py's drawing_error; the run summary's own figure uses the
+pots, which a pot offset fools). Joint tracking error: the true joint angle
+against the set point the board was following (the plan's angle), while the
+arm moved.
+"""
+from __future__ import annotations
+
+import contextlib
+import platform
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import typer
+
+from armbridge.bench.command import write_json
+
+RIGS = ("effort", "pca9685")
+TEXT = "ARM"
+SPEED = 0.03        # m/s, the pen speed (as bench arm3r's ROBOTICS)
+TARGET_MM = 1.5     # issue 23: stroke error with the pen down, after calibration
+
+
+def drawing_plan(text: str = TEXT, speed: float = SPEED):
+    from armbridge.draw.build import build
+    from armbridge.draw.sources import text_lines
+    from armbridge.robots import get_robot
+
+    return build(text_lines(text), get_robot("arm3r"), name=f"text-{text}", source=f"text {text}", speed=speed).plan
+
+
+@contextlib.contextmanager
+def traced_emulators(every_s: float = 0.01) -> Iterator[list[dict[str, Any]]]:
+    """Every emu: port opened inside gets a tap: its `trace` (t, true q, set point rad) every
+    `every_s` of board time; yields the list of {"emu", "trace"} (one per board opened)."""
+    import armbridge.emulator.url as url_mod
+
+    seen: list[dict[str, Any]] = []
+    orig = url_mod.open_emu_port
+
+    def opener(url: str, *a: Any, **kw: Any):
+        port = orig(url, *a, **kw)
+        emu = port.emulator
+        rec: dict[str, Any] = {"emu": emu, "trace": []}
+        seen.append(rec)
+        tick = emu._tick
+        nxt = [0.0]
+
+        def tapped(dus: int) -> None:
+            tick(dus)
+            t = emu.clock.t
+            if t >= nxt[0] and emu.board is not None:
+                nxt[0] = t + every_s
+                sp = np.asarray(emu.board.traj.sp, float) / 1000.0
+                rec["trace"].append((t, np.asarray(emu.plant.q, float).copy(), sp))
+        emu._tick = tapped
+        return port
+
+    url_mod.open_emu_port = opener
+    try:
+        yield seen
+    finally:
+        url_mod.open_emu_port = orig
+
+
+def judge(plan: Any, rec: dict[str, Any]) -> dict[str, float]:
+    """Stroke error (mm) of the true pen while down, and joint tracking error (mrad), from a traced run."""
+    from armbridge.plans.drawing import drawing_error, pen_strips, trace_strips
+
+    emu, tr = rec["emu"], rec["trace"]
+    t = np.array([x[0] for x in tr])
+    q = np.array([x[1] for x in tr])
+    sp = np.array([x[2] for x in tr])
+    down = np.array([emu.hal.pen_down_at(x) for x in t], bool)
+    tips = np.asarray(plan.robot.ee_point(q))[:, :2]
+    target = pen_strips(np.asarray(plan.ee_path())[:, :2], plan.pen)
+    d = drawing_error(target, trace_strips(tips, down)).to_dict()
+    moving = np.r_[False, np.any(np.abs(np.diff(sp, axis=0)) > 1e-6, axis=1)]
+    err = np.abs(q - sp)[moving] * 1000.0
+    return {"stroke_mean_mm": d["trace_mean_mm"], "stroke_max_mm": d["trace_max_mm"],
+            "coverage_max_mm": d["target_max_mm"],
+            "track_mean_mrad": float(err.mean()) if err.size else float("nan"),
+            "track_max_mrad": float(err.max()) if err.size else float("nan")}
+
+
+def calibrate_board(url: str, rule: str | None = None) -> dict[str, Any]:
+    """calibrate/arm3r.py's procedure on the board at `url` with the emulated jig; its settings
+    sent, then CALID 1 (saved in the board's filesystem) -> what it found. `rule`: the gains
+    step's (None: its default; "shipped": no gains step)."""
+    from armbridge.calibrate import arm3r
+    from armbridge.calibrate.jig import EmuJig
+    from armbridge.executor.session import open_session
+
+    with open_session(url, None) as c:
+        emu = c.port.emulator
+        only = frozenset({"jig"}) if rule == "shipped" else frozenset()
+        kw = {"rule": rule} if rule and rule != "shipped" else {}
+        found = arm3r.calibrate(c, emu.cfg, only, jig=EmuJig.of_client(c), **kw)
+        for verb, args in found.settings:
+            c.command(verb, *args)
+        c.command("CALID", 1)
+    return found.values
+
+
+def run_one(rig: str, seed: int, plan: Any, folder: Path, rule: str | None = None) -> dict[str, Any]:
+    from armbridge.executor.run import RunFailed, run_plan
+
+    base = f"emu:esp32?speed=0&servos={rig}&plant=random&seed={seed}"
+    out: dict[str, Any] = {"rig": rig, "seed": seed}
+    fs = folder / f"fs-{rig}-{seed}"
+    fs.mkdir(parents=True, exist_ok=True)
+    for label in ("uncalibrated", "calibrated"):
+        try:
+            if label == "calibrated":
+                out["found"] = calibrate_board(f"{base}&fs={fs}", rule)
+            with traced_emulators() as seen:
+                s = run_plan(plan, f"{base}&fs={fs}", folder / f"{rig}-{seed}-{label}.rrd", progress=False)
+            out[label] = {"completed": bool(s.completed), **judge(plan, seen[-1])}
+        except (RunFailed, RuntimeError) as exc:
+            out[label] = {"completed": False, "error": str(exc)}
+    return out
+
+
+def summarize(runs: list[dict[str, Any]], label: str) -> dict[str, Any]:
+    ok = [r[label] for r in runs if r.get(label, {}).get("completed")]
+    if not ok:
+        return {"runs": len(runs), "completed": 0}
+
+    def col(k: str) -> np.ndarray:
+        return np.asarray([r[k] for r in ok], float)
+    return {"runs": len(runs), "completed": len(ok),
+            "stroke_mean_mm": float(col("stroke_mean_mm").mean()), "stroke_max_mm": float(col("stroke_max_mm").max()),
+            "stroke_max_mm_median": float(np.median(col("stroke_max_mm"))),
+            "track_mean_mrad": float(col("track_mean_mrad").mean()),
+            "track_max_mrad": float(col("track_max_mrad").max()),
+            "meet_target": float(np.mean(col("stroke_mean_mm") <= TARGET_MM))}
+
+
+def run(plants: int, rigs=RIGS, text: str = TEXT, rule: str | None = None,
+        progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    plan = drawing_plan(text)
+    result: dict[str, Any] = {
+        "benchmark": "arm3r-servo (issue 23 section 2: calibration of the drawing arm on boards of hidden truth)",
+        "drawing": {"text": text, "speed_m_s": SPEED, "waypoints": plan.k, "planned_s": plan.total_duration},
+        "target_stroke_mm": TARGET_MM, "rule": rule or "default",
+        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()}}
+    with tempfile.TemporaryDirectory(prefix="armbridge-arm3r-servo-") as tmp:
+        for rig in rigs:
+            runs = []
+            for k in range(plants):
+                runs.append(run_one(rig, k, plan, Path(tmp), rule))
+                progress(_line(runs[-1]))
+            result[rig] = {"runs": runs, "uncalibrated": summarize(runs, "uncalibrated"),
+                           "calibrated": summarize(runs, "calibrated")}
+    result["wall_s"] = time.perf_counter() - t0
+    return result
+
+
+def _line(r: dict[str, Any]) -> str:
+    parts = [f"{r['rig']} plant {r['seed']}:"]
+    for label in ("uncalibrated", "calibrated"):
+        x = r.get(label, {})
+        if not x.get("completed"):
+            parts.append(f"{label} failed ({x.get('error', '?')})")
+        else:
+            parts.append(f"{label} stroke {x['stroke_mean_mm']:.2f} / {x['stroke_max_mm']:.2f} mm, "
+                         f"track {x['track_mean_mrad']:.1f} / {x['track_max_mrad']:.1f} mrad")
+    return " ".join(parts)
+
+
+def arm3r_servo_cmd(
+    plants: int = typer.Option(20, "--plants", min=1, help="Random boards per rig (plant=random&seed=0..N-1)."),
+    json_out: Path = typer.Option(Path("runs/bench-arm3r-servo.json"), "--json", help="Where to write the results."),
+    text: str = typer.Option(TEXT, "--text", help="The text drawn (Hershey, through the draw pipeline)."),
+    rule: str = typer.Option(None, "--rule", help="The tuning rule of the gains step (calibrate/tuning.py RULES; "
+                                                       "'shipped': no gains step, the config's gains)."),
+) -> None:
+    """The drawing arm on N boards of hidden truth per rig, uncalibrated beside calibrated (`armbridge calibrate`'s
+    procedure with the emulated jig): the true pen's stroke error with the pen down and the joints' tracking
+    error."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    result = run(plants, text=text, rule=rule, progress=lambda s: console.print(f"[dim]bench arm3r-servo: {s}[/]"))
+    write_json(result, json_out)
+    t = Table(title=f"'{text}' on {plants} drawn boards per rig (true figures)")
+    for c in ("rig", "", "runs", "stroke mean (mm)", "stroke max, median / worst (mm)", "tracking mean / max (mrad)",
+              f"stroke mean <= {TARGET_MM:g} mm"):
+        t.add_column(c, justify="left" if c in ("rig", "") else "right")
+    for rig in RIGS:
+        for label in ("uncalibrated", "calibrated"):
+            s = result[rig][label]
+            if not s.get("completed"):
+                t.add_row(rig, label, f"0/{s['runs']}", *["-"] * 4)
+                continue
+            t.add_row(rig, label, f"{s['completed']}/{s['runs']}", f"{s['stroke_mean_mm']:.2f}",
+                      f"{s['stroke_max_mm_median']:.2f} / {s['stroke_max_mm']:.2f}",
+                      f"{s['track_mean_mrad']:.1f} / {s['track_max_mrad']:.1f}", f"{s['meet_target']:.0%}")
+    console.print(t)
+    console.print(f"wrote {json_out}")

@@ -1,0 +1,42 @@
+"""`armbridge bench arm3r-servo` (bench/arm3r_servo.py): one drawn board per rig, uncalibrated
+beside calibrated, judged by the plant's truth; the command writes its JSON. Lockstep: no wall clock."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from armbridge.bench import arm3r_servo as B
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return B.drawing_plan("L")
+
+
+@pytest.mark.parametrize("rig", B.RIGS)
+def test_calibration_brings_the_true_pen_onto_the_strokes(rig, plan, tmp_path):
+    r = B.run_one(rig, 2, plan, tmp_path)
+    unc, cal = r["uncalibrated"], r["calibrated"]
+    assert unc["completed"] and cal["completed"], r
+    assert unc["stroke_mean_mm"] > 3.0                       # the drawn board's offsets show on the paper
+    assert cal["stroke_mean_mm"] <= B.TARGET_MM              # issue 23's target, after calibration
+    assert cal["track_mean_mrad"] < unc["track_mean_mrad"] / 3
+    assert set(r["found"]) == ({"gains", "jig"} if rig == "effort" else {"jig"})
+
+
+def test_the_command_writes_its_json(tmp_path, monkeypatch):
+    from armbridge.bench.arm3r_servo import arm3r_servo_cmd
+    import typer
+
+    monkeypatch.setattr(B, "RIGS", ("effort",))
+    monkeypatch.setattr(B, "run", lambda plants, **kw: {
+        "effort": {"runs": [], "uncalibrated": {"runs": plants, "completed": 0},
+                   "calibrated": {"runs": plants, "completed": 0}}})
+    app = typer.Typer()
+    app.command()(arm3r_servo_cmd)
+    out = tmp_path / "b.json"
+    res = CliRunner().invoke(app, ["--plants", "1", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    assert json.loads(out.read_text())["effort"]["uncalibrated"]["runs"] == 1
