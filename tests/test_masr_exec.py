@@ -513,7 +513,7 @@ def test_bench_masr_exec_quick(tmp_path):
 def test_bench_masr_exec_runs_e1_on_boards_of_hidden_truth(tmp_path):
     out = tmp_path / "bench.json"
     proc = subprocess.run([ARMBRIDGE, "bench", "masr-exec", "--quick", "--environments", "0", "--plants", "1",
-                           "--json", str(out)], capture_output=True, text=True, timeout=600,
+                           "--calibrated", "--json", str(out)], capture_output=True, text=True, timeout=600,
                           env={**os.environ, "COLUMNS": "200"})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "E1, 1 random plants" in proc.stdout and "final error" in proc.stdout
@@ -524,3 +524,13 @@ def test_bench_masr_exec_runs_e1_on_boards_of_hidden_truth(tmp_path):
     assert run["log_exactly_once"] and run["executed_s"] > 0 and run["loc"]["max_over_bound"] <= 1.0
     assert r["random"]["summary"] == {"runs": 0, "completed": 0}
     assert r["e1_random_plants"]["summary"]["dp_mm"]["max"] == run["dp_mm"]
+    # --calibrated: the same board calibrated (calibrate/masr.py), then the same plans on it
+    assert "E1, 1 random plants, calibrated" in proc.stdout and "single actions, 1 random plants" in proc.stdout
+    (cal,) = r["calibrations"]["runs"]
+    assert "error" not in cal and [v for v, _ in cal["settings"]] == ["MAG"] * 5 + ["WHEEL"]
+    (crun,) = r["e1_calibrated"]["runs"]
+    assert "error" not in crun and crun["calibrated"] and not run["calibrated"] and crun["log_exactly_once"]
+    assert crun["loc"]["after_magnet_mean_mm"] < run["loc"]["after_magnet_mean_mm"]    # the anchors moved onto the truth
+    assert crun["loc"]["after_magnet_max_mm"] <= 0.8
+    singles = r["singles_calibrated"]["runs"]
+    assert len(singles) == len(r["singles_random_plants"]["runs"]) == 3 and all("error" not in x for x in singles)

@@ -57,10 +57,13 @@ class Loc:
         r = [0.0]
         for length in link_lengths_mm[:-1]:
             r.append(r[-1] + length)
-        self.r = r                    # magnet k (1-based) at r[k - 1], mm
+        self.r = r                    # joint k (1-based) at r[k - 1], mm (the arm's kinematics)
+        self.m = list(r)              # magnet k's centre, mm from home (MAG; nominal: on its joint)
+        self.win = [float(window_mm)] * len(r)   # magnet k's hall half window, mm (MAG; nominal: the config's)
         self.length = float(sum(link_lengths_mm))
         self.q = float(mm_per_count)
-        self.w = float(window_mm)
+        self.w = float(window_mm)     # the bound's window (the config's: a calibration does not change the bound)
+        self.c_home = 0               # the wheel count at d = 0 (HOME; a restore infers it)
         self.slip = float(slip)
         self.known = False            # False: d unknown (UNHOMED); no checks
         self.c = 0                    # last wheel count seen
@@ -99,23 +102,38 @@ class Loc:
         return self.d() - self.r[self.jd() - 1]
 
     def near(self, d: float) -> int:
-        """The magnet (1-based) closest to d."""
-        best = 1
-        for k in range(2, len(self.r) + 1):
-            if abs(self.r[k - 1] - d) < abs(self.r[best - 1] - d):
-                best = k
-        return best
+        """The joint (1-based) closest to d."""
+        return _nearest(self.r, d)
+
+    def near_mag(self, d: float) -> int:
+        """The magnet (1-based) whose centre is closest to d."""
+        return _nearest(self.m, d)
+
+    # ------------------------------------------------------------ calibration (MAG, WHEEL)
+
+    def set_scale(self, mm_per_count: float) -> None:
+        """A new travel per count; the estimate now stays where it is."""
+        if self.known:
+            self.d_a = self.d()
+            self.c_a = self.c
+        self.q = float(mm_per_count)
+
+    def set_magnet(self, k: int, pos_mm: float, win_mm: float) -> None:
+        self.m[k - 1] = float(pos_mm)
+        self.win[k - 1] = float(win_mm)
 
     # ------------------------------------------------------------ anchors
 
     def home(self, count: int) -> None:
         """At the base stop on magnet 1: d := 0."""
         self._anchor(0.0, count, self.w, 1)
+        self.c_home = count
 
     def restore(self, d: float, e: float, count: int) -> None:
         """A d known within e (a persisted record) at this count."""
-        k = self.near(d)
-        self._anchor(d, count, e, k if abs(d - self.r[k - 1]) <= self.w + e else 0)
+        k = self.near_mag(d)
+        self._anchor(d, count, e, k if abs(d - self.m[k - 1]) <= self.win[k - 1] + e else 0)
+        self.c_home = count - int(round(d / self.q))
 
     def lose(self) -> None:
         self.known = False
@@ -152,10 +170,10 @@ class Loc:
         kind, k = self._check(est, 1)
         if kind != OK:
             return kind, k
-        k = self.near(est)
-        if abs(est - self.r[k - 1]) > self.w + self.err():
+        k = self.near_mag(est)
+        if abs(est - self.m[k - 1]) > self.w + self.err():
             return SPURIOUS, k
-        d = self.r[k - 1] - self.way * self.w
+        d = self.m[k - 1] - self.way * self.win[k - 1]
         self.jump = d - est
         self._anchor(d, count, self.w, k)
         return OK, k
@@ -169,10 +187,10 @@ class Loc:
     def _check(self, est: float, level: int):
         tol = self.w + self.err()
         m = self.mag
-        if m and self.side == 0 and level == 0 and abs(est - self.r[m - 1]) > tol:
-            self.side = 1 if est > self.r[m - 1] else -1
-        for k in range(1, len(self.r) + 1):
-            rk = self.r[k - 1]
+        if m and self.side == 0 and level == 0 and abs(est - self.m[m - 1]) > tol:
+            self.side = 1 if est > self.m[m - 1] else -1
+        for k in range(1, len(self.m) + 1):
+            rk = self.m[k - 1]
             if k == m:
                 s = self.side
             else:
@@ -180,3 +198,11 @@ class Loc:
             if s != 0 and (est - rk) * s < -tol:
                 return MISSED, k
         return OK, 0
+
+
+def _nearest(xs, d: float) -> int:
+    best = 1
+    for k in range(2, len(xs) + 1):
+        if abs(xs[k - 1] - d) < abs(xs[best - 1] - d):
+            best = k
+    return best

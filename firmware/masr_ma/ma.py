@@ -35,6 +35,7 @@ UNHOMED: after a reset while moving (the persisted record says m = 1), a
 power on (no record), or a localisation FAULT, MV and ROT are refused UNHOMED
 unless a HOME is queued or running ahead of them; GRIP and HOME are not.
 
+Calibration (ma_cal.py): MAG, WHEEL, RELAY and the settings CALID saves.
 Localisation is loc.py (its docstring derives the error bound); its faults
 latch FAULT MAGNET:MISSED / MAGNET:SPURIOUS and make the board unhomed. A
 driven motor without encoder counts for STALL_MS is STALL:LOCO / STALL:j; a
@@ -49,6 +50,7 @@ moving, when the MA comes to rest, and with every record the link writes.
 
 import link as L
 import ma_act as A
+import ma_cal as C
 import proto
 import protodef as P
 from drive import Loco, Rot
@@ -74,6 +76,7 @@ class Board(L.LinkedBoard):
         self.loc = Loc(cfg.LINK_LENGTHS_MM, cfg.WHEEL_MM_PER_COUNT, cfg.HALL_WINDOW_MM, cfg.SLIP_MAX)
         self.loco = Loco(cfg)
         self.rot = Rot(cfg, self.nj)
+        C.init(self)                     # MAG, WHEEL and the gains as set (ma_cal.py: calibration)
         self.theta = [0.0] * self.nj     # the board's estimate of every joint angle, mrad
         self.speed = 0.0                 # MA speed from the encoder rate, mm/s
         self.unhomed = True
@@ -102,8 +105,9 @@ class Board(L.LinkedBoard):
         # arguments it was queued with (as arm.py's on_done): the emulator's log.
         self.on_done = None
         self.verbs = {"MV": self._cmd_mv, "ROT": self._cmd_rot, "GRIP": self._cmd_grip,
-                      "HOME": self._cmd_home, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim}
-        self.motion_verbs = [MV, ROT, GRIP, HOME]
+                      "HOME": self._cmd_home, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim,
+                      "MAG": self._cmd_mag, "WHEEL": self._cmd_wheel, "RELAY": self._cmd_relay}
+        self.motion_verbs = [MV, ROT, GRIP, HOME, C.RELAY]
         self._sense_counts()
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls restore(), hold_here(), sends BOOT
 
@@ -156,15 +160,23 @@ class Board(L.LinkedBoard):
         return []
 
     def _cmd_gain(self, v: list) -> list:
-        j = v[0]
-        kp, ki, kd = v[1] / 1000.0, v[2] / 1000.0, v[3] / 1000.0
-        if j == self.n:
-            self.loco.pid.set_gains(kp, ki, kd)
-        else:
-            self.rot.gains[j - 1] = [kp, ki, kd]
-            if self.rot.j == j:
-                self.rot.pid.set_gains(kp, ki, kd)
+        C.gain(self, v[0], v[1], v[2], v[3])
         return []
+
+    def _cmd_mag(self, v: list) -> list:
+        return C.mag(self, v)
+
+    def _cmd_wheel(self, v: list) -> list:
+        return C.wheel(self, v)
+
+    def _cmd_relay(self, v: list) -> list:
+        return C.relay(self, v)
+
+    def cal_text(self) -> list:
+        return C.cal_text(self)
+
+    def cal_apply(self, tokens) -> None:
+        C.cal_apply(self, tokens)
 
     def _cmd_setlim(self, v: list) -> list:
         """Narrows coordinate j's range and speed within the hard ones; refused
@@ -333,14 +345,14 @@ class Board(L.LinkedBoard):
             if kind == OK and k:
                 self._mag_now = k
                 self.loco.ramp.x += loc.jump    # the reference moves with the estimate: no speed kick
-                self.link.event("MAGNET", [k])
+                self.link.event("MAGNET", [k, ce - loc.c_home])   # and the edge's wheel count from home
             elif kind != OK:
                 return self._loc_fault(kind, k, drive)
         kind, k = loc.update(c, level)
         if kind != OK:
             return self._loc_fault(kind, k, drive)
         k = self._k
-        self.speed = (c - self._hist[self._hi]) * self.cfg.WHEEL_MM_PER_COUNT * 1000.0 / (k * self.period_ms)
+        self.speed = (c - self._hist[self._hi]) * loc.q * 1000.0 / (k * self.period_ms)
         self._hist[self._hi] = c
         self._hi = (self._hi + 1) % k
         self._moved = c != self._c

@@ -38,6 +38,7 @@ inside the window, never a wrong place.
 """
 
 import link as L
+import ma_cal as C
 
 MV = "MV"
 ROT = "ROT"
@@ -101,7 +102,7 @@ def _on_magnet(b, j: int) -> bool:
 def _side(b, j: int) -> int:
     """Which way (+-1) magnet j is from the MA (the module docstring)."""
     loc = b.loc
-    rem = loc.r[j - 1] - loc.d()
+    rem = loc.m[j - 1] - loc.d()
     if abs(rem) > loc.w + loc.err():
         return 1 if rem > 0 else -1
     way = b.loco.ramp.dir
@@ -118,6 +119,9 @@ def advance(b) -> None:
     phase = act[3]
     c = b.cfg
     dt = b.dt
+    if verb == C.RELAY:
+        C.relay_step(b, act)
+        return
     if verb == GRIP:
         if b.hal.ticks_diff(b.hal.ticks_ms(), act[4]) >= c.GRIP_MS:
             _finish(b)
@@ -197,7 +201,7 @@ def _seek(b, act, j: int) -> bool:
     if act[3] == "seek":
         side = act[5]
         margin = loc.w + loc.err()
-        if ramp.step(b.dt, loc.r[j - 1] + side * (margin + 3.0), vmax, c.LOCO_ACCEL_MM_S2,
+        if ramp.step(b.dt, loc.m[j - 1] + side * (margin + 3.0), vmax, c.LOCO_ACCEL_MM_S2,
                      c.MAG_MM_S, margin + loc.w + 3.5):
             b.link.fault([b.n, j], "MAGNET:MISSED")     # past the window, no edge
             return False

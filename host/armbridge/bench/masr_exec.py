@@ -31,7 +31,13 @@ The paper's Table II (E1: 46.16 s planned, 48.78 +- 1.81 s executed; final
 error 11 +- 3.1 mm, 1.2 +- 0.8 deg on the real robot) is reported beside it.
 With --plants N, E1's plan also runs on N boards of hidden truth
 (`emu:masr_ma?plant=random&seed=K`, K = 0..N-1: emulator/truth.py), the
-spread across boards that Table II measured on the real robot.
+spread across boards that Table II measured on the real robot; so do the
+short single-action plans (SINGLES: one MV, one action turning a joint, one
+turning two, from the arm straight at rest; the per-action overheads weigh most
+there). With --calibrated each of those boards is also calibrated first
+(calibrate/masr.py from the board's own sensors: MAG per magnet, WHEEL; the
+gains stay the shipped ones) and the same plans run again on it, reported
+beside the uncalibrated runs.
 """
 from __future__ import annotations
 
@@ -52,6 +58,10 @@ PAPER_TABLE_II: dict[str, Any] = {"environment": "E1", "planned_s": 46.16, "exec
                                   "dp_mean_mm": 11.0, "dp_std_mm": 3.1, "dphi_mean_deg": 1.2, "dphi_std_deg": 0.8}
 FIXED = ("E1", "E2", "E3")
 TIME_TARGET = 0.10  # the issue: executed within 10 % of tau
+#: the short single-action plans (name, start q, goal q; angles rad, d m): from rest, one action each
+SINGLES = (("MV 50 -> 350 mm", (0, 0, 0, 0, 0, 0.05), (0, 0, 0, 0, 0, 0.35)),
+           ("turn joint 3, back to d", (0, 0, 0, 0, 0, 0.35), (0, 0, 0.4, 0, 0, 0.35)),
+           ("turn joints 2 and 4, to the tip", (0, 0, 0, 0, 0, 0.05), (0, -0.3, 0, 0.3, 0, 0.75)))
 
 
 @dataclass(frozen=True)
@@ -61,10 +71,27 @@ class MasrExecBenchSize:
     fixed: bool  # also E1-E3
     max_seeds: int  # give up after this many random seeds
     plants: int = 0  # E1's plan also on this many random plants (hidden truth)
+    calibrated: bool = False  # ... and again on each of them calibrated (calibrate/masr.py)
 
 
 FULL = MasrExecBenchSize(environments=50, iterations=1000, fixed=True, max_seeds=200)
 QUICK = MasrExecBenchSize(environments=3, iterations=300, fixed=False, max_seeds=20)
+
+
+def after_edges(t: Any, err: Any, anchor: Any, hall: list) -> list[float]:
+    """The error at the first sample after each hall edge (t, joint, latched count, true d) that
+    the board has anchored at (its anchor count is the edge's: the board reads the latch in its
+    next period, so a sample taken in between is still the dead reckoning before it). Pure."""
+    t = np.asarray(t, float)
+    out = []
+    for te, _j, c, _d in hall:
+        if not t.size or te < t[0]:
+            continue
+        for i in range(int(np.searchsorted(t, te)), min(len(t), int(np.searchsorted(t, te)) + 5)):
+            if int(anchor[i]) == int(c):
+                out.append(float(err[i]))
+                break
+    return out
 
 
 def ramp_extra(x: float, v: float, a: float) -> float:
@@ -90,9 +117,47 @@ def plan_masr(env: Any, iterations: int, seed: int, goal_ik: Callable) -> Any:
     return plan_from_document(doc, f"<{env.name} seed {seed}>")
 
 
-def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
+def single_plans(arm: Any) -> list[Any]:
+    """SINGLES as MasrPlans (no obstacles; the goal pose is the goal q's)."""
+    from armbridge.planning.masr.environment import Environment
+    from armbridge.planning.masr.plan_file import masr_plan_document, plan_from_document
+
+    out = []
+    for name, q0, q1 in SINGLES:
+        q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+        env = Environment(name=name, arm=arm, obstacles=[], start=q0, goal_pose=np.asarray(arm.fk(q1), float),
+                          goal_q=q1)
+        doc = masr_plan_document(env, np.stack([q0, q1]), {"tool": "armbridge bench masr-exec", "single": name})
+        out.append(plan_from_document(doc, f"<{name}>"))
+    return out
+
+
+def calibrate_board(seed: int) -> dict[str, Any]:
+    """Calibrate the board of hidden truth `seed` (magnets and wheel, calibrate/masr.py, from its
+    own sensors) -> its settings and what was found; the same seed is the same board."""
+    from armbridge.calibrate import masr
+    from armbridge.executor.client import BoardClient
+    from armbridge.link.transport import open_port
+
+    t0 = time.perf_counter()
+    port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant=random")
+    try:
+        client = BoardClient(port, None)
+        client.connect()
+        found = masr.calibrate(client, port.emulator.cfg, frozenset({"magnets", "wheel"}))
+        pl = port.emulator.plant
+        truth = {"centre_mm": [m * 1000.0 for m in pl.magnets], "half_window_mm": pl.window * 1000.0,
+                 "wheel_nm_per_count": pl.wheel_q * 1e9}
+    finally:
+        port.close()
+    return {"settings": [[v, list(a)] for v, a in found.settings], "found": found.values, "truth": truth,
+            "wall_s": time.perf_counter() - t0}
+
+
+def execute(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) -> dict[str, Any]:
     """Run one MasrPlan on emu:masr_ma (setup, then its steps; `plant`: nominal or random,
-    drawn with `seed`) -> the measured numbers of one run."""
+    drawn with `seed`) -> the measured numbers of one run. `settings`: (verb, args) a
+    calibration found, sent before the plan."""
     from armbridge.executor.client import BoardClient
     from armbridge.executor.masr import masr_commands
     from armbridge.geometry import wrap_angle
@@ -102,7 +167,8 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
     setup = int(plan.provenance["masr_plan"]["setup"])
     durs = [max(1, int(round(d * 1000))) for d in plan.durations]
     port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant={plant}")
-    samples: list[tuple[float, float, float, int, float]] = []  # true d, estimate, bound (mm), done index, t
+    samples: list[tuple[float, float, float, int, float, int]] = []  # true d, estimate, bound (mm), done index, t,
+    #                                                                   the count the estimate is anchored at
     try:
         emu = port.emulator
         client: BoardClient | None = None
@@ -110,10 +176,13 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
         def on_telemetry(t: float, m: Any) -> None:
             b, pl = emu.board, emu.plant
             if b is not None and client is not None and b.loc.known:  # the estimate at the wheel's count now
-                samples.append((pl.d * 1000.0, b.loc.at(pl.wheel_count()), b.loc.err(), client.done_index, pl.t))
+                samples.append((pl.d * 1000.0, b.loc.at(pl.wheel_count()), b.loc.err(), client.done_index, pl.t,
+                                b.loc.c_a))
 
         client = BoardClient(port, plan.robot, on_telemetry=on_telemetry)
         client.connect()
+        for verb, args in settings or ():
+            client.command(verb, *args)
         client.set_rate(50)
         client.execute(durs, [], commands=commands)
         client.drain(0.1)
@@ -147,12 +216,11 @@ def execute(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
         else:
             kinds["ROT"].append((over, ramp_extra(step["theta_to"] - step["theta_from"], w, a_th)))
     # localisation: every sample of the plan proper, and the re-anchoring error at each magnet
-    s = np.array([x for x in samples if x[3] >= setup - 1], float).reshape(-1, 5)
+    s = np.array([x for x in samples if x[3] >= setup - 1], float).reshape(-1, 6)
     err = np.abs(s[:, 1] - s[:, 0])
-    edges = [t for t, _j, _c, _d in hall if s.size and t >= s[0, 4]]
-    first = np.searchsorted(s[:, 4], edges)            # the first sample after each edge
-    after = [float(err[i]) for i in first if i < len(err)]
-    return {"environment": mp.env.name, "seed": seed, "plant": plant, "actions": len(commands) - setup, "tau_s": mp.total_time,
+    after = [abs(x) for x in after_edges(s[:, 4], s[:, 1] - s[:, 0], s[:, 5], hall)]
+    return {"environment": mp.env.name, "seed": seed, "plant": plant, "calibrated": bool(settings),
+            "actions": len(commands) - setup, "tau_s": mp.total_time,
             "executed_s": executed, "time_ratio": executed / mp.total_time, "dp_mm": dp * 1000.0,
             "dphi_deg": math.degrees(dphi), "e_p_mm": mp.env.e_p * 1000.0, "e_phi_deg": math.degrees(mp.env.e_phi),
             "log_exactly_once": log_ok,
@@ -202,6 +270,22 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def calibration_summary(cals: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the calibrations found against the truth: magnet centres (2..n-1), half windows, the wheel."""
+    ok = [c for c in cals if "error" not in c]
+    if not ok:
+        return {"boards": len(cals), "completed": 0}
+    ce = np.array([np.asarray(c["found"]["magnets"]["centre_mm"][1:]) - np.asarray(c["truth"]["centre_mm"][1:])
+                   for c in ok])
+    he = np.array([np.asarray(c["found"]["magnets"]["half_window_mm"][1:]) - c["truth"]["half_window_mm"] for c in ok])
+    we = np.array([c["found"]["wheel_nm_per_count"] / c["truth"]["wheel_nm_per_count"] - 1.0 for c in ok])
+    return {"boards": len(cals), "completed": len(ok),
+            "centre_err_mm": {"rms": float(np.sqrt(np.mean(ce ** 2))), "max": float(np.abs(ce).max())},
+            "half_window_err_mm": {"rms": float(np.sqrt(np.mean(he ** 2))), "max": float(np.abs(he).max())},
+            "wheel_err": {"rms": float(np.sqrt(np.mean(we ** 2))), "max": float(np.abs(we).max())},
+            "wall_s_mean": float(np.mean([c["wall_s"] for c in ok]))}
+
+
 def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     from armbridge.errors import ArmbridgeError
     from armbridge.planning.command import resolve_goal_ik
@@ -216,9 +300,9 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
                               "machine": {"python": platform.python_version(),
                                           "cpu": platform.processor() or platform.machine()}}
 
-    def run_on(mp: Any, seed: int, plant: str = "nominal") -> dict[str, Any]:
+    def run_on(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) -> dict[str, Any]:
         try:
-            return execute(mp, seed, plant)
+            return execute(mp, seed, plant, settings)
         except ArmbridgeError as exc:  # a run that failed is reported, not hidden
             return {"environment": mp.env.name, "seed": seed, "plant": plant, "tau_s": mp.total_time,
                     "error": str(exc)}
@@ -261,14 +345,42 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
         env = fixed_environment("E1")
         goal_ik, _ = resolve_goal_ik(env)
         mp = next((m for m in (plan_masr(env, size.iterations, s, goal_ik) for s in range(10)) if m is not None), None)
-        plants = []
+        singles = single_plans(arm)
+        sets: dict[str, list[dict[str, Any]]] = {"e1_random_plants": [], "singles_random_plants": []}
+        if size.calibrated:
+            sets.update({"e1_calibrated": [], "singles_calibrated": [], "calibrations": []})
+
+        def note(label: str, r: dict[str, Any]) -> None:
+            progress(f"{label}: " + (f"failed: {r['error']}" if "error" in r else
+                                     f"executed {r['executed_s']:.2f} s (tau {r['tau_s']:.2f}), dp {r['dp_mm']:.1f} mm, "
+                                     f"dphi {r['dphi_deg']:.2f} deg"))
+
         for k in range(size.plants if mp is not None else 0):
-            plants.append(run_on(mp, k, "random"))
-            r = plants[-1]
-            progress(f"E1 on random plant {k}: " + (f"failed: {r['error']}" if "error" in r else
-                                                    f"executed {r['executed_s']:.2f} s, dp {r['dp_mm']:.1f} mm, "
-                                                    f"dphi {r['dphi_deg']:.2f} deg"))
-        result["e1_random_plants"] = {"runs": plants, "summary": summarize(plants)}
+            variants = [("", None)]
+            if size.calibrated:
+                try:
+                    cal = calibrate_board(k)
+                except ArmbridgeError as exc:
+                    cal = {"seed": k, "error": str(exc)}
+                cal["seed"] = k
+                sets["calibrations"].append(cal)
+                progress(f"random plant {k}: calibrated in {cal.get('wall_s', 0):.0f} s"
+                         + (f", failed: {cal['error']}" if "error" in cal else ""))
+                if "error" not in cal:
+                    variants.append((" calibrated", [(v, tuple(a)) for v, a in cal["settings"]]))
+            for tag, settings in variants:
+                key = "_calibrated" if tag else "_random_plants"
+                r = run_on(mp, k, "random", settings)
+                sets["e1" + key].append(r)
+                note(f"E1 on random plant {k}{tag}", r)
+                for sp in singles:
+                    r = run_on(sp, k, "random", settings)
+                    sets["singles" + key].append(r)
+                    note(f"{sp.env.name} on random plant {k}{tag}", r)
+        for key, runs in sets.items():
+            result[key] = {"runs": runs} if key == "calibrations" else {"runs": runs, "summary": summarize(runs)}
+        if size.calibrated:
+            result["calibrations"]["summary"] = calibration_summary(sets["calibrations"])
     result["wall_s"] = time.perf_counter() - t0
     return result
 
@@ -278,8 +390,12 @@ def masr_exec_cmd(
                                                       "no E1-E3."),
     environments: int = typer.Option(None, "--environments", help="Random solvable environments (full run: 50)."),
     iterations: int = typer.Option(None, "--iterations", help="MASR-RRT* iterations per plan (full run: 1000)."),
-    plants: int = typer.Option(0, "--plants", min=0, help="Also run E1's plan on this many random plants "
-                                                          "(emu:masr_ma?plant=random&seed=0..N-1: hidden truth)."),
+    plants: int = typer.Option(0, "--plants", min=0, help="Also run E1's plan and the single-action plans on this many "
+                                                          "random plants (emu:masr_ma?plant=random&seed=0..N-1: "
+                                                          "hidden truth)."),
+    calibrated: bool = typer.Option(False, "--calibrated", help="With --plants: also calibrate each board "
+                                                                "(armbridge calibrate masr_ma's procedure) and run "
+                                                                "the same plans on it, beside the uncalibrated runs."),
     json_out: Path = typer.Option(Path("runs/bench-masr-exec.json"), "--json", help="Where to write the results."),
 ) -> None:
     """MASR plans executed on the emulated MA (emu:masr_ma): planned tau against executed time, the true final
@@ -294,7 +410,7 @@ def masr_exec_cmd(
         size = replace(size, environments=environments)
     if iterations is not None:
         size = replace(size, iterations=iterations)
-    size = replace(size, plants=plants)
+    size = replace(size, plants=plants, calibrated=calibrated)
     console = Console()
     result = run(size, progress=lambda text: console.print(f"[dim]bench masr-exec: {text}[/]"))
     write_json(result, json_out)
@@ -310,7 +426,10 @@ def masr_exec_cmd(
               f"{paper['dp_mean_mm']:.1f} +- {paper['dp_std_mm']:.1f}",
               f"{paper['dphi_mean_deg']:.1f} +- {paper['dphi_std_deg']:.1f}", "-")
     for key, label in (("random", f"{size.environments} random"), ("fixed", "E1-E3"),
-                       ("e1_random_plants", f"E1, {size.plants} random plants")):
+                       ("e1_random_plants", f"E1, {size.plants} random plants"),
+                       ("e1_calibrated", f"E1, {size.plants} random plants, calibrated"),
+                       ("singles_random_plants", f"single actions, {size.plants} random plants"),
+                       ("singles_calibrated", f"single actions, {size.plants} random plants, calibrated")):
         s = result.get(key, {}).get("summary")
         if not s or not s.get("completed"):
             continue
@@ -321,6 +440,21 @@ def masr_exec_cmd(
                   f"{s['dphi_deg']['mean']:.2f} +- {s['dphi_deg']['std']:.2f} / {s['dphi_deg']['max']:.2f}",
                   f"{s['at_goal']:.0%}")
     console.print(t)
+    for key, label in (("e1_random_plants", "E1, uncalibrated"), ("e1_calibrated", "E1, calibrated"),
+                       ("singles_random_plants", "single actions, uncalibrated"),
+                       ("singles_calibrated", "single actions, calibrated")):
+        s = result.get(key, {}).get("summary")
+        if s and s.get("completed"):
+            console.print(f"{label}: localisation right after a magnet: mean {s['after_magnet_mean_mm']:.2f} mm, "
+                          f"max {s['after_magnet_max_mm']:.2f} mm; |estimate - true d| mean {s['loc_mean_mm']:.2f} "
+                          f"mm, max {s['loc_max_mm']:.2f} mm")
+    cs = result.get("calibrations", {}).get("summary")
+    if cs and cs.get("completed"):
+        console.print(f"calibration against the truth ({cs['completed']}/{cs['boards']} boards): magnet centre rms "
+                      f"{cs['centre_err_mm']['rms']:.2f} mm (max {cs['centre_err_mm']['max']:.2f}), half window rms "
+                      f"{cs['half_window_err_mm']['rms']:.3f} mm (max {cs['half_window_err_mm']['max']:.3f}), wheel "
+                      f"rms {cs['wheel_err']['rms']:.3%} (max {cs['wheel_err']['max']:.3%}), "
+                      f"{cs['wall_s_mean']:.0f} s each")
     s = result["random"]["summary"]
     if s.get("completed"):  # the loops' share and the localisation, over the random environments
         o = Table(title="what the ramps and loops add over eq. (8), per action (random environments)")
