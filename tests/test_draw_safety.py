@@ -178,3 +178,38 @@ def test_a_csv_at_the_edge_stays_in_the_safe_disc(tmp_path):
     assert np.linalg.norm(plan.ee_path() - C, axis=1).max() <= REG.radius - MARGIN
     excess = np.linalg.norm(tip - C, axis=1) - REG.radius
     assert int((excess > 0).sum()) == 0 and s["drawing"]["safe_outside"] == 0, excess.max()
+
+
+def test_a_hand_written_drawing_plan_is_filtered_before_it_is_streamed(tmp_path):
+    """`armbridge run` of a drawing plan nobody filtered (here a circle 5 mm beyond the safe disc's
+    edge, at the pen angle, pen down): the CBF filter acts on the commands, so the executed pen
+    stays inside the disc; the summary says how many waypoints it moved."""
+    from armbridge.executor.run import run_plan
+    from armbridge.plans.format import make_plan, save_plan
+
+    phi = pen_angle(ARM)
+    t = np.linspace(0, 2 * np.pi, 200)
+    ring = C + (REG.radius - 0.02) * np.c_[np.cos(t), np.sin(t)]
+    ring[:, 0] += 0.025                                   # its right side 5 mm outside the disc
+    q = solve_path(ARM, np.c_[ring, np.full(len(ring), phi)], [np.pi / 2, -np.pi / 2, 0.0])
+    assert np.allclose(np.asarray(ARM.ee_point(q))[:, :2], ring, atol=1e-9)   # reached, outside the disc too
+    pen = np.ones(len(q), int)
+    pen[0] = 0
+    plan = save_plan(make_plan(ARM, q, 0.03, {"tool": "a hand"}, pen=pen), tmp_path / "ring.json")
+    s = run_plan(plan, "emu:esp32?speed=0", tmp_path / "ring.rrd", progress=False)
+    assert s.completed and s.safety_filter["moved"] > 0
+    assert 4.0 < s.safety_filter["max_shift_mm"] < 5.0 + MARGIN * 1000 + 1e-3
+    assert s.drawing["safe_outside"] == 0 and s.drawing["safe_excess_max_mm"] < 0
+    tip = None
+    for chunk in RrdReader(tmp_path / "ring.rrd").stream():
+        if chunk.entity_path == "/trace/tip":
+            rb = chunk.to_record_batch()
+            col = [c for c in rb.schema.names if c.endswith("LineStrips2D:strips")]
+            tip = np.array(rb.column(col[0]).to_pylist()[-1][0])[:, :2]
+    assert tip is not None and (np.linalg.norm(tip - C, axis=1) - REG.radius).max() < 0
+
+
+def test_a_drawing_armbridge_draw_made_streams_unchanged(tmp_path):
+    """Its waypoints passed the same filter with the same margin: the run's filter moves none."""
+    _, s, _ = _draw(tmp_path, ["HI", "--fit"])
+    assert s["safety_filter"]["moved"] == 0 and s["safety_filter"]["margin_m"] == MARGIN

@@ -18,29 +18,11 @@ import numpy as np
 import vpype as vp  # type: ignore[import-untyped]
 
 from armbridge.errors import ArmbridgeError
+from armbridge.ik.region import MARGIN_BY_SPEED, margin_for  # noqa: F401 - the drawing's margin, by pen speed
 
 MERGE_TOLERANCE = 1e-4  # m: stroke ends closer than this are joined (0.1 mm)
 SIMPLIFY_TOLERANCE = 5e-5  # m: a simplified stroke stays this close to the original (0.05 mm)
 FIT_SLACK = 1e-9  # m: rounding slack on the fit check
-
-# The margin --fit keeps inside the safe disk's edge, and the CBF filter keeps every streamed
-# waypoint inside, by pen speed (m/s -> m; linear between rows, flat beyond the ends): the
-# executed pen strays from the commanded one by servo lag and corner overshoot, the bow of a
-# joint-space segment and the potentiometer noise of the measured pen. Measured on emu:esp32
-# (docs/drawing.md, "The safety margin"): the largest distance by which the measured pen went
-# beyond the disk's edge with the drawings fitted to the edge itself (no margin), over the
-# paper's twelve samples and "HELLO WORLD". Up to 0.1 m/s: 1.28 mm on the nominal plant
-# (--cartesian 1.25 mm), 2.01 mm on ten drawn ones (plant=random, seeds 2-11), and with a
-# 2.5 mm margin in place a drawn plant still reached 2.38 mm (seed 3 at 0.1 m/s): 3 mm.
-# Faster, the nominal plant's worst (3.51 mm at 0.15, 5.81 at 0.2, 39.7 at 0.3 m/s) and at
-# least 1 mm more.
-MARGIN_BY_SPEED = (
-    (0.10, 0.0030),
-    (0.15, 0.0045),
-    (0.20, 0.0075),
-    (0.30, 0.050),
-)
-
 
 @dataclass(frozen=True)
 class Placement:
@@ -51,12 +33,6 @@ class Placement:
     size: float  # the longer side of its bounding box, m
     largest: float  # the largest size that fits at `at` keeping the margin (what --fit gives), m
     margin: float = 0.0  # m: what --fit kept inside the disk's edge
-
-
-def margin_for(speed: float) -> float:
-    """The safety margin (m) for a pen speed (m/s): MARGIN_BY_SPEED, linear between its rows."""
-    v, m = zip(*MARGIN_BY_SPEED)
-    return float(np.interp(speed, v, m))
 
 
 def _points(lc: vp.LineCollection) -> np.ndarray:

@@ -104,6 +104,7 @@ def run_plan(
     elif home:
         raise ArmbridgeError("--home is for MASR plans (it drives the mobile actuator to the base first)")
     plan = validate(plan)
+    plan, safety = safety_filter(plan)
     if not isinstance(rate_hz, int) or not RATE_MIN <= rate_hz <= RATE_MAX:
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
     if pen not in PEN_MODES:
@@ -131,6 +132,7 @@ def run_plan(
     )
     if masr is not None:
         summary.planned_duration_s = M.total_time(masr)
+    summary.safety_filter = safety
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg
     rec: Recording | None = None
@@ -248,6 +250,38 @@ def run_plan(
 
 
 PEN_MODES = ("auto", "on", "off")
+
+
+def safety_filter(plan: Plan) -> tuple[Plan, dict | None]:
+    """The discrete CBF (ik/cbf_filter.py) on what a drawing streams, whoever made
+    the plan (issue 23 section 3: the barrier acts on the commands, not only on
+    the plan): a plan with pen flags for the 3R drawing arm gets its waypoints
+    filtered onto the safe disc less the margin its pen needs (the margin its
+    drawing recorded, else `margin_for` its fastest pen-down segment). A plan
+    `armbridge draw` made is filtered already and filtering twice is filtering
+    once, so it streams as it is; a hand-written one that leaves the disc is
+    pulled in, and its summary reports the executed pen against the disc.
+    -> (the plan to stream, the filter's report or None)."""
+    if plan.pen is None or plan.robot.name != "arm3r":
+        return plan, None
+    from dataclasses import replace
+
+    from armbridge.ik.cbf_filter import filter_joints
+    from armbridge.ik.region import margin_for, safe_region
+
+    robot = plan.robot
+    margin = (plan.provenance.get("drawing") or {}).get("margin")
+    if not isinstance(margin, (int, float)):
+        xy = np.asarray(robot.ee_point(plan.q))[:, :2]
+        seg = np.hypot(*np.diff(xy, axis=0).T) / np.asarray(plan.durations[1:], float)
+        down = np.asarray(plan.pen[1:], bool)
+        margin = margin_for(float(seg[down].max(initial=0.0)))
+    reg = safe_region(robot)
+    q, report = filter_joints(robot, reg, plan.q, float(margin))
+    drawing = dict(plan.provenance.get("drawing") or {})
+    drawing.setdefault("safe_region", {"center": list(reg.center), "radius": reg.radius})  # the summary reports it
+    plan = replace(plan, q=q, provenance={**plan.provenance, "drawing": drawing})
+    return plan, {**report.to_dict(), "margin_m": float(margin)}
 
 
 def cartesian_rows(plan: Plan) -> list[list[int]]:

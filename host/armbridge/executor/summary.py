@@ -80,6 +80,7 @@ class Summary:
     fw_version: str | None = None
     calibration: dict | None = None  # executor/calcheck.Calibration: the board's chip id and calibration
     drawing: dict | None = None  # a plan with pen flags: plans/drawing.py run_drawing_report
+    safety_filter: dict | None = None  # a drawing plan: the CBF filter on what was streamed (run.safety_filter)
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)
@@ -175,6 +176,10 @@ class Summary:
                           f"{m['dead_reckoning_mm']:.0f} mm since magnet {m['last_magnet']}: within "
                           f"{_f(m.get('d_bound_mm'), 2)} mm if the wheel slipped <= {100 * m['slip_bound']:g} % "
                           "(a slip there is not seen)")
+        if self.safety_filter and self.safety_filter.get("moved"):
+            f = self.safety_filter
+            t.add_row("safety filter (CBF)", f"{f['moved']} waypoints moved into the safe disc (max "
+                                             f"{f['max_shift_mm']:.2f} mm; margin {f['margin_m'] * 1000:.1f} mm)")
         if self.drawing:
             d = self.drawing
             t.add_row("drawing error, trace from strokes (mean / max)",

@@ -12,7 +12,7 @@ linear class-K function gamma(h) = gamma h):
 p_k is the pen position of waypoint k (forward kinematics of its joints), c
 and R the safe disc (`ik.region.safe_region`), and `margin` what the executed
 pen may stray from the commanded one (servo lag and corner rounding, the chord
-of a joint-space segment, sensor noise: `draw.layout.margin_for`, measured). With
+of a joint-space segment, sensor noise: `ik.region.margin_for`, measured). With
 h_0 >= 0 the condition keeps every h_k >= 0 (the safe set C of eq. 6 is
 forward invariant step by step), so every commanded pen position is inside the
 disc of radius R - margin and the executed pen, within `margin` of it, inside R.

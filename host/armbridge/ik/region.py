@@ -18,7 +18,9 @@ pipeline's drawing targets and the model card (`ik.arm3r_pipeline`,
 drawing's: every point of the disk is reached at `phi` with the margin, so a
 reference the pipeline gives there starts the CBF inside its safe set.
 It sits below `draw/` and `ik/cbf.py` in the data flow (it needs only the
-closed-form IK), so neither imports the other for it.
+closed-form IK), so neither imports the other for it. So does the margin the
+executed pen needs inside the disk at a pen speed (`margin_for`): the drawing
+places and filters by it, and a run filters any drawing plan by it.
 """
 from __future__ import annotations
 
@@ -106,3 +108,28 @@ def safe_region(robot: PlanarChain) -> SafeRegion:
 def pen_angle(robot: PlanarChain) -> float:
     """The pen orientation phi (rad) the safe region holds for: the drawing IK and the CBF use it."""
     return _region(robot)[1]
+
+
+# The margin --fit keeps inside the safe disk's edge, and the CBF filter keeps every streamed
+# waypoint inside, by pen speed (m/s -> m; linear between rows, flat beyond the ends): the
+# executed pen strays from the commanded one by servo lag and corner overshoot, the bow of a
+# joint-space segment and the potentiometer noise of the measured pen. Measured on emu:esp32
+# (docs/drawing.md, "The safety margin"): the largest distance by which the measured pen went
+# beyond the disk's edge with the drawings fitted to the edge itself (no margin), over the
+# paper's twelve samples and "HELLO WORLD". Up to 0.1 m/s: 1.28 mm on the nominal plant
+# (--cartesian 1.25 mm), 2.01 mm on ten drawn ones (plant=random, seeds 2-11), and with a
+# 2.5 mm margin in place a drawn plant still reached 2.38 mm (seed 3 at 0.1 m/s): 3 mm.
+# Faster, the nominal plant's worst (3.51 mm at 0.15, 5.81 at 0.2, 39.7 at 0.3 m/s) and at
+# least 1 mm more.
+MARGIN_BY_SPEED = (
+    (0.10, 0.0030),
+    (0.15, 0.0045),
+    (0.20, 0.0075),
+    (0.30, 0.050),
+)
+
+
+def margin_for(speed: float) -> float:
+    """The safety margin (m) for a pen speed (m/s): MARGIN_BY_SPEED, linear between its rows."""
+    v, m = zip(*MARGIN_BY_SPEED)
+    return float(np.interp(speed, v, m))
