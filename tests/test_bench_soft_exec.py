@@ -13,7 +13,7 @@ ARMBRIDGE = os.path.join(os.path.dirname(sys.executable), "armbridge")
 @pytest.mark.hil
 def test_bench_soft_exec_runs_the_demo_on_a_nominal_and_a_random_plant(tmp_path):
     out = tmp_path / "soft.json"
-    proc = subprocess.run([ARMBRIDGE, "bench", "soft-exec", "--plants", "1", "--json", str(out)],
+    proc = subprocess.run([ARMBRIDGE, "bench", "soft-exec", "--plants", "1", "--uncalibrated-only", "--json", str(out)],
                           capture_output=True, text=True, timeout=900, env={**os.environ, "COLUMNS": "200"})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "target (issue 23)" in proc.stdout and "1 random" in proc.stdout
@@ -35,3 +35,42 @@ def test_bench_soft_exec_runs_the_demo_on_a_nominal_and_a_random_plant(tmp_path)
     assert (drawn["joint_mean_deg"], drawn["tip_max_mm"]) != (nominal["joint_mean_deg"], nominal["tip_max_mm"])
     s = r["random"]["summary"]
     assert s["runs"] == s["completed"] == 1 and s["joint_max_deg"] == drawn["joint_max_deg"]
+
+
+def test_true_errors_read_through_the_boards_bend_and_found_against_truth():
+    """A calibrated board reads through its own BEND: the bench turns its readings back into ADC
+    counts and then through the drawn sensor (pure: no simulator); what a calibration found is
+    compared with the drawn truth."""
+    import numpy as np
+
+    from armbridge.bench.soft_exec import found_vs_truth, true_errors
+    from armbridge.boards import config
+    from armbridge.emulator.pump_plant import hidden_truth
+    from armbridge.emulator.truth import truth_rng
+
+    class Checker:
+        def tip(self, q):
+            return np.asarray(q, float)[:2] * 0.1
+
+    cfg = config("arduino_pump")
+    t = hidden_truth(cfg, truth_rng(4))
+    target = np.array([0.2, 0.4, 0.5])
+    # what the drawn sensor reads (through the default BEND) at the true target
+    read_default = np.asarray(t.offset_mrad) / 1000.0 + np.asarray(t.gain) * target
+    poses = [{"settled": list(read_default), "target": list(target)}]
+    assert true_errors(poses, "random", 4, Checker())["true_joint_max_deg"] < 1e-9
+    # a calibrated BEND that makes the board read the truth: the same true error (none)
+    bends = []
+    for j, d in enumerate(cfg.BEND_DEFAULT):
+        per = (d[3] - d[1]) / (d[2] - d[0])                    # mrad per count, default
+        adc0 = d[0] + (t.offset_mrad[j] - d[1]) / per          # count at the true 0
+        per_true = per / t.gain[j]
+        bends.append([0, -adc0 * per_true, 1023, (1023 - adc0) * per_true])
+    read_cal = [target.tolist()]
+    got = true_errors([{"settled": read_cal[0], "target": list(target)}], "random", 4, Checker(), bends)
+    assert got["true_joint_max_deg"] < 1e-6, got
+    joints = [{"offset_mrad": t.offset_mrad[j] + 1.0, "sensor_gain": t.gain[j] * 1.005,
+               "motor_mm_s_push": t.v_motor[j]} for j in range(3)]
+    f = found_vs_truth({"pump": {"joints": joints}}, "random", 4)
+    assert f["cal_offset_err_mrad"] == pytest.approx(1.0) and f["cal_gain_err"] == pytest.approx(0.005)
+    assert f["cal_motor_err"] == pytest.approx(0.0, abs=1e-12)

@@ -52,6 +52,12 @@
 #define SEEK_RAMP_PERMILLE 2
 #define SEEK_RAMP_MAX 400
 
+/* RELAY j amp hyst cycles (Astrom-Hagglund relay feedback, firmware/common/relay.py): a
+ * relay that has not switched for RELAY_TIMEOUT_MS gives up (EV RELAY j 0 0). With a
+ * hysteresis the joint cannot cross, it is an open-loop push at a known duty until the
+ * end stop (the calibration's drive, docs/pump.md "Calibration"). */
+#define RELAY_TIMEOUT_MS 20000
+
 /* Following error |set point - angle| above FOLLOW_ERR_MRAD for FOLLOW_ERR_MS -> FAULT. */
 #define FOLLOW_ERR_MRAD 300
 #define FOLLOW_ERR_MS 2000
@@ -88,7 +94,9 @@
 #define EE_LINK_B 32                 /* 32 bytes: link record, slot B */
 #define EE_SETTINGS 64               /* 44 bytes: bend calibration, Modbus mode and address */
 #define EE_LATCH 108                 /* 1 byte: 0xC0 | latch state (0xC0: released) */
+#define EE_CALIB 112                 /* 92 bytes: the calibration record (CALID: id, gains, bands, bends) */
+#define EE_SERIAL 204                /* 4 bytes: the board's serial (IDENT's uid), made once when erased */
 #define KEEP_SIZE 36                 /* bytes of .noinit SRAM: magic and the link record */
-#define EE_SIZE 112                  /* bytes of EEPROM the board uses (the HAL's shadow) */
+#define EE_SIZE 208                  /* bytes of EEPROM the board uses (the HAL's shadow) */
 
 #endif

@@ -271,13 +271,14 @@ void Link::estop() {
 
 uint32_t Link::board_ms() { return hal_->ms() & TICKS_MASK; }
 
-void Link::event(const char *kind, uint8_t nargs, int32_t a, int32_t b) {
+void Link::event(const char *kind, uint8_t nargs, int32_t a, int32_t b, int32_t c) {
     if (in_command_ || in_tick_) {
         if (n_events_ < LINK_MAX_EVENTS) {
             events_[n_events_].kind = kind;
             events_[n_events_].nargs = nargs;
             events_[n_events_].a = a;
             events_[n_events_].b = b;
+            events_[n_events_].c = c;
             n_events_++;
         }
         return;
@@ -288,13 +289,14 @@ void Link::event(const char *kind, uint8_t nargs, int32_t a, int32_t b) {
     w_.str(kind);
     if (nargs > 0) w_.num(a);
     if (nargs > 1) w_.num(b);
+    if (nargs > 2) w_.num(c);
     send(&w_);
 }
 
 void Link::flush_events() {
     uint8_t n = n_events_;
     n_events_ = 0;
-    for (uint8_t i = 0; i < n; i++) event(events_[i].kind, events_[i].nargs, events_[i].a, events_[i].b);
+    for (uint8_t i = 0; i < n; i++) event(events_[i].kind, events_[i].nargs, events_[i].a, events_[i].b, events_[i].c);
 }
 
 void Link::completed(int32_t wid) {
@@ -353,7 +355,12 @@ void Link::send_er(int32_t seq, uint8_t code, const char *detail) {
     w_.str("ER");
     w_.wid(seq);
     w_.num(code);
-    w_.str(code < AB_N_ERRORS ? AB_ERROR_NAMES[code] : "ERR");
+    char name[AB_ERROR_NAME_LEN];
+    if (code < AB_N_ERRORS)
+        AB_MEMCPY_P(name, AB_ERROR_NAMES[code], sizeof name);   /* in flash on AVR */
+    else
+        memcpy(name, "ERR", 4);
+    w_.str(name);
     if (detail && detail[0]) w_.str(detail);
     send(&w_);
 }
@@ -390,8 +397,9 @@ void Link::on_line(const uint8_t *raw, size_t n, bool tail) {
         code = hello(l.seq, l, &p, &err);
         free = board_->free_slots();
     } else {
-        bool ro = vi >= 0 && AB_COMMANDS[vi].read_only;
-        switch (sess.classify(l.seq, ro, false, 0, 0, 0)) {
+        uint8_t ro = 0;
+        if (vi >= 0) AB_MEMCPY_P(&ro, &AB_COMMANDS[vi].read_only, 1);   /* in flash on AVR */
+        switch (sess.classify(l.seq, ro != 0, false, 0, 0, 0)) {
             case S_EXEC: {
                 code = execute(l.seq, vi, l, &p, &err);
                 free = board_->free_slots();

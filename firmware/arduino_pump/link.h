@@ -69,7 +69,7 @@ public:
 
     /* ---- board callbacks */
     uint32_t board_ms();
-    void event(const char *kind, uint8_t nargs, int32_t a = 0, int32_t b = 0);
+    void event(const char *kind, uint8_t nargs, int32_t a = 0, int32_t b = 0, int32_t c = 0);
     void completed(int32_t wid);
     void fault(int32_t j, int32_t detail, const char *reason);
     void save();
@@ -117,7 +117,7 @@ private:
     bool in_tick_;           /* inside the control function: events and the save wait for its end */
     bool save_due_;
     uint8_t n_events_;
-    struct { const char *kind; uint8_t nargs; int32_t a, b; } events_[LINK_MAX_EVENTS];
+    struct { const char *kind; uint8_t nargs; int32_t a, b, c; } events_[LINK_MAX_EVENTS];
     uint8_t gen_;            /* persist slot generation */
     bool modbus_;
     int16_t pending_mode_;   /* -1 none, 0 line, 1..247 Modbus address */

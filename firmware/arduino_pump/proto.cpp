@@ -186,8 +186,10 @@ int ab_decode(const uint8_t *line, size_t n, size_t max_len, uint32_t epoch, AbL
 /* ------------------------------------------------------------------ commands */
 
 int ab_find_verb(const char *verb, size_t n) {
+    if (n >= AB_VERB_LEN) return -1;
     for (int i = 0; i < AB_N_COMMANDS; i++) {
-        const char *v = AB_COMMANDS[i].verb;
+        char v[AB_VERB_LEN];
+        AB_MEMCPY_P(v, AB_COMMANDS[i].verb, sizeof v);   /* the table is in flash on AVR */
         if (strlen(v) == n && memcmp(v, verb, n) == 0) return i;
     }
     return -1;
@@ -224,15 +226,21 @@ int ab_parse_command(const char *verb, size_t verb_len, const char *const *args,
     err->detail[0] = 0;
     int vi = ab_find_verb(verb, verb_len);
     if (vi < 0) return fail(err, AB_ERR_VERB);
-    const ab_command &c = AB_COMMANDS[vi];
-    bool has_q = c.n_args > 0 && c.args[c.n_args - 1].kind == AB_ARG_Q;
+    ab_command c;
+    AB_MEMCPY_P(&c, &AB_COMMANDS[vi], sizeof c);   /* the tables are in flash on AVR: copy a row */
+    ab_arg_spec s;
+    bool has_q = false;
+    if (c.n_args > 0) {
+        AB_MEMCPY_P(&s, &c.args[c.n_args - 1], sizeof s);
+        has_q = s.kind == AB_ARG_Q;
+    }
     unsigned want = has_q ? (unsigned)(c.n_args - 1 + n_joints) : c.n_args;
     if (nargs != want || want > AB_MAX_ARGS) return fail(err, AB_ERR_ARGS);
     for (unsigned i = 0; i < want; i++)
         if (!ab_parse_int(args[i], arg_len[i], &values[i])) return fail(err, AB_ERR_ARGS);
     for (unsigned i = 0; i < want; i++) {
         unsigned si = i < c.n_args ? i : (unsigned)(c.n_args - 1);
-        const ab_arg_spec &s = c.args[si];
+        AB_MEMCPY_P(&s, &c.args[si], sizeof s);
         int32_t lo = s.lo, hi = s.hi;
         if (s.kind == AB_ARG_JOINT) {
             lo = 1;
@@ -247,7 +255,8 @@ int ab_parse_command(const char *verb, size_t verb_len, const char *const *args,
         }
     }
     if (c.min_arg >= 0 && c.max_arg >= 0 && values[c.min_arg] > values[c.max_arg]) {
-        set_detail_str(err, c.args[c.min_arg].name);
+        AB_MEMCPY_P(&s, &c.args[c.min_arg], sizeof s);
+        set_detail_str(err, s.name);
         return fail(err, AB_ERR_RANGE);
     }
     return 0;

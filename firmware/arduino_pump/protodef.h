@@ -36,71 +36,87 @@
 #define AB_ERR_UNHOMED 14
 #define AB_N_ERRORS 15
 
+/* The tables live in flash on AVR (PROGMEM: read them with AB_MEMCPY_P into RAM;
+   strings are arrays inside the rows, so one copy brings a row's text along);
+   elsewhere AB_PROGMEM is empty and AB_MEMCPY_P is memcpy. */
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define AB_PROGMEM PROGMEM
+#define AB_MEMCPY_P memcpy_P
+#else
+#include <string.h>
+#define AB_PROGMEM
+#define AB_MEMCPY_P memcpy
+#endif
+
 /* Argument kinds: a plain integer in [lo, hi]; a joint index 1..n; n joint
    values, each in [lo, hi] (always the last argument). */
 #define AB_ARG_INT 0
 #define AB_ARG_JOINT 1
 #define AB_ARG_Q 2
 
-typedef struct { const char *name; uint8_t kind; int32_t lo; int32_t hi; } ab_arg_spec;
+#define AB_ARG_NAME_LEN 8
+#define AB_VERB_LEN 7
+#define AB_ERROR_NAME_LEN 10
+typedef struct { char name[AB_ARG_NAME_LEN]; uint8_t kind; int32_t lo; int32_t hi; } ab_arg_spec;
 /* min_arg/max_arg: indices of a cross-argument rule value[min] <= value[max], -1 if none. */
 typedef struct {
-    const char *verb; const ab_arg_spec *args; uint8_t n_args; uint8_t read_only;
+    char verb[AB_VERB_LEN]; const ab_arg_spec *args; uint8_t n_args; uint8_t read_only;
     int8_t min_arg; int8_t max_arg;
 } ab_command;
 
 #define AB_VERB_HELLO 0
-static const ab_arg_spec AB_ARGS_HELLO[] = {{"proto", AB_ARG_INT, 1, 65535L}, {"session", AB_ARG_INT, 1, 65535L}, {"epoch", AB_ARG_INT, 1, 1073741823L}};
+static const ab_arg_spec AB_ARGS_HELLO[] AB_PROGMEM = {{"proto", AB_ARG_INT, 1, 65535L}, {"session", AB_ARG_INT, 1, 65535L}, {"epoch", AB_ARG_INT, 1, 1073741823L}};
 #define AB_VERB_LIM 1
-static const ab_arg_spec AB_ARGS_LIM[] = {{"joint", AB_ARG_JOINT, 1, 0}};
+static const ab_arg_spec AB_ARGS_LIM[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}};
 #define AB_VERB_W 2
-static const ab_arg_spec AB_ARGS_W[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"q", AB_ARG_Q, -1000000L, 1000000L}};
+static const ab_arg_spec AB_ARGS_W[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"q", AB_ARG_Q, -1000000L, 1000000L}};
 #define AB_VERB_HOLD 3
 #define AB_VERB_RESUME 4
 #define AB_VERB_CLR 5
 #define AB_VERB_RATE 6
-static const ab_arg_spec AB_ARGS_RATE[] = {{"hz", AB_ARG_INT, 0, 100}};
+static const ab_arg_spec AB_ARGS_RATE[] AB_PROGMEM = {{"hz", AB_ARG_INT, 0, 100}};
 #define AB_VERB_GAIN 7
-static const ab_arg_spec AB_ARGS_GAIN[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"kp", AB_ARG_INT, 0, 1000000L}, {"ki", AB_ARG_INT, 0, 1000000L}, {"kd", AB_ARG_INT, 0, 1000000L}};
+static const ab_arg_spec AB_ARGS_GAIN[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"kp", AB_ARG_INT, 0, 1000000L}, {"ki", AB_ARG_INT, 0, 1000000L}, {"kd", AB_ARG_INT, 0, 1000000L}};
 #define AB_VERB_SETLIM 8
-static const ab_arg_spec AB_ARGS_SETLIM[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"min", AB_ARG_INT, -1000000L, 1000000L}, {"max", AB_ARG_INT, -1000000L, 1000000L}, {"vmax", AB_ARG_INT, 1, 1000000L}};
+static const ab_arg_spec AB_ARGS_SETLIM[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"min", AB_ARG_INT, -1000000L, 1000000L}, {"max", AB_ARG_INT, -1000000L, 1000000L}, {"vmax", AB_ARG_INT, 1, 1000000L}};
 #define AB_VERB_WDOG 9
-static const ab_arg_spec AB_ARGS_WDOG[] = {{"ms", AB_ARG_INT, 50, 10000}};
+static const ab_arg_spec AB_ARGS_WDOG[] AB_PROGMEM = {{"ms", AB_ARG_INT, 50, 10000}};
 #define AB_VERB_STAT 10
 #define AB_VERB_PING 11
 #define AB_VERB_X 12
-static const ab_arg_spec AB_ARGS_X[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}, {"theta", AB_ARG_INT, -10000, 10000}};
+static const ab_arg_spec AB_ARGS_X[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}, {"theta", AB_ARG_INT, -10000, 10000}};
 #define AB_VERB_XY 13
-static const ab_arg_spec AB_ARGS_XY[] = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}};
+static const ab_arg_spec AB_ARGS_XY[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_PEN 14
-static const ab_arg_spec AB_ARGS_PEN[] = {{"down", AB_ARG_INT, 0, 1}};
+static const ab_arg_spec AB_ARGS_PEN[] AB_PROGMEM = {{"down", AB_ARG_INT, 0, 1}};
 #define AB_VERB_CAL 15
-static const ab_arg_spec AB_ARGS_CAL[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"us_a", AB_ARG_INT, 500, 2500}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"us_b", AB_ARG_INT, 500, 2500}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
+static const ab_arg_spec AB_ARGS_CAL[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"us_a", AB_ARG_INT, 500, 2500}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"us_b", AB_ARG_INT, 500, 2500}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_MV 16
-static const ab_arg_spec AB_ARGS_MV[] = {{"id", AB_ARG_INT, 0, 65535L}, {"d", AB_ARG_INT, 0, 1000000L}};
+static const ab_arg_spec AB_ARGS_MV[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"d", AB_ARG_INT, 0, 1000000L}};
 #define AB_VERB_ROT 17
-static const ab_arg_spec AB_ARGS_ROT[] = {{"id", AB_ARG_INT, 0, 65535L}, {"joint", AB_ARG_JOINT, 1, 0}, {"angle", AB_ARG_INT, -1000000L, 1000000L}};
+static const ab_arg_spec AB_ARGS_ROT[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"joint", AB_ARG_JOINT, 1, 0}, {"angle", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_GRIP 18
-static const ab_arg_spec AB_ARGS_GRIP[] = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
+static const ab_arg_spec AB_ARGS_GRIP[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
 #define AB_VERB_HOME 19
-static const ab_arg_spec AB_ARGS_HOME[] = {{"id", AB_ARG_INT, 0, 65535L}};
+static const ab_arg_spec AB_ARGS_HOME[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}};
 #define AB_VERB_DBAND 20
-static const ab_arg_spec AB_ARGS_DBAND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"mrad", AB_ARG_INT, 0, 1000}};
+static const ab_arg_spec AB_ARGS_DBAND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"mrad", AB_ARG_INT, 0, 1000}};
 #define AB_VERB_BEND 21
-static const ab_arg_spec AB_ARGS_BEND[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
+static const ab_arg_spec AB_ARGS_BEND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_MODBUS 22
-static const ab_arg_spec AB_ARGS_MODBUS[] = {{"addr", AB_ARG_INT, 1, 247}};
+static const ab_arg_spec AB_ARGS_MODBUS[] AB_PROGMEM = {{"addr", AB_ARG_INT, 1, 247}};
 #define AB_VERB_IDENT 23
 #define AB_VERB_CALID 24
-static const ab_arg_spec AB_ARGS_CALID[] = {{"id", AB_ARG_INT, 1, 1073741823L}};
+static const ab_arg_spec AB_ARGS_CALID[] AB_PROGMEM = {{"id", AB_ARG_INT, 1, 1073741823L}};
 #define AB_VERB_RELAY 25
-static const ab_arg_spec AB_ARGS_RELAY[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"amp", AB_ARG_INT, 1, 1000}, {"hyst", AB_ARG_INT, 0, 1000}, {"cycles", AB_ARG_INT, 1, 50}};
+static const ab_arg_spec AB_ARGS_RELAY[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"amp", AB_ARG_INT, 1, 1000}, {"hyst", AB_ARG_INT, 0, 1000}, {"cycles", AB_ARG_INT, 1, 50}};
 #define AB_VERB_MAG 26
-static const ab_arg_spec AB_ARGS_MAG[] = {{"joint", AB_ARG_JOINT, 1, 0}, {"pos", AB_ARG_INT, 0, 1000000L}, {"win", AB_ARG_INT, 0, 10000}};
+static const ab_arg_spec AB_ARGS_MAG[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"pos", AB_ARG_INT, 0, 1000000L}, {"win", AB_ARG_INT, 0, 10000}};
 #define AB_VERB_WHEEL 27
-static const ab_arg_spec AB_ARGS_WHEEL[] = {{"nm", AB_ARG_INT, 1, 1000000L}};
+static const ab_arg_spec AB_ARGS_WHEEL[] AB_PROGMEM = {{"nm", AB_ARG_INT, 1, 1000000L}};
 #define AB_N_COMMANDS 28
-static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
+static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
     {"W", AB_ARGS_W, 3, 0, -1, -1},
@@ -131,6 +147,6 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {
     {"WHEEL", AB_ARGS_WHEEL, 1, 0, -1, -1},
 };
 
-static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH", "UNHOMED"};
+static const char AB_ERROR_NAMES[AB_N_ERRORS][AB_ERROR_NAME_LEN] AB_PROGMEM = {"", "PARSE", "CRC", "LONG", "VERB", "ARGS", "RANGE", "SEQ", "FULL", "LATCHED", "NOSESSION", "STALE", "PROTO", "REACH", "UNHOMED"};
 
 #endif

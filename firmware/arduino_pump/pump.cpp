@@ -55,6 +55,88 @@ void PumpBoard::save_settings() {
     hal_->ee_write(EE_SETTINGS, &r, sizeof r);
 }
 
+/* ------------------------------------------------------------------ calibration (CALID, IDENT)
+ * tag 'C', version 1, pad; the calibration id; per joint kp, ki, kd (GAIN), the dead
+ * band (DBAND) and the bend calibration (BEND); CRC-32 of the bytes before it. A boot
+ * loads a whole record (every value in its verb's range) or none: then the defaults
+ * and the settings record's bends stay, and IDENT reports cal 0. */
+struct CalRec {
+    uint8_t tag, ver, pad0, pad1;
+    uint32_t id;
+    int32_t kp[N_JOINTS], ki[N_JOINTS], kd[N_JOINTS];
+    int16_t dband[N_JOINTS];
+    int16_t pad2;
+    BendCal cal[N_JOINTS];
+    uint32_t crc;
+};
+static_assert(sizeof(CalRec) == 92 && EE_CALIB + sizeof(CalRec) <= EE_SERIAL, "calibration layout");
+static_assert(EE_SERIAL + 4 <= EE_SIZE, "serial layout");
+
+#define CAL_ID_MAX 1073741823L
+#define GAIN_MAX 1000000L
+#define DBAND_MAX 1000
+
+static bool in(int32_t v, int32_t lo, int32_t hi) { return v >= lo && v <= hi; }
+
+void PumpBoard::load_calibration() {
+    CalRec r;
+    cal_id = 0;
+    hal_->ee_read(EE_CALIB, &r, sizeof r);
+    bool ok = r.tag == 'C' && r.ver == 1 && in((int32_t)r.id, 1, CAL_ID_MAX) &&
+              ab_crc32((const uint8_t *)&r, sizeof r - 4, 0) == r.crc;
+    for (uint8_t j = 0; ok && j < N_JOINTS; j++)
+        ok = in(r.kp[j], 0, GAIN_MAX) && in(r.ki[j], 0, GAIN_MAX) && in(r.kd[j], 0, GAIN_MAX) &&
+             in(r.dband[j], 0, DBAND_MAX) && r.cal[j].adc_a < r.cal[j].adc_b && r.cal[j].adc_b <= 1023 &&
+             r.cal[j].a != r.cal[j].b;
+    if (!ok) return;
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        gain[j].kp = r.kp[j];
+        ki[j] = r.ki[j];
+        kd[j] = r.kd[j];
+        gain[j].dband = r.dband[j];
+        cal[j] = r.cal[j];
+    }
+    cal_id = r.id;
+}
+
+void PumpBoard::save_calibration(uint32_t id) {
+    CalRec r;
+    memset(&r, 0, sizeof r);
+    r.tag = 'C';
+    r.ver = 1;
+    r.id = id;
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        r.kp[j] = gain[j].kp;
+        r.ki[j] = ki[j];
+        r.kd[j] = kd[j];
+        r.dband[j] = (int16_t)gain[j].dband;
+        r.cal[j] = cal[j];
+    }
+    r.crc = ab_crc32((const uint8_t *)&r, sizeof r - 4, 0);
+    hal_->ee_write(EE_CALIB, &r, sizeof r);
+    save_settings();          /* the bends in the settings record too: the same values */
+    cal_id = id;
+}
+
+/* The Mega has no unique id: a 32-bit serial in EEPROM, made once when the EEPROM is
+ * erased (0xFFFFFFFF) or zero, from the bend sensors' noise and the clock; kept from
+ * then on. (The emulator writes one per emulated board into a fresh EEPROM.) */
+void PumpBoard::load_serial() {
+    hal_->ee_read(EE_SERIAL, &serial, sizeof serial);
+    if (serial != 0xFFFFFFFFUL && serial != 0) return;
+    uint32_t x = 0x9E3779B9UL ^ hal_->us();
+    for (uint8_t i = 0; i < 32; i++) {
+        x ^= (uint32_t)hal_->read_adc((uint8_t)(i % N_JOINTS)) << (i % 23);
+        x ^= hal_->us();
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+    }
+    if (x == 0xFFFFFFFFUL || x == 0) x = 0x5EED0001UL;
+    serial = x;
+    hal_->ee_write(EE_SERIAL, &serial, sizeof serial);
+}
+
 /* ------------------------------------------------------------------ boot */
 
 void PumpBoard::begin(Hal *hal) {
@@ -73,6 +155,7 @@ void PumpBoard::begin(Hal *hal) {
         gain[j].dband = DBAND_DEFAULT_MRAD;
         ki[j] = kd[j] = 0;
         seek_reset(seek[j]);
+        relay[j].on = 0;
         u[j] = 0;
         syr_[j] = 0;
         fe_ms_[j] = 0;
@@ -81,6 +164,8 @@ void PumpBoard::begin(Hal *hal) {
     stops = 0;
     memset(&last_wp, 0, sizeof last_wp);
     load_settings();
+    load_calibration();       /* a saved calibration's gains, bands and bends win */
+    load_serial();
     link.begin(hal, this, modbus_addr);   /* last: it calls hold_here() and sends BOOT */
 }
 
@@ -92,6 +177,7 @@ void PumpBoard::halt() {
     for (uint8_t j = 0; j < N_JOINTS; j++) {
         u[j] = 0;
         seek_reset(seek[j]);
+        relay[j].on = 0;      /* CLR, a latch, a new session end a relay */
     }
 }
 
@@ -119,7 +205,7 @@ void PumpBoard::limits(uint8_t j, int32_t *m) {
     for (uint8_t i = 0; i < 3; i++) m[i] = lim[j - 1][i];
 }
 
-bool PumpBoard::motion_verb(int verb) { return verb == AB_VERB_W; }
+bool PumpBoard::motion_verb(int verb) { return verb == AB_VERB_W || verb == AB_VERB_RELAY; }
 
 int PumpBoard::queue(uint16_t id, uint16_t dur, const int32_t *t, AbError *err) {
     for (uint8_t j = 0; j < N_JOINTS; j++) {
@@ -155,7 +241,6 @@ int PumpBoard::set_bend(uint8_t j, const BendCal &c) {
 }
 
 int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
-    (void)out;
     uint8_t j = (uint8_t)v[0];
     switch (verb) {
         case AB_VERB_W:
@@ -184,6 +269,32 @@ int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
                 detail_joint(err, j);
                 return AB_ERR_RANGE;
             }
+            return 0;
+        }
+        case AB_VERB_IDENT: {
+            static const char hex[] = "0123456789abcdef";
+            char u[9];
+            for (uint8_t i = 0; i < 8; i++) u[i] = hex[(serial >> (28 - 4 * i)) & 0xF];
+            u[8] = 0;
+            out->str(u);
+            out->num((int32_t)cal_id);
+            return 0;
+        }
+        case AB_VERB_CALID:
+            save_calibration((uint32_t)v[0]);
+            return 0;
+        case AB_VERB_RELAY: {
+            if (traj.busy()) return AB_ERR_RANGE;
+            RelayRun &r = relay[j - 1];
+            memset(&r, 0, sizeof r);
+            r.on = 1;
+            r.out = 1;                /* starts pushing up (inflating) */
+            r.amp = (int16_t)v[1];
+            r.hyst = v[2];
+            r.cycles = (uint8_t)v[3];
+            r.last_switch = hal_->ms();
+            r.hi = r.lo = q[j - 1];
+            seek_reset(seek[j - 1]);
             return 0;
         }
         case AB_VERB_MODBUS:
@@ -240,6 +351,7 @@ void PumpBoard::control(uint8_t mode) {
         for (uint8_t j = 0; j < N_JOINTS; j++) {
             u[j] = 0;
             seek_reset(seek[j]);
+            relay[j].on = 0;
         }
         blocked_ = 0;
         if (mode == CTL_ZERO)
@@ -247,8 +359,9 @@ void PumpBoard::control(uint8_t mode) {
         return;
     }
     advance();
+    uint32_t now = hal_->ms();
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        int16_t d = seek_control(seek[j], gain[j], round_mrad(traj.sp[j]) - q[j]);
+        int16_t d = relay[j].on ? relay_step(j, now) : seek_control(seek[j], gain[j], round_mrad(traj.sp[j]) - q[j]);
         bool at_ext = (stops >> (2 * j + 1)) & 1, at_ret = (stops >> (2 * j)) & 1;
         uint8_t bit = (uint8_t)(1u << j);
         if ((d > 0 && at_ext) || (d < 0 && at_ret)) {   /* an end stop stops that pump */
@@ -290,8 +403,48 @@ void PumpBoard::advance() {
     if (last_done >= 0) link.completed(last_done);
 }
 
+/* One period of joint j's relay: +-amp about the set point, switching when the error
+ * crosses +-hyst; after `cycles` whole cycles past the first (settling) one, EV RELAY j
+ * period_ms amp_mrad (the mean period, the mean half peak-to-peak); without a switch
+ * for RELAY_TIMEOUT_MS, EV RELAY j 0 0. Either way the loop then holds the set point. */
+int16_t PumpBoard::relay_step(uint8_t j, uint32_t now) {
+    RelayRun &r = relay[j];
+    int32_t m = q[j], e = round_mrad(traj.sp[j]) - m;
+    if ((uint32_t)(now - r.last_switch) > RELAY_TIMEOUT_MS) {
+        r.on = 0;
+        seek_reset(seek[j]);
+        link.event("RELAY", 3, j + 1, 0, 0);
+        return 0;
+    }
+    if (m > r.hi) r.hi = m;
+    if (m < r.lo) r.lo = m;
+    if (r.out > 0 && e < -r.hyst) {
+        r.out = -1;
+        r.last_switch = now;
+    } else if (r.out < 0 && e > r.hyst) {
+        r.out = 1;
+        r.last_switch = now;
+        r.ups++;
+        if (r.ups == 2) r.first_up = now;
+        if (r.ups >= 3) r.sum_pp += r.hi - r.lo;    /* a counted whole cycle */
+        r.hi = r.lo = m;
+        if (r.ups >= r.cycles + 2) {
+            r.on = 0;
+            seek_reset(seek[j]);
+            int32_t period = (int32_t)((now - r.first_up) / r.cycles);
+            link.event("RELAY", 3, j + 1, period, r.sum_pp / (2 * (int32_t)r.cycles));
+            return 0;
+        }
+    }
+    return (int16_t)(r.out > 0 ? r.amp : -r.amp);
+}
+
 void PumpBoard::check_following() {
     for (uint8_t j = 0; j < N_JOINTS; j++) {
+        if (relay[j].on) {    /* the relay drives the joint away from its set point on purpose */
+            fe_ms_[j] = 0;
+            continue;
+        }
         int32_t err = round_mrad(traj.sp[j]) - q[j];
         if (err > FOLLOW_ERR_MRAD || err < -FOLLOW_ERR_MRAD) {
             fe_ms_[j] = (uint16_t)(fe_ms_[j] + PERIOD_MS);

@@ -602,6 +602,52 @@ static void traj_matches_the_float_formula() {
            steps, edge, near, slow);
 }
 
+/* IDENT and CALID: the serial made once in an erased EEPROM and kept; CALID persists the
+ * gains, dead bands and bends under its id, a reset boots with them and IDENT reports the
+ * id; a torn calibration record boots the defaults with cal 0; CALID 0 refused. RELAY: a
+ * push the joint cannot switch runs to the end stop and gives up (EV RELAY j 0 0). */
+static void ident_calid_relay() {
+    fresh_eeprom();
+    std::string uid;
+    {
+        Rig r(EE);
+        r.hello(1, 77);
+        std::string id = r.cmd("IDENT");
+        CHECK_MSG(id.size() == strlen("OK 32 ") + 8 + 2 && id.compare(id.size() - 2, 2, " 0") == 0, "%s", id.c_str());
+        uid = id.substr(strlen("OK 32 "), 8);
+        CHECK(uid != "ffffffff" && uid != "00000000");
+        CHECK(r.cmd("CALID 0") == "ER 6 RANGE id");
+        CHECK(r.cmd("GAIN 2 3100 5 7") == "OK 32");
+        CHECK(r.cmd("DBAND 3 45") == "OK 32");
+        CHECK(r.cmd("BEND 1 0 -400 1023 1700") == "OK 32");
+        CHECK(r.cmd("CALID 4242") == "OK 32");
+        CHECK(r.cmd("IDENT") == "OK 32 " + uid + " 4242");
+        CHECK(r.cmd("GAIN 2 9000 0 0") == "OK 32");       /* RAM only: the boot loads the calibration's */
+        /* a relay whose switch the reading cannot reach (a BEND that reads 3 rad low): a push to
+         * the stop (a BEND after CALID persists, but the boot loads the calibration's) */
+        CHECK(r.cmd("BEND 1 205 -3000 716 -1953") == "OK 32");
+        CHECK(r.cmd("RELAY 1 1000 1000 1") == "OK 32");
+        r.run_live(RELAY_TIMEOUT_MS + 500);
+        CHECK(r.seen("EV ENDSTOP 1") && r.seen("EV RELAY 1 0 0"));
+        CHECK(!r.board.relay[0].on && r.board.link.state != ST_FAULT);
+        CHECK(r.cmd("W 9 2000 0 0 0") == "OK 31");
+        CHECK(r.cmd("RELAY 1 500 0 1") == "ER 6 RANGE");   /* motion queued */
+    }
+    {
+        Rig r(EE);   /* the reset */
+        r.hello(2, 77);
+        CHECK(r.cmd("IDENT") == "OK 32 " + uid + " 4242");
+        CHECK(r.board.gain[1].kp == 3100 && r.board.ki[1] == 5 && r.board.kd[1] == 7);
+        CHECK(r.board.gain[2].dband == 45 && r.board.gain[0].dband == DBAND_DEFAULT_MRAD);
+        CHECK(r.board.cal[0].adc_a == 0 && r.board.cal[0].a == -400 && r.board.cal[0].b == 1700);
+    }
+    EE[EE_CALIB + 20] ^= 0x01;   /* torn: the CRC fails */
+    Rig r(EE);
+    r.hello(3, 77);
+    CHECK(r.cmd("IDENT") == "OK 32 " + uid + " 0");
+    CHECK(r.board.gain[1].kp == KP_DEFAULT && r.board.gain[2].dband == DBAND_DEFAULT_MRAD);
+}
+
 void run_board() {
     boot_and_hello();
     waypoints_to_done();
@@ -621,4 +667,5 @@ void run_board() {
     modbus_frame_across_a_stall();
     hello_on_a_straight_arm_is_no_limit();
     traj_matches_the_float_formula();
+    ident_calid_relay();
 }

@@ -35,24 +35,60 @@ TARGETS = {"joint_mean_deg": 1.0, "joint_max_deg": 2.0, "tip_max_mm": 10.0}
 PAPER_THRESHOLD_DEG = {"two-arm": 2.0, "three-arm": 4.0}
 
 
-def run_one(plant: str, seed: int, folder: Path) -> dict[str, Any]:
-    """The demo's plan on one board (`plant`: nominal or random, drawn with `seed`) -> its figures."""
+def calibrate_board(url: str, cal_id: int = 1) -> dict[str, Any]:
+    """`armbridge calibrate`'s work on the board at `url` (the pump's procedure, calibrate/pump.py):
+    measure, set what was found, CALID, and wait until the EEPROM holds it (the write-behind
+    programs a byte per main-loop pass). The board must keep its EEPROM past this run
+    (simavr_runner.EEPROM_DIR). -> the procedure's values and the BEND it set per joint."""
+    from armbridge.boards import config
+    from armbridge.calibrate.pump import calibrate
+    from armbridge.executor.session import open_session
+
+    with open_session(url, None) as client:
+        found = calibrate(client, config("arduino_pump"), frozenset())
+        for verb, args in found.settings:
+            client.command(verb, *args)
+        client.command("CALID", cal_id)
+        client.drain(1.5)
+        uid, held = client.command("IDENT").payload[:2]
+    bends = [list(a[1:]) for v, a in found.settings if v == "BEND"]
+    return {"uid": uid, "cal": int(held), "bends": bends, "found": found.values}
+
+
+def run_one(plant: str, seed: int, folder: Path, calibrated: bool = False) -> dict[str, Any]:
+    """The demo's plan on one board (`plant`: nominal or random, drawn with `seed`) -> its figures;
+    `calibrated`: the board calibrated first (calibrate_board), then the plan run on it."""
     from rich.console import Console
 
     from armbridge.demos import DemoOptions
     from armbridge.demos.soft import execute
+    from armbridge.emulator import simavr_runner
     from armbridge.errors import ArmbridgeError
 
     port = f"emu:arduino_pump?speed=0&plant={plant}&seed={seed}"
     quiet = Console(file=io.StringIO())
+    tag = "cal" if calibrated else "raw"
+    saved = simavr_runner.EEPROM_DIR
+    simavr_runner.EEPROM_DIR = folder / f"eeprom-{tag}-{plant}-{seed}"    # this board's EEPROM, for both runs
+    bends = None
     try:
-        done = execute(DemoOptions(port=port, rrd=folder / f"{plant}-{seed}.rrd", seed=0), quiet)
+        if calibrated:
+            cal = calibrate_board(port)
+            bends = cal["bends"]
+        rrd = folder / f"{tag}-{plant}-{seed}.rrd"
+        done = execute(DemoOptions(port=port, rrd=rrd, seed=0), quiet)
     except (ArmbridgeError, typer.Exit) as exc:  # a run that failed is reported, not hidden
-        return {"plant": plant, "seed": seed, "error": str(exc) or type(exc).__name__}
+        return {"plant": plant, "seed": seed, "calibrated": calibrated, "error": str(exc) or type(exc).__name__}
+    finally:
+        simavr_runner.EEPROM_DIR = saved
     assert done is not None
     r = done.report
-    truth = true_errors(r["poses"], plant, seed, done.planning.scene.checker())
-    return {"plant": plant, "seed": seed, "completed": bool(done.summary.completed), **truth,
+    truth = true_errors(r["poses"], plant, seed, done.planning.scene.checker(), bends)
+    if calibrated:
+        truth.update(found_vs_truth(cal["found"], plant, seed))
+    names = list(done.planning.plan.robot.joint_names)
+    return {"plant": plant, "seed": seed, "calibrated": calibrated, "completed": bool(done.summary.completed),
+            **truth, **chatter(rrd, names),
             "joint_mean_deg": r["settled_joint_error_deg"]["mean"], "joint_max_deg": r["settled_joint_error_deg"]["max"],
             "tip_mean_mm": 1000.0 * r["tip_error_m"]["mean"], "tip_max_mm": 1000.0 * r["tip_error_m"]["max"],
             "goal_mm": 1000.0 * r["goal_distance_m"], "goal_tol_mm": 1000.0 * r["goal_tol_m"],
@@ -60,15 +96,70 @@ def run_one(plant: str, seed: int, folder: Path) -> dict[str, Any]:
             "planned_s": r["planned_arrival_s"], "executed_s": r["executed_s"]}
 
 
-def true_errors(poses: list[dict[str, Any]], plant: str, seed: int, checker: Any) -> dict[str, float]:
+def found_vs_truth(found: dict[str, Any], plant: str, seed: int) -> dict[str, float]:
+    """What the calibration found against the drawn truth: the worst joint's error of the sensor
+    offset (mrad), of its gain and of the motor speed (relative)."""
+    from armbridge.boards import config
+    from armbridge.emulator.pump_plant import PumpTruth, hidden_truth, nominal_rig
+    from armbridge.emulator.truth import truth_rng
+
+    cfg = config("arduino_pump")
+    n = int(cfg.N_JOINTS)
+    t = hidden_truth(cfg, truth_rng(seed)) if plant == "random" else PumpTruth.nominal(nominal_rig(cfg), n)
+    joints = found["pump"]["joints"]
+    return {"cal_offset_err_mrad": max(abs(f["offset_mrad"] - t.offset_mrad[j]) for j, f in enumerate(joints)),
+            "cal_gain_err": max(abs(f["sensor_gain"] / t.gain[j] - 1.0) for j, f in enumerate(joints)),
+            "cal_motor_err": max(abs(f["motor_mm_s_push"] / t.v_motor[j] - 1.0) for j, f in enumerate(joints))}
+
+
+def chatter(rrd: Path, names: list[str] | None) -> dict[str, float]:
+    """From the recording's duties (joints/<joint>/effort, at the telemetry rate): how often a
+    pump switched on or off and how often it reversed, per second, the worst joint's."""
+    import pyarrow as pa  # type: ignore[import-untyped]
+    from rerun.chunk import RrdReader
+
+    series: dict[str, list[tuple[int, float]]] = {}
+    for chunk in RrdReader(Path(rrd)).stream():
+        path = chunk.entity_path.lstrip("/")
+        if chunk.is_static or not (path.startswith("joints/") and path.endswith("/effort")):
+            continue
+        rb = chunk.to_record_batch()
+        if "board_time" not in rb.schema.names:
+            continue
+        t = rb.column("board_time").cast(pa.int64()).to_pylist()
+        vals = rb.column("Scalars:scalars").to_pylist()
+        series.setdefault(path.split("/")[1], []).extend((ns, v[0]) for ns, v in zip(t, vals))
+    switches, reversals = [], []
+    for name, pts in series.items():
+        if names is not None and name not in names:
+            continue
+        pts.sort()
+        if len(pts) < 2:
+            continue
+        u = np.asarray([v for _t, v in pts], float)
+        dur = (pts[-1][0] - pts[0][0]) / 1e9
+        on = np.abs(u) > 1e-6
+        sign = np.sign(u[on])
+        switches.append(float(np.count_nonzero(on[1:] != on[:-1])) / dur)
+        reversals.append(float(np.count_nonzero(sign[1:] != sign[:-1])) / dur)
+    return {"switches_per_s": max(switches, default=0.0), "reversals_per_s": max(reversals, default=0.0)}
+
+
+def true_errors(poses: list[dict[str, Any]], plant: str, seed: int, checker: Any,
+                bends: list[list[int]] | None = None) -> dict[str, float]:
     """The settled poses' true joint error (deg) and true tip error (mm): the readings turned back
-    through the drawn sensor's offset and gain (identity on the nominal board)."""
+    through the drawn sensor's offset and gain (identity on the nominal board); `bends`: the BEND
+    the board read through (None: the firmware's default, which the plant's sensor is built on)."""
     from armbridge.boards import config
     from armbridge.emulator.pump_plant import hidden_truth
     from armbridge.emulator.truth import truth_rng
 
     read = np.asarray([p["settled"] for p in poses], float)
     target = np.asarray([p["target"] for p in poses], float)
+    if bends is not None:      # reading (rad) -> ADC count through the board's BEND -> the default's angle
+        for j, (b, d) in enumerate(zip(bends, config("arduino_pump").BEND_DEFAULT)):
+            adc = b[0] + (read[:, j] * 1000.0 - b[1]) * (b[2] - b[0]) / (b[3] - b[1])
+            read[:, j] = (d[1] + (adc - d[0]) * (d[3] - d[1]) / (d[2] - d[0])) / 1000.0
     true = read
     if plant == "random":
         t = hidden_truth(config("arduino_pump"), truth_rng(seed))
@@ -92,7 +183,11 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
     meets = [r["true_joint_mean_deg"] <= TARGETS["joint_mean_deg"] and r["true_joint_max_deg"] <= TARGETS["joint_max_deg"]
              and r["true_tip_max_mm"] <= TARGETS["tip_max_mm"] for r in ok]
-    return {"runs": len(runs), "completed": len(ok),
+    cal = {k: float(max(r[k] for r in ok)) for k in ("cal_offset_err_mrad", "cal_gain_err", "cal_motor_err")
+           if all(k in r for r in ok)}
+    return {"runs": len(runs), "completed": len(ok), **cal,
+            "switches_per_s_max": float(col("switches_per_s").max()),
+            "reversals_per_s_max": float(col("reversals_per_s").max()),
             "joint_mean_deg": float(col("joint_mean_deg").mean()), "joint_max_deg": float(col("joint_max_deg").max()),
             "tip_mean_mm": float(col("tip_mean_mm").mean()), "tip_max_mm": float(col("tip_max_mm").max()),
             "true_joint_mean_deg": float(col("true_joint_mean_deg").mean()),
@@ -103,21 +198,26 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
             "meet_targets": float(np.mean(meets))}
 
 
-def run(plants: int, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+def run(plants: int, progress: Callable[[str], None] = lambda s: None, calibrated: bool = True) -> dict[str, Any]:
     t0 = time.perf_counter()
     result: dict[str, Any] = {"benchmark": "soft-exec (issue 23 section 3: the soft demo on boards of hidden truth)",
                               "targets": TARGETS, "paper_threshold_deg": PAPER_THRESHOLD_DEG,
                               "machine": {"python": platform.python_version(),
                                           "cpu": platform.processor() or platform.machine()}}
+    modes = (False, True) if calibrated else (False,)
     with tempfile.TemporaryDirectory(prefix="armbridge-soft-exec-") as tmp:
-        nominal = run_one("nominal", 0, Path(tmp))
-        progress(_line(nominal))
-        random_runs = []
-        for k in range(plants):
-            random_runs.append(run_one("random", k, Path(tmp)))
-            progress(_line(random_runs[-1]))
-    result["nominal"] = {"runs": [nominal], "summary": summarize([nominal])}
-    result["random"] = {"runs": random_runs, "summary": summarize(random_runs)}
+        for cal in modes:
+            key = "calibrated" if cal else "uncalibrated"
+            nominal = run_one("nominal", 0, Path(tmp), cal)
+            progress(_line(nominal))
+            random_runs = []
+            for k in range(plants):
+                random_runs.append(run_one("random", k, Path(tmp), cal))
+                progress(_line(random_runs[-1]))
+            result[key] = {"nominal": {"runs": [nominal], "summary": summarize([nominal])},
+                           "random": {"runs": random_runs, "summary": summarize(random_runs)}}
+    result["nominal"] = result["uncalibrated"]["nominal"]     # the earlier layout's keys
+    result["random"] = result["uncalibrated"]["random"]
     result["wall_s"] = time.perf_counter() - t0
     return result
 
@@ -125,7 +225,9 @@ def run(plants: int, progress: Callable[[str], None] = lambda s: None) -> dict[s
 def _line(r: dict[str, Any]) -> str:
     if "error" in r:
         return f"{r['plant']} plant {r['seed']}: failed: {r['error']}"
-    return (f"{r['plant']} plant {r['seed']}: joint error mean / max {r['joint_mean_deg']:.2f} / "
+    return (f"{'calibrated' if r.get('calibrated') else 'uncalibrated'} {r['plant']} plant {r['seed']}: "
+            f"true joint error mean / max {r['true_joint_mean_deg']:.2f} / {r['true_joint_max_deg']:.2f} deg, "
+            f"switches {r['switches_per_s']:.2f}/s, reversals {r['reversals_per_s']:.2f}/s; read joint error mean / max {r['joint_mean_deg']:.2f} / "
             f"{r['joint_max_deg']:.2f} deg, tip max {r['tip_max_mm']:.1f} mm, goal {r['goal_mm']:.1f} mm "
             f"(tolerance {r['goal_tol_mm']:.1f})")
 
@@ -134,6 +236,8 @@ def soft_exec_cmd(
     plants: int = typer.Option(20, "--plants", min=0, help="Random plants (emu:arduino_pump?plant=random&seed="
                                                            "0..N-1) beside the nominal one."),
     json_out: Path = typer.Option(Path("runs/bench-soft-exec.json"), "--json", help="Where to write the results."),
+    calibrated: bool = typer.Option(True, "--calibrated/--uncalibrated-only",
+                                    help="Also calibrate each board (calibrate/pump.py, CALID) and run the plan on it."),
 ) -> None:
     """The soft demo's plan executed on the nominal pump board and on N boards of hidden truth: settled joint
     error and tip error (as the board reads them, and true), and the goal, against issue 23's targets (1 deg
@@ -142,23 +246,36 @@ def soft_exec_cmd(
     from rich.table import Table
 
     console = Console()
-    result = run(plants, progress=lambda text: console.print(f"[dim]bench soft-exec: {text}[/]"))
+    result = run(plants, progress=lambda text: console.print(f"[dim]bench soft-exec: {text}[/]"),
+                 calibrated=calibrated)
     write_json(result, json_out)
     t = Table(title="the soft demo's plan on the pump board (true figures from the run's recording)")
-    for c in ("plant", "runs", "joint error mean / max, read (deg)", "true (deg)", "tip error max, read (mm)",
-              "true (mm)", "goal max (mm)", "goal reached", "executed / planned (max)", "meet the targets (true)"):
-        t.add_column(c, justify="left" if c == "plant" else "right")
+    for c in ("board", "runs", "joint error mean / max, read (deg)", "true (deg)", "tip error max, read (mm)",
+              "true (mm)", "goal max (mm)", "goal reached", "switches / reversals per s (max)",
+              "executed / planned (max)", "meet the targets (true)"):
+        t.add_column(c, justify="left" if c == "board" else "right")
     t.add_row("target (issue 23)", "-", f"<= {TARGETS['joint_mean_deg']:g} / {TARGETS['joint_max_deg']:g}",
               f"<= {TARGETS['joint_mean_deg']:g} / {TARGETS['joint_max_deg']:g}", f"<= {TARGETS['tip_max_mm']:g}",
-              f"<= {TARGETS['tip_max_mm']:g}", "-", "-", "-", "-")
-    for key, label in (("nominal", "nominal"), ("random", f"{plants} random")):
-        s = result[key]["summary"]
-        if not s.get("completed"):
-            t.add_row(label, f"0/{s['runs']}", *["-"] * 8)
+              f"<= {TARGETS['tip_max_mm']:g}", "-", "-", "-", "-", "-")
+    for mode in ("uncalibrated", "calibrated"):
+        if mode not in result:
             continue
-        t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['joint_mean_deg']:.2f} / {s['joint_max_deg']:.2f}",
-                  f"{s['true_joint_mean_deg']:.2f} / {s['true_joint_max_deg']:.2f}", f"{s['tip_max_mm']:.1f}",
-                  f"{s['true_tip_max_mm']:.1f}", f"{s['goal_mm_max']:.1f}", f"{s['goal_reached']:.0%}",
-                  f"{s['time_ratio_max']:.3f}", f"{s['meet_targets']:.0%}")
+        for key, label in (("nominal", "nominal"), ("random", f"{plants} random")):
+            s = result[mode][key]["summary"]
+            label = f"{label}, {mode}"
+            if not s.get("completed"):
+                t.add_row(label, f"0/{s['runs']}", *["-"] * 9)
+                continue
+            t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['joint_mean_deg']:.2f} / {s['joint_max_deg']:.2f}",
+                      f"{s['true_joint_mean_deg']:.2f} / {s['true_joint_max_deg']:.2f}", f"{s['tip_max_mm']:.1f}",
+                      f"{s['true_tip_max_mm']:.1f}", f"{s['goal_mm_max']:.1f}", f"{s['goal_reached']:.0%}",
+                      f"{s['switches_per_s_max']:.2f} / {s['reversals_per_s_max']:.2f}",
+                      f"{s['time_ratio_max']:.3f}", f"{s['meet_targets']:.0%}")
     console.print(t)
+    for key in ("nominal", "random"):
+        s = result.get("calibrated", {}).get(key, {}).get("summary", {})
+        if "cal_offset_err_mrad" in s:
+            console.print(f"calibration against the truth ({key}, worst joint of {s['completed']} boards): sensor offset "
+                          f"{s['cal_offset_err_mrad']:.2f} mrad, sensor gain {100 * s['cal_gain_err']:.2f} %, "
+                          f"motor speed {100 * s['cal_motor_err']:.2f} %")
     console.print(f"wrote {json_out}")

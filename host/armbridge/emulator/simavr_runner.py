@@ -120,6 +120,31 @@ def firmware_elf(folder: Path, elf: str) -> Path:
     return target
 
 
+#: When set, each emulated AVR board keeps its EEPROM in EEPROM_DIR/<uid>.eeprom across emulator
+#: runs (a physical board keeps its EEPROM across power cycles): the calibration bench calibrates a
+#: board in one run and executes the plan on it in the next. None (default): a temporary file.
+EEPROM_DIR: Path | None = None
+
+
+def fresh_eeprom(hal: Any, size: int = 4096) -> bytes | None:
+    """The EEPROM of a board that has never run: erased (0xFF), but for the serial the
+    firmware reports as IDENT's uid (config.h EE_SERIAL): one per physical board the
+    emulator stands for, the HAL's `uid_hex` (a drawn plant's seed makes another board,
+    the nominal board is always the same), as a factory would have written it. None
+    when the firmware keeps no serial (then its EEPROM starts all erased)."""
+    cfg = getattr(getattr(hal, "plant", None), "cfg", None)
+    addr = getattr(cfg, "EE_SERIAL", None)
+    uid = getattr(hal, "uid_hex", None)
+    if addr is None or not uid:
+        return None
+    serial = int(uid, 16) & 0xFFFFFFFF
+    if serial in (0, 0xFFFFFFFF):          # the firmware's "erased": it would make its own
+        serial ^= 0x5EED0001
+    data = bytearray(b"\xff" * size)
+    data[int(addr):int(addr) + 4] = serial.to_bytes(4, "little")
+    return bytes(data)
+
+
 class Harness(LineProcess):
     """One harness child process (the lockstep line protocol of harness.c)."""
 
@@ -198,12 +223,22 @@ class SimavrRunner:
     def _eeprom_path(self, hal: Any) -> Path:
         if self.eeprom_file is not None:
             return self.eeprom_file
+        if EEPROM_DIR is not None and getattr(hal, "uid_hex", None):   # the board's EEPROM across emulator runs
+            path = Path(EEPROM_DIR) / f"{hal.uid_hex}.eeprom"
+            if not path.exists():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_bytes(fresh_eeprom(hal) or b"\xff" * 4096)
+            return path
         if "tmp" not in self._state:
             self._state["tmp"] = tempfile.TemporaryDirectory(prefix="armbridge-eeprom-")
         path = Path(self._state["tmp"].name) / "eeprom.bin"
         data = hal.load_persist()
         if data:
             path.write_bytes(bytes(data))
+        else:
+            fresh = fresh_eeprom(hal)
+            if fresh is not None:
+                path.write_bytes(fresh)
         return path
 
     def stopped(self) -> None:

@@ -69,13 +69,24 @@ def render_c_header() -> str:
     out += ["", "/* Error codes and their names (AB_ERROR_NAMES[code]). */"]
     out += [f"#define AB_ERR_{name} {code}" for name, code in _errors()]
     out += [f"#define AB_N_ERRORS {max(D.ERROR_NAMES) + 1}", ""]
-    out += ["/* Argument kinds: a plain integer in [lo, hi]; a joint index 1..n; n joint",
+    name_len = max(len(n) for specs in D.COMMANDS.values() for n, _, _ in specs) + 1
+    verb_len = max(len(v) for v in D.COMMANDS) + 1
+    err_len = max(len(n) for n in D.ERROR_NAMES.values()) + 1
+    out += ["/* The tables live in flash on AVR (PROGMEM: read them with AB_MEMCPY_P into RAM;",
+            "   strings are arrays inside the rows, so one copy brings a row's text along);",
+            "   elsewhere AB_PROGMEM is empty and AB_MEMCPY_P is memcpy. */",
+            "#ifdef __AVR__", "#include <avr/pgmspace.h>", "#define AB_PROGMEM PROGMEM",
+            "#define AB_MEMCPY_P memcpy_P", "#else", "#include <string.h>", "#define AB_PROGMEM",
+            "#define AB_MEMCPY_P memcpy", "#endif", "",
+            "/* Argument kinds: a plain integer in [lo, hi]; a joint index 1..n; n joint",
             "   values, each in [lo, hi] (always the last argument). */",
             "#define AB_ARG_INT 0", "#define AB_ARG_JOINT 1", "#define AB_ARG_Q 2", "",
-            "typedef struct { const char *name; uint8_t kind; int32_t lo; int32_t hi; } ab_arg_spec;",
+            f"#define AB_ARG_NAME_LEN {name_len}", f"#define AB_VERB_LEN {verb_len}",
+            f"#define AB_ERROR_NAME_LEN {err_len}",
+            "typedef struct { char name[AB_ARG_NAME_LEN]; uint8_t kind; int32_t lo; int32_t hi; } ab_arg_spec;",
             "/* min_arg/max_arg: indices of a cross-argument rule value[min] <= value[max], -1 if none. */",
             "typedef struct {",
-            "    const char *verb; const ab_arg_spec *args; uint8_t n_args; uint8_t read_only;",
+            "    char verb[AB_VERB_LEN]; const ab_arg_spec *args; uint8_t n_args; uint8_t read_only;",
             "    int8_t min_arg; int8_t max_arg;", "} ab_command;", ""]
     rows: list[str] = []
     for verb, specs in D.COMMANDS.items():
@@ -83,7 +94,7 @@ def render_c_header() -> str:
         if specs:
             items = ", ".join(f'{{"{n}", {ARG_KINDS.get(n, "AB_ARG_INT")}, {_c_int(lo)}, {_c_int(hi)}}}'
                               for n, lo, hi in specs)
-            out.append(f"static const ab_arg_spec AB_ARGS_{verb}[] = {{{items}}};")
+            out.append(f"static const ab_arg_spec AB_ARGS_{verb}[] AB_PROGMEM = {{{items}}};")
             args = f"AB_ARGS_{verb}"
         else:
             args = "0"
@@ -94,9 +105,9 @@ def render_c_header() -> str:
         lo_i, hi_i = (names.index(rules[0][0]), names.index(rules[0][1])) if rules else (-1, -1)
         rows.append(f'    {{"{verb}", {args}, {len(specs)}, {int(verb in D.READ_ONLY)}, {lo_i}, {hi_i}}},')
     out += [f"#define AB_N_COMMANDS {len(rows)}",
-            "static const ab_command AB_COMMANDS[AB_N_COMMANDS] = {", *rows, "};", ""]
+            "static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {", *rows, "};", ""]
     errors = ", ".join(['""'] + [f'"{name}"' for name, _ in _errors()])
-    out += [f"static const char *const AB_ERROR_NAMES[AB_N_ERRORS] = {{{errors}}};", "",
+    out += [f"static const char AB_ERROR_NAMES[AB_N_ERRORS][AB_ERROR_NAME_LEN] AB_PROGMEM = {{{errors}}};", "",
             "#endif", ""]
     return "\n".join(out)
 
