@@ -396,3 +396,37 @@ def test_driver_and_servo_bank_write_the_same_bytes_under_micropython():
     assert got["prescale"] == want["prescale"] == 121 and got["waits"] == want["waits"] == [500]
     assert len(want["log"]) > 60
     assert got["log"] == want["log"]
+
+
+def test_the_rig_runs_at_the_configs_pwm_frequency(tmp_path):
+    """SERVO_FREQ_HZ (docs/drawing.md "Calibration"): at 200 Hz the chip's prescale, frame and
+    count (1.22 us) follow, the servos see the pulses every 5 ms frame, and a joint settles
+    within half the finer count plus its dead band."""
+    import shutil
+
+    root = tmp_path / "fw"
+    shutil.copytree(firmware_dir(), root)
+    cfg = root / "esp32" / "config.py"
+    text = cfg.read_text()
+    assert "\nSERVO_FREQ_HZ = 50\n" in text
+    cfg.write_text(text.replace("\nSERVO_FREQ_HZ = 50\n", "\nSERVO_FREQ_HZ = 200\n"))
+    e = EmulatedBoard(rig_spec(board_spec("esp32"), "pca9685"), speed=0, firmware_root=root)
+    try:
+        assert e.cfg.SERVO_FREQ_HZ == 200
+        assert e.hal.pca.prescale == 30 and e.hal.pca.period_s == pytest.approx(31 * 4096 / 25e6)
+        assert e.hal.pca.next_frame(e.now() + 1e-4) - e.now() <= e.hal.pca.period_s + 1e-9
+        h = Lockstep(e)
+        h.hello(13)
+        target = (1900, -1300, 400)
+        assert h.request("W", 1, 400, *target)[1] == "OK"
+        h.wait("EV", done_ev(1))
+        e.run_for(0.5)
+        tol = _tolerance(e)
+        assert tol.max() < 0.009                     # 0.61 us + 3 us against 2.44 + 3 at 50 Hz
+        assert np.all(np.abs(e.positions() - np.array(target) / 1000) <= tol)
+        count_us = e.hal.pca.period_s * 1e6 / 4096
+        for ch, j in zip(e.cfg.SERVO_CHANNELS, range(3)):
+            want = e.hal.servos.servos[j].pulse(target[j] / 1000)
+            assert abs(e.hal.pca.pulse_us(ch) - want) <= count_us / 2 + 1e-9
+    finally:
+        e.stop()

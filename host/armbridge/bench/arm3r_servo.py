@@ -22,6 +22,11 @@ servo really touched the paper against the drawing's strokes, and back
 pots, which a pot offset fools). Joint tracking error: the true joint angle
 against the set point the board was following (the plan's angle), while the
 arm moved.
+
+Options: `--rigs`, `--text`, `--rule` (the gains step's tuning rule, or
+"shipped": no gains step), and for the pca9685 rig `--servo-hz` and
+`--servo-lead-ms` (its boards then run a copy of the firmware whose config
+sets SERVO_FREQ_HZ / SERVO_LEAD_MS: firmware_at).
 """
 from __future__ import annotations
 
@@ -52,16 +57,24 @@ def drawing_plan(text: str = TEXT, speed: float = SPEED):
 
 
 @contextlib.contextmanager
-def traced_emulators(every_s: float = 0.01) -> Iterator[list[dict[str, Any]]]:
+def traced_emulators(every_s: float = 0.01, firmware_root: Path | None = None) -> Iterator[list[dict[str, Any]]]:
     """Every emu: port opened inside gets a tap: its `trace` (t, true q, set point rad) every
-    `every_s` of board time; yields the list of {"emu", "trace"} (one per board opened)."""
+    `every_s` of board time; yields the list of {"emu", "trace"} (one per board opened).
+    `firmware_root`: the boards run the firmware from there (lockstep ports only)."""
     import armbridge.emulator.url as url_mod
 
     seen: list[dict[str, Any]] = []
     orig = url_mod.open_emu_port
 
+    def open_at(url: str, baud: int = 115200, timeout: float | None = 0.1):
+        from armbridge.emulator.board import EmulatedBoard
+        from armbridge.emulator.lockstep import lockstep_port
+
+        device, kw = url_mod.parse_emu_url(url)
+        return lockstep_port(EmulatedBoard(device, firmware_root=firmware_root, **kw), url, timeout, baud)
+
     def opener(url: str, *a: Any, **kw: Any):
-        port = orig(url, *a, **kw)
+        port = (open_at if firmware_root is not None else orig)(url, *a, **kw)
         emu = port.emulator
         rec: dict[str, Any] = {"emu": emu, "trace": []}
         seen.append(rec)
@@ -105,6 +118,27 @@ def judge(plan: Any, rec: dict[str, Any]) -> dict[str, float]:
             "track_max_mrad": float(err.max()) if err.size else float("nan")}
 
 
+def firmware_at(overrides: dict[str, int], folder: Path) -> Path:
+    """A copy of the firmware whose esp32 config sets each NAME = value of `overrides`
+    (SERVO_FREQ_HZ, SERVO_LEAD_MS: lines the config has)."""
+    import shutil
+
+    from armbridge.resources import firmware_dir
+
+    root = folder / ("firmware-" + "-".join(f"{k}{v}" for k, v in sorted(overrides.items())))
+    if not root.exists():
+        shutil.copytree(firmware_dir(), root)
+        cfg = root / "esp32" / "config.py"
+        lines = cfg.read_text().splitlines()
+        for name, value in overrides.items():
+            at = [i for i, ln in enumerate(lines) if ln.startswith(f"{name} = ")]
+            if len(at) != 1:
+                raise RuntimeError(f"the esp32 config has no single {name} line")
+            lines[at[0]] = f"{name} = {int(value)}"
+        cfg.write_text("\n".join(lines) + "\n")
+    return root
+
+
 def calibrate_board(url: str, rule: str | None = None) -> dict[str, Any]:
     """calibrate/arm3r.py's procedure on the board at `url` with the emulated jig; its settings
     sent, then CALID 1 (saved in the board's filesystem) -> what it found. `rule`: the gains
@@ -124,18 +158,21 @@ def calibrate_board(url: str, rule: str | None = None) -> dict[str, Any]:
     return found.values
 
 
-def run_one(rig: str, seed: int, plan: Any, folder: Path, rule: str | None = None) -> dict[str, Any]:
+def run_one(rig: str, seed: int, plan: Any, folder: Path, rule: str | None = None,
+            config: dict[str, int] | None = None) -> dict[str, Any]:
     from armbridge.executor.run import RunFailed, run_plan
 
     base = f"emu:esp32?speed=0&servos={rig}&plant=random&seed={seed}"
     out: dict[str, Any] = {"rig": rig, "seed": seed}
     fs = folder / f"fs-{rig}-{seed}"
     fs.mkdir(parents=True, exist_ok=True)
+    root = firmware_at(config, folder) if config else None
     for label in ("uncalibrated", "calibrated"):
         try:
             if label == "calibrated":
-                out["found"] = calibrate_board(f"{base}&fs={fs}", rule)
-            with traced_emulators() as seen:
+                with traced_emulators(firmware_root=root):
+                    out["found"] = calibrate_board(f"{base}&fs={fs}", rule)
+            with traced_emulators(firmware_root=root) as seen:
                 s = run_plan(plan, f"{base}&fs={fs}", folder / f"{rig}-{seed}-{label}.rrd", progress=False)
             out[label] = {"completed": bool(s.completed), **judge(plan, seen[-1])}
         except (RunFailed, RuntimeError) as exc:
@@ -158,20 +195,21 @@ def summarize(runs: list[dict[str, Any]], label: str) -> dict[str, Any]:
             "meet_target": float(np.mean(col("stroke_mean_mm") <= TARGET_MM))}
 
 
-def run(plants: int, rigs=RIGS, text: str = TEXT, rule: str | None = None,
+def run(plants: int, rigs=RIGS, text: str = TEXT, rule: str | None = None, config: dict[str, int] | None = None,
         progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    """`config`: esp32 config values the pca9685 rig's boards run with (firmware_at)."""
     t0 = time.perf_counter()
     plan = drawing_plan(text)
     result: dict[str, Any] = {
         "benchmark": "arm3r-servo (issue 23 section 2: calibration of the drawing arm on boards of hidden truth)",
         "drawing": {"text": text, "speed_m_s": SPEED, "waypoints": plan.k, "planned_s": plan.total_duration},
-        "target_stroke_mm": TARGET_MM, "rule": rule or "default",
+        "target_stroke_mm": TARGET_MM, "rule": rule or "default", "pca9685_config": config or "as shipped",
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()}}
     with tempfile.TemporaryDirectory(prefix="armbridge-arm3r-servo-") as tmp:
         for rig in rigs:
             runs = []
             for k in range(plants):
-                runs.append(run_one(rig, k, plan, Path(tmp), rule))
+                runs.append(run_one(rig, k, plan, Path(tmp), rule, config if rig == "pca9685" else None))
                 progress(_line(runs[-1]))
             result[rig] = {"runs": runs, "uncalibrated": summarize(runs, "uncalibrated"),
                            "calibrated": summarize(runs, "calibrated")}
@@ -195,6 +233,11 @@ def arm3r_servo_cmd(
     plants: int = typer.Option(20, "--plants", min=1, help="Random boards per rig (plant=random&seed=0..N-1)."),
     json_out: Path = typer.Option(Path("runs/bench-arm3r-servo.json"), "--json", help="Where to write the results."),
     text: str = typer.Option(TEXT, "--text", help="The text drawn (Hershey, through the draw pipeline)."),
+    servo_hz: int = typer.Option(None, "--servo-hz", min=24, max=1526,
+                                 help="The pca9685 rig's PWM frequency (default: the config's SERVO_FREQ_HZ)."),
+    servo_lead_ms: int = typer.Option(None, "--servo-lead-ms", min=0, max=200,
+                                      help="The pca9685 rig's SERVO_LEAD_MS (default: the config's)."),
+    rigs: str = typer.Option(",".join(RIGS), "--rigs", help="Comma-separated rigs to run."),
     rule: str = typer.Option(None, "--rule", help="The tuning rule of the gains step (calibrate/tuning.py RULES; "
                                                        "'shipped': no gains step, the config's gains)."),
 ) -> None:
@@ -205,13 +248,19 @@ def arm3r_servo_cmd(
     from rich.table import Table
 
     console = Console()
-    result = run(plants, text=text, rule=rule, progress=lambda s: console.print(f"[dim]bench arm3r-servo: {s}[/]"))
+    chosen = tuple(r.strip() for r in rigs.split(",") if r.strip())
+    bad = [r for r in chosen if r not in RIGS]
+    if bad or not chosen:
+        raise typer.BadParameter(f"rigs: {', '.join(RIGS)}", param_hint="--rigs")
+    config = {k: v for k, v in (("SERVO_FREQ_HZ", servo_hz), ("SERVO_LEAD_MS", servo_lead_ms)) if v is not None}
+    result = run(plants, rigs=chosen, text=text, rule=rule, config=config,
+                 progress=lambda s: console.print(f"[dim]bench arm3r-servo: {s}[/]"))
     write_json(result, json_out)
     t = Table(title=f"'{text}' on {plants} drawn boards per rig (true figures)")
     for c in ("rig", "", "runs", "stroke mean (mm)", "stroke max, median / worst (mm)", "tracking mean / max (mrad)",
               f"stroke mean <= {TARGET_MM:g} mm"):
         t.add_column(c, justify="left" if c in ("rig", "") else "right")
-    for rig in RIGS:
+    for rig in chosen:
         for label in ("uncalibrated", "calibrated"):
             s = result[rig][label]
             if not s.get("completed"):

@@ -56,7 +56,7 @@ def probe_rig(client: Any, cfg: Any) -> str:
     rig, whose servos close their own loops, has no RELAY (VERB)."""
     from armbridge.link import protocol as P
 
-    here = readings(client, 0.1)
+    here = readings(client, 0.1, "target")     # where it holds: the waypoint moves nothing
     arm = Jogger(client, here)
     wid = arm.next_id()
     client.command("W", wid, 1000, *P.to_milli(here))
@@ -171,13 +171,13 @@ def pwm_pulse(cfg: Any, j: int, q: float) -> float:
     return c * per
 
 
-def readings(client: Any, seconds: float = 0.4) -> np.ndarray:
-    """The mean of the telemetry's measured joints over `seconds` (rad)."""
+def readings(client: Any, seconds: float = 0.4, field: str = "q") -> np.ndarray:
+    """The mean of the telemetry's measured joints (`field` "q"; "target": the set point) over `seconds` (rad)."""
     got: list[np.ndarray] = []
     prev = client.on_telemetry
 
     def on_tel(t, m):
-        got.append(np.asarray(m.q, float))
+        got.append(np.asarray(getattr(m, field), float))
         if prev is not None:
             prev(t, m)
     client.on_telemetry = on_tel
@@ -206,7 +206,7 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
         client.command(verb, *args)
     if rig == "effort":
         client.set_rate(50)
-    start = readings(client, 0.1) if rig == "effort" else ik(marks[0])
+    start = readings(client, 0.1, "target")
     arm = Jogger(client, start)
     qs, rs, used = [], [], []
     for m in marks:

@@ -122,8 +122,6 @@ class Jogger:
         self.approach = approach
         self.setpoint = np.asarray(start, float).copy()
         self._wid = self.WID
-        lim = getattr(client, "info", None)
-        self.limits = getattr(lim, "limits", None)
 
     def next_id(self) -> int:
         self._wid = self.WID + (self._wid - self.WID + 1) % 5000
