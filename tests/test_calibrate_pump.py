@@ -63,7 +63,7 @@ def test_calibration_finds_the_truth_and_the_calibrated_board_holds_its_poses(se
         uid0, cal0 = client.command("IDENT").payload[:2]
         assert cal0 == "0" and len(uid0) == 8
         found = calibrate(client, cfg, frozenset())
-        assert set(STEPS) == {"zero", "span", "curve", "gains"}
+        assert set(STEPS) == {"bend", "gains"}
         joints = found.values["pump"]["joints"]
         for j, f in enumerate(joints):
             assert abs(f["offset_mrad"] - truth.offset_mrad[j]) <= TOL_OFFSET_MRAD, (j, f, truth.offset_mrad)

@@ -1,23 +1,27 @@
 """The syringe-pump board's calibration (`armbridge calibrate arduino_pump`): from its own sensors only.
 
+Steps: `bend` (the sensor's zero and span: BEND; the curve is measured and reported with
+it) and `gains` (GAIN, DBAND). Both need the same three strokes, so every run measures
+everything and returns the settings of the steps asked for.
+
 What the board can tell about itself, per joint (all joints at once: the channels are
 independent), with the RELAY verb as an open-loop drive (a relay whose hysteresis the
 reading cannot cross pushes at a known duty, +-RELAY_AMP per-mille, until the end stop;
 the end stops still stop the pump; docs/pump.md "Calibration"):
 
-* `zero`: the bend sensor's straight reading. Physics gives the reference: a joint whose
+* zero (`bend`): the bend sensor's straight reading. Physics gives the reference: a joint whose
   syringe is pulled back to its retracted stop is vented (the air at atmospheric
   pressure, below the pressure at which the open joint comes straight) and rests
   straight. The mean ADC count there is angle 0 (done twice, before and after the
   strokes; their mean).
-* `span`: the sensor's gain. The second reference is the joint's mechanical full bend:
+* span (`bend`): the sensor's gain. The second reference is the joint's mechanical full bend:
   pushed to the extended stop the joint is far past the pressure of its full bend and
   rests at its range (the joint limit); the mean ADC count there is the range. The
   two give BEND j adc_a a adc_b b (extrapolated to counts 0 and 1023, so the integer
   arguments lose at most half a mrad). A rig whose joints do not reach a mechanical
   stop at their range needs a jig for this point (docs/pump.md, "The jig step";
   `jig_point`).
-* `curve`: the motor's speed (the stroke's time between the end stops) and the bend per
+* curve (reported with `bend`): the motor's speed (the stroke's time between the end stops) and the bend per
   volume while inflating and deflating: where the closed joint snaps open (the pushed
   volume, mL), the bend it snaps to, the slope of the open branch (mrad per mL) each
   way, and where the deflating joint comes straight. The asymmetry is the difference
@@ -42,7 +46,7 @@ import numpy as np
 from armbridge.calibrate.base import Found
 from armbridge.errors import ArmbridgeError
 
-STEPS = ("zero", "span", "curve", "gains")
+STEPS = ("bend", "gains")
 
 RELAY_AMP = 1000         # per-mille: the strokes' duty (full: the dead duty does not matter)
 SHIFT_MRAD = 3000        # BEND shift while pushing: the relay's switch is never reached
@@ -308,12 +312,12 @@ def calibrate(client: Any, cfg: Any, only: frozenset[str] = frozenset()) -> Foun
                  "motor_mm_s_push": v_push, "motor_mm_s_pull": v_pull, **curve,
                  "open_rate_mrad_s": rate, "kp": kp, "dband_mrad": dband, "bend": list(new_bend)}
         values["joints"].append(joint)
-        if "zero" in steps or "span" in steps:
+        if "bend" in steps:
             found.settings.append(("BEND", (j + 1, *new_bend)))
             found.lines.append(f"joint {j + 1}: straight at {adc0:.1f} counts (sensor offset {offset:+.1f} mrad), "
                                f"full bend {ranges[j]:.0f} mrad at {adc_full:.1f} (gain {gain:.3f}); "
                                f"BEND {j + 1} {' '.join(map(str, new_bend))}")
-        if "curve" in steps:
+        if "bend" in steps:
             found.lines.append(
                 f"joint {j + 1}: motor {v_push or nan:.1f} / {v_pull or nan:.1f} mm/s at full duty (push / pull); "
                 f"opens at {curve.get('open_mm', nan):.1f} mm of plunger to {curve.get('snap_mrad', nan):.0f} mrad, "
