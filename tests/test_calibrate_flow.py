@@ -161,3 +161,34 @@ def test_the_board_refuses_a_foreign_calibration_file_and_keeps_running(tmp_path
         with open_session(url(fs, f"&interpreter={interpreter}"), None) as c:
             assert c.command("IDENT").payload == (uid, "0")
             assert c.command("PING")
+
+
+def test_the_pump_boards_eeprom_is_kept_in_fs_dir(tmp_path):
+    """emu:arduino_pump?fs=DIR keeps the chip's EEPROM in DIR/<chip id>.eeprom, as the Mega keeps it
+    across power cycles: a CALID survives a new emulator, and another drawn board has its own."""
+    fs = tmp_path / "ee"
+    pump = f"emu:arduino_pump?speed=0&plant=random&seed=5&fs={fs}"
+    with open_session(pump, None) as c:
+        uid, held = c.command("IDENT").payload
+        assert held == "0"
+        c.command("CALID", 31337)
+        c.drain(base.PERSIST_S)
+    assert (fs / f"{uid}.eeprom").is_file()
+    with open_session(pump, None) as c:
+        assert c.command("IDENT").payload == (uid, "31337")
+    with open_session(pump.replace("seed=5", "seed=6"), None) as c:
+        other, held = c.command("IDENT").payload
+        assert other != uid and held == "0"
+
+
+def test_the_help_names_every_boards_steps():
+    """`calibrate --help` lists the steps without importing the procedures (start-up stays fast):
+    the list must be each procedure's STEPS."""
+    import importlib
+
+    from armbridge.calibrate import command
+
+    doc = command.calibrate_cmd.__doc__
+    for board, module in base.PROCEDURES.items():
+        steps = importlib.import_module(module).STEPS
+        assert f"{board}: {', '.join(steps)}" in " ".join(doc.split()), (board, steps)

@@ -24,6 +24,9 @@ from typing import Any, Callable
 from armbridge.errors import ArmbridgeError
 from armbridge.link.protodef import COMMANDS
 
+#: s of board time the flow waits after CALID before it closes the port (an EEPROM written behind)
+PERSIST_S = 1.0
+
 #: board name -> the module of its procedure (imported when used: each pulls numpy/scipy pieces)
 PROCEDURES = {
     "esp32": "armbridge.calibrate.arm3r",
@@ -136,6 +139,9 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
         back = calcheck.ident(client)
         if back != (uid, cid):
             raise ArmbridgeError(f"the board did not keep the calibration: IDENT says {back}, expected ({uid}, {cid})")
+        # The pump board programs its EEPROM behind its main loop (3.4 ms a byte, about 0.5 s for the
+        # record), and a Mega resets when its port is opened again: give it the time before closing.
+        client.drain(PERSIST_S)
         version = info.version
     values = {**(previous.found if previous is not None else {}), **found.values}
     cal = calfile.CalFile(board=board, uid=uid, id=cid, fw=fw, fwver=version, settings=tuple(settings),

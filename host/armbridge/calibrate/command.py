@@ -31,7 +31,7 @@ def calibrate_cmd(
     """Measure a board from its own sensors, set and persist what was found (on the board, CALID,
     and in a host file that later runs check the board against). docs/calibration.md.
 
-    Steps: esp32: gains, servo (jig); masr_ma: magnets, wheel, gains; arduino_pump: bend, gains.
+    Steps: esp32: gains, jig; masr_ma: magnets, wheel, gains; arduino_pump: bend, gains.
 
     Exit codes: 0 calibrated, 1 the board failed or refused, 2 bad input."""
     console = Console(stderr=json_out == "-")

@@ -200,6 +200,7 @@ class SimavrRunner:
         self._state: dict[str, Any] = {}
         self._finalizer = weakref.finalize(self, _stop, self._state)
         self.eeprom_file = Path(eeprom_file) if eeprom_file is not None else None
+        self.eeprom_dir: Path | None = None   # emu:arduino_pump?fs=DIR: the board's EEPROM kept in DIR
         self.stats: dict[str, Any] = {"min_sp": None, "lost": 0, "probes": {n: [] for n in self.probes}}
         self.harness: Harness | None = None
 
@@ -223,8 +224,9 @@ class SimavrRunner:
     def _eeprom_path(self, hal: Any) -> Path:
         if self.eeprom_file is not None:
             return self.eeprom_file
-        if EEPROM_DIR is not None and getattr(hal, "uid_hex", None):   # the board's EEPROM across emulator runs
-            path = Path(EEPROM_DIR) / f"{hal.uid_hex}.eeprom"
+        folder = self.eeprom_dir if self.eeprom_dir is not None else EEPROM_DIR
+        if folder is not None and getattr(hal, "uid_hex", None):   # the board's EEPROM across emulator runs
+            path = Path(folder) / f"{hal.uid_hex}.eeprom"
             if not path.exists():
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(fresh_eeprom(hal) or b"\xff" * 4096)

@@ -141,6 +141,8 @@ class SimBoard:
             self.fs = BoardFs.for_board([root / d for d in spec.firmware.dirs], self.hal.files, fs_dir)
             self.console = Console(self.fs, self.uart.bytes_per_s, self._interrupt, self._repl_reset)
             self.hal.on_file = self.fs.put
+        elif fs_dir is not None and hasattr(self.runner, "eeprom_dir"):   # a C board: its EEPROM, per chip id
+            self.runner.eeprom_dir = Path(fs_dir)
 
         # (board_ms, id, (q1..qn) in milli-units as the W line carried them) of every
         # completed waypoint (the firmware's on_done hook), across resets.

@@ -21,8 +21,11 @@ Parameters (all optional):
   missed=J[,J]     masr_ma: joint J's magnet never fires
   slip=S:D:F[,..]  masr_ma: from sim second S for D seconds the wheel slips by F
   link=PATH        a symlink to the pty (owned while the port is open)
-  fs=DIR           a MicroPython board's filesystem kept in the host folder DIR
-                   (seeded when empty; what a flash wrote there boots next time)
+  fs=DIR           the board's non-volatile memory kept in the host folder DIR, as a
+                   chip keeps it across power cycles: a MicroPython board's filesystem
+                   (seeded when empty; what a flash wrote there boots next time, and
+                   its calibration, cal.txt); the pump board's EEPROM
+                   (DIR/<chip id>.eeprom: its calibration, latches, Modbus address)
 
 `parse_emu_url` turns the text into EmulatedBoard arguments (the device is its
 name, or the rig's BoardSpec when servos= picks another rig; every bad part is
