@@ -195,8 +195,9 @@ def test_relay_on_the_speed_loop_and_a_joint_reports_a_cycle_and_returns():
         for j, r in relay.items():
             assert r["period_ms"] > 0 and "ku" in r, (j, r)
         assert found.settings == []                                          # reported, the shipped gains kept
-        th = b.emu.plant.theta
-        assert max(abs(x) for x in th) <= 0.02                               # every joint back near 0
+        pl = b.emu.plant
+        assert max(abs(x) for x in pl.theta) <= 0.02                         # every joint back near 0
+        assert abs(pl.d * 1000.0 - 700.0) < 5.0                              # on joint 5's magnet (the last ROT)
         assert b.client.stat()[0] == "IDLE"
     finally:
         b.close()
@@ -209,5 +210,27 @@ def test_the_procedure_refuses_a_narrowed_range():
         b.client.command("SETLIM", 6, 0, 500, 100)
         with pytest.raises(ArmbridgeError, match="range"):
             masr.calibrate(b.client, b.emu.cfg, frozenset({"magnets"}))
+    finally:
+        b.close()
+
+
+def test_relay_on_the_speed_loop_brings_the_ma_back_and_is_refused_while_moving():
+    b = Board(2)
+    try:
+        b.run(("HOME",), ("MV", 100))
+        with masr._Actions(b.client) as act:
+            period, amp = act.relay(6, 200, 3, 6)
+            assert period > 0 and amp > 3
+            b.client.command("MV", 7, 300)
+            b.client.drain(0.3)
+            ans = b.client.ask("RELAY", 6, 200, 3, 6)                        # moving: refused, the move goes on
+            assert ans.name == "RANGE"
+            b.client.drain(10.0, until=lambda: 7 in act.done)
+        board, pl = b.emu.board, b.emu.plant
+        assert abs(board.loc.d() - 300) <= 0.5 and abs(pl.d * 1000.0 - 300) < 3.0
+        assert b.client.stat()[0] == "IDLE"
+        b.client.command("RELAY", 6, 200, 3, 4)
+        b.client.drain(5.0, until=lambda: board.act is None)
+        assert board.act is None and abs(board.loc.d() - 300) <= board.cfg.STOP_TOL_MM       # back where it was
     finally:
         b.close()

@@ -179,6 +179,7 @@ def relay_step(b, act) -> None:
     if j == b.n:
         act[1] = GO_BACK
         act[2] = [sp]
+        act[5] = 0                    # ma_act._mv's "landed" flag
         b.loco.reset(b.loc.d())
     else:
         act[1] = TURN_BACK
