@@ -6,6 +6,8 @@ docs/masr.md, "Calibration".
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient
 from armbridge.link.transport import open_port
 
-SEEDS = range(8)
+SEEDS = range(12)
 CAL = {"rounds": 1, "speed": 40}   # the procedure at one round (its default is two): the tests' time
 # Tolerances (the truth against what was found). The centres rest on the wheel's scale, which
 # rests on the magnets' known spacing, i.e. on magnets glued within +-1 mm of r_j (SPREADS): the
@@ -234,3 +236,14 @@ def test_relay_on_the_speed_loop_brings_the_ma_back_and_is_refused_while_moving(
         assert board.act is None and abs(board.loc.d() - 300) <= board.cfg.STOP_TOL_MM       # back where it was
     finally:
         b.close()
+
+
+def test_the_shared_flow_calibrates_the_ma_and_writes_the_host_file(tmp_path):
+    """calibrate/base.py's calibrate_board with this procedure (its defaults): the settings sent,
+    CALID, the host file; --only magnets keeps the wheel out."""
+    from armbridge.calibrate.base import calibrate_board
+
+    rep = calibrate_board("emu:masr_ma?speed=0&plant=random&seed=5", "masr_ma", only=["magnets"], cal_dir=tmp_path)
+    assert [v for v, _ in rep.settings] == ["MAG"] * 5 and rep.id > 0
+    assert rep.found.values["magnets"]["pairs"][1:] == [4, 4, 4, 4]      # two rounds, two pairs a magnet each
+    assert Path(rep.path).exists() and Path(rep.path).parent == tmp_path
