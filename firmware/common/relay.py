@@ -26,10 +26,10 @@ class Relay:
         self.timeout_ms = timeout_ms
         self.out = amp            # starts pushing up
         self.last_switch = now_ms
-        self.ups = []             # times of the switches to +amp (one per cycle)
-        self.peaks = []           # (max, min) of each whole cycle
-        self.hi = None
-        self.lo = None
+        self.ups: list = []       # times of the switches to +amp (one per cycle)
+        self.peaks: list = []     # (max, min) of each whole cycle
+        self.hi: float | None = None
+        self.lo: float | None = None
         self.done = False
         self.failed = False
 
