@@ -19,9 +19,11 @@ Steps (STEPS; `only` picks some, none = all that the rig has):
   without one the step is skipped and says so.
 
 `calibrate(client, cfg, only, jig=None, rule=RULE)` measures and returns the
-settings (Found); it sends settings only where measuring needs them (the
-defaults before the jig, the CAL a later mark is jogged with), so the shared
-flow (base.py) sends the Found's settings, then CALID.
+settings (Found); it sends settings only where measuring needs them (RATE
+50 for its readings; before the jig the rig's default CALs, and the gains
+just found, so the marks are read against known settings), so the shared
+flow (base.py) sends the Found's settings, then CALID. The rig is asked of
+the board (probe_rig): an emulated rig (servos=) runs the same config.
 """
 from __future__ import annotations
 
@@ -64,13 +66,16 @@ def probe_rig(client: Any, cfg: Any) -> str:
     arm.wait(wid, 1.0)
     if isinstance(ans, P.Er) and ans.code == P.VERB:
         return "pca9685"
-    if isinstance(ans, P.Er):
-        return "effort"
-    return rig_of(cfg)
+    if not isinstance(ans, P.Er):       # the waypoint was done first: the relay runs; a waypoint ends it
+        wid = arm.next_id()
+        client.command("W", wid, 200, *P.to_milli(here))
+        arm.wait(wid, 0.2)
+    return "effort"
 
 
 def calibrate(client: Any, cfg: Any, only: frozenset[str] = frozenset(), *, jig: Any = None,
               rule: str = RULE, marks=MARKS) -> Found:
+    client.set_rate(50)
     rig = probe_rig(client, cfg)
     want = set(only) if only else set(STEPS)
     found = Found()
@@ -204,8 +209,6 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
     f = Found()
     for verb, args in list(identity_cal(cfg, rig)) + list(gains):   # measure against the known defaults (and new gains)
         client.command(verb, *args)
-    if rig == "effort":
-        client.set_rate(50)
     start = readings(client, 0.1, "target")
     arm = Jogger(client, start)
     qs, rs, used = [], [], []
