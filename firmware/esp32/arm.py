@@ -292,9 +292,7 @@ class Board(L.LinkedBoard):
             self._advance()
             sp = self.traj.sp
             if self.positional:
-                lead = self.lead_s      # the servos' own lag, sent ahead along the set point's velocity
-                vel = self.traj.vel
-                self.hal.write_positions([(sp[j] + lead * vel[j]) / 1000.0 for j in range(self.n)])
+                self.hal.write_positions(self._led(sp))
             else:
                 vel = self.traj.vel
                 for j in range(self.n):
@@ -317,6 +315,19 @@ class Board(L.LinkedBoard):
                 self.hal.write_positions([x / 1000.0 for x in self.traj.sp])
             else:
                 self.hal.write_outputs(u)
+
+    def _led(self, sp: list) -> list:
+        """The positional servos' set points (rad): SERVO_LEAD_MS ahead along the set
+        point's velocity (their own lag), within the joint's limits in force."""
+        lead = self.lead_s
+        vel = self.traj.vel
+        out = []
+        for j in range(self.n):
+            x = sp[j] + lead * vel[j]
+            lim = self.lim[j]
+            x = lim[0] if x < lim[0] else (lim[1] if x > lim[1] else x)
+            out.append(x / 1000.0)
+        return out
 
     def telemetry(self) -> list:
         fields = [_milli(x) for x in self.q]
