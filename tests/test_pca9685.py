@@ -430,3 +430,17 @@ def test_the_rig_runs_at_the_configs_pwm_frequency(tmp_path):
             assert abs(e.hal.pca.pulse_us(ch) - want) <= count_us / 2 + 1e-9
     finally:
         e.stop()
+
+
+def test_the_servos_lead_runs_ahead_along_the_velocity_within_the_limits(rig):
+    """SERVO_LEAD_MS: the positional set point is sent that far ahead along the set point's
+    velocity (the servos' own lag), never past the joint's limits in force."""
+    b = rig.board
+    lead = rig.cfg.SERVO_LEAD_MS / 1000.0
+    assert lead > 0
+    b.traj.vel = [1000.0, -2000.0, 0.0]
+    out = b._led([1571.0, -1571.0, 0.0])
+    assert out == pytest.approx([1.571 + lead * 1.0, -1.571 - lead * 2.0, 0.0])
+    b.traj.vel = [3000.0, 3000.0, 3000.0]
+    out = b._led([3130.0, -10.0, 1560.0])
+    assert out == pytest.approx([3.142, 0.0, 1.571])
