@@ -59,6 +59,7 @@ class FakeHal:
         self.tx = []          # every uart_write, in order
         self.persist = persist
         self.stalled = False  # True: joints do not move whatever the effort
+        self.files: dict = {}  # the board's filesystem (calstore.py's cal.txt)
 
     # time
     def ticks_ms(self) -> int:
@@ -98,6 +99,16 @@ class FakeHal:
 
     def save_persist(self, data) -> None:
         self.persist = bytes(data)
+
+    # files and identity (firmware/common/calstore.py)
+    def read_file(self, name):
+        return self.files.get(name)
+
+    def write_file(self, name, data) -> None:
+        self.files[name] = bytes(data)
+
+    def uid(self) -> str:
+        return "fa4e0001"
 
     # test side
     def send(self, data) -> None:

@@ -61,8 +61,10 @@ def test_pen_is_refused_without_a_pen_servo():
     board, host = _session(hal)
     ans = host.answer(2, "PEN", 1)
     assert ans[1] == "ER" and _code(ans) == protodef.VERB
-    ans = host.answer(3, "CAL", 1, 1000, 0, 2000, 1000)
-    assert ans[1] == "ER" and _code(ans) == protodef.VERB   # not a positional rig
+    # the effort rig has no positional servo: CAL is its pots' calibration (arm_cal.py), slope within 0.8..1.25
+    ans = host.answer(3, "CAL", 1, 1000, 0, 2000, 2000)
+    assert ans[1] == "ER" and _code(ans) == protodef.RANGE
+    assert host.answer(4, "CAL", 1, 1000, 1071, 2000, 2071)[1] == "OK"   # the identity: mid 1571 +- 500
 
 
 def test_pen_at_rest_moves_now_and_reports_when_settled():

@@ -113,7 +113,7 @@ def test_range_detail_names_the_argument_or_joint():
 
 def test_table_is_the_generated_one():
     assert proto.COMMANDS is protodef.COMMANDS
-    assert proto.READ_ONLY == protodef.READ_ONLY == ("STAT", "LIM", "PING")
+    assert proto.READ_ONLY == protodef.READ_ONLY == ("STAT", "LIM", "PING", "IDENT")
     assert protodef.ORDERED["SETLIM"] == (("min", "max"),)
 
 
