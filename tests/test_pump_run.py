@@ -149,6 +149,24 @@ def test_settle_times_of_a_known_trace():
     assert (j2.waypoints, j2.unsettled) == (1, 0) and j2.mean_s == pytest.approx(0.8)
 
 
+def test_the_run_waits_for_the_arm_to_stop_not_only_to_enter_its_band():
+    """executor/settle.py: `resting` is true once the joints sit inside the dead band; the pump's
+    fine settle goes on inside it, and the goal is judged on the last sample, so the run also
+    waits until no reading moves more than STILL_RAD over STILL_S (`still`)."""
+    from armbridge.executor.settle import STILL_RAD, STILL_S, resting, still
+
+    t = np.arange(0, 2.0, 0.02)
+    q = np.c_[np.where(t < 1.0, 1.0 - 0.05 * (1.0 - t), 1.0), np.full(len(t), 0.5)]  # in the band, creeping
+    samples = [(float(tt), "IDLE", qq, None, 0) for tt, qq in zip(t, q)]
+    band = np.array([0.07, 0.07])
+    upto = [s for s in samples if s[0] <= 0.9]
+    assert resting(upto, np.array([1.0, 0.5]), band) and not still(upto)
+    assert still(samples) and still(samples, STILL_RAD, STILL_S)
+    noisy = [(s[0], s[1], s[2] + [0.0, 0.004 * (-1) ** k], None, 0) for k, s in enumerate(samples)]
+    assert not still(noisy)        # 8 mrad peak to peak: more than a few counts
+    assert not still(samples[:5])  # less than STILL_S of telemetry
+
+
 # ---------------------------------------------------------------- link faults and resets
 
 def test_exactly_once_under_link_faults_and_a_reset(ports, tmp_path, monkeypatch):

@@ -27,7 +27,7 @@ import numpy as np
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.calcheck import CalibrationMismatch
 from armbridge.executor.client import LATCHED_STATES, BoardClient
-from armbridge.executor.settle import resting
+from armbridge.executor.settle import resting, still
 from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, goal_check, plan_error
 from armbridge.link import protocol as P
@@ -190,7 +190,7 @@ def run_plan(
                     # Let the last samples (the arm settling on the final waypoint) arrive.
                     c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
                     if band is not None:  # a board with a dead band: until the arm rests in it (bounded)
-                        c.drain(SETTLE_WAIT_S, until=lambda: resting(samples, plan.q[-1], band[0]))
+                        c.drain(SETTLE_WAIT_S, until=lambda: resting(samples, plan.q[-1], band[0]) and still(samples))
                     summary.final_state = c.stat()[0]
                 except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
                     _stop(c, summary, rec, stop)

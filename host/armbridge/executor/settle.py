@@ -10,6 +10,12 @@ therefore the dead band plus one count of the joint's sensor (its calibration's
 mrad per count), so that a reading flipping by a count at the edge is not taken
 for the joint leaving the band.
 
+The run waits (bounded, run.SETTLE_WAIT_S) until the arm rests inside that
+tolerance (`resting`) and has stopped (`still`: the firmware's fine settle goes
+on inside the band, and the goal is judged on the last sample; before, a paced
+soft demo was judged while its pumps still crept, 1.5-2.5 mm from the goal,
+then 0.3-1.9 mm).
+
 Both are read from the board where its protocol can (Modbus: holding registers 12..14
 and the calibration 24..35, docs/modbus.md); the line protocol has no query for them,
 so the host takes the defaults of the board's firmware (its config's
@@ -59,6 +65,24 @@ def _board_of(fw: str) -> str:
         if b.identity == fw:
             return b.name
     return fw
+
+
+#: rad: how far a joint's reading may wander while it counts as still (a few counts of the bend
+#: sensor's noise and steps), and s of board time it must stay so (the firmware's fine settle ends)
+STILL_RAD = 0.005
+STILL_S = 0.4
+
+
+def still(samples, tol: float = STILL_RAD, hold_s: float = STILL_S) -> bool:
+    """No joint's reading has moved more than `tol` over the last `hold_s` of board time:
+    the arm has stopped, not only entered its band (a pump board's fine settle,
+    control.h seek_control, goes on inside the dead band after the joint enters it)."""
+    if not samples or samples[-1][0] - samples[0][0] < hold_s:
+        return False
+    t_end = samples[-1][0]
+    recent = [s[2] for s in samples if t_end - s[0] <= hold_s]
+    q = np.asarray(recent, float)
+    return bool(np.all(q.max(axis=0) - q.min(axis=0) <= tol + 1e-12))
 
 
 def resting(samples, target: np.ndarray, tol: np.ndarray, hold_s: float = 0.1) -> bool:
