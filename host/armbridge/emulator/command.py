@@ -5,6 +5,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import List, Optional
 
 import typer
@@ -64,6 +65,10 @@ def emulate_cmd(
                               help="nominal: the model the firmware assumes; random: the plant's physical "
                                    "parameters drawn with --seed from their documented spreads "
                                    "(docs/emulator.md, 'Hidden truth'), which host and firmware never read."),
+    fs: Optional[Path] = typer.Option(None, "--fs", metavar="DIR",
+                                      help="Keep the board's non-volatile memory in DIR, as the chip keeps it across "
+                                           "power cycles: a MicroPython board's filesystem (what a flash wrote, its "
+                                           "calibration), the pump board's EEPROM (docs/emulator.md)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
     realtime: bool = typer.Option(False, "--realtime", help="Run the board at real-time priority (SCHED_FIFO, as "
@@ -112,7 +117,7 @@ def emulate_cmd(
         sys.stderr.flush()
 
     emu = EmulatedBoard(spec, speed=speed, faults=faults, seed=seed, link=link, interpreter=interpreter, plant=plant,
-                        on_line=None if quiet else echo, on_note=warn, realtime=realtime)
+                        on_line=None if quiet else echo, on_note=warn, realtime=realtime, fs_dir=fs)
     try:
         emu.start()  # a link another emulator owns: ArmbridgeError naming the owner
     except BaseException:
