@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from emu_host import Codec, is_reply
-from require import missing
+from require import require_micropython
 
 from armbridge.bench.board_ik import under_micropython
 from armbridge.emulator.board import EmulatedBoard
@@ -212,12 +212,7 @@ def _bad_file(data):
 def run_micropython(poses, timing=False):
     """The firmware's BoardIK on `poses` under the MicroPython WebAssembly interpreter
     (armbridge.bench.board_ik.under_micropython: emulator/mpbridge/boardik.mjs)."""
-    if shutil.which("node") is None:
-        missing("node is not installed")
-    try:
-        find_micropython()
-    except ArmbridgeError as exc:
-        missing(str(exc))
+    require_micropython()
     return under_micropython(poses, timing=timing)
 
 

@@ -10,7 +10,6 @@ the refusal); each board's real procedure has its own tests
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import types
@@ -21,13 +20,12 @@ import pytest
 from armbridge.boards import calfile
 from armbridge.calibrate import base
 from armbridge.calibrate.base import Found, calibrate_board, merged
-from armbridge.emulator.micropython import find_micropython
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.run import run_plan
 from armbridge.executor.session import open_session
 from armbridge.plans.format import save_plan
 from plan_runs import wave_plan
-from require import missing
+from require import require_micropython
 
 ARMBRIDGE = str(Path(sys.executable).with_name("armbridge"))
 GAINS = [("GAIN", (1, 2100, 10, 40)), ("GAIN", (2, 2200, 20, 50))]
@@ -143,12 +141,7 @@ def test_the_board_refuses_a_foreign_calibration_file_and_keeps_running(tmp_path
     """A cal.txt the firmware cannot read leaves its defaults and reports cal 0;
     under the MicroPython interpreter as under CPython, CALID writes the file."""
     if interpreter == "micropython":
-        if shutil.which("node") is None:
-            missing("node is not installed (the MicroPython interpreter mode needs Node.js)")
-        try:
-            find_micropython()
-        except ArmbridgeError as exc:
-            missing(str(exc))
+        require_micropython()
     fs = tmp_path / "fs"
     with open_session(url(fs, f"&interpreter={interpreter}"), None) as c:
         c.command("CALID", 4242)

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -30,12 +29,12 @@ import numpy as np
 import pytest
 
 from armbridge.emulator.board import EmulatedBoard
-from armbridge.emulator.micropython import ENV_PACKAGE, find_micropython
+from armbridge.emulator.micropython import ENV_PACKAGE
 from armbridge.errors import ArmbridgeError
 from armbridge.robots import ARM3R
 from emu_host import Codec, is_reply
 from plan_runs import assert_executed_once_with_values, crashing_firmware, wave_plan
-from require import missing
+from require import require_micropython
 
 ARMBRIDGE = Path(sys.executable).with_name("armbridge")
 
@@ -43,12 +42,7 @@ ARMBRIDGE = Path(sys.executable).with_name("armbridge")
 @pytest.fixture
 def micropython():
     """Node and the npm package, or skip (fail under ARMBRIDGE_REQUIRE_HIL=1)."""
-    if shutil.which("node") is None:
-        missing("node is not installed (the MicroPython interpreter mode needs Node.js)")
-    try:
-        find_micropython()
-    except ArmbridgeError as exc:
-        missing(str(exc))
+    require_micropython()
 
 
 class Host:
