@@ -208,20 +208,10 @@ def test_a_cal_file_that_does_not_fit_leaves_the_defaults(tmp_path):
 
 
 def test_the_relay_runs_under_the_real_micropython_interpreter():
-    import shutil
-
+    from require import require_micropython
     from test_emulator_micropython import Host
 
-    from armbridge.emulator.micropython import find_micropython
-    from armbridge.errors import ArmbridgeError
-    from require import missing
-
-    if shutil.which("node") is None:
-        missing("node is not installed (the MicroPython interpreter mode needs Node.js)")
-    try:
-        find_micropython()
-    except ArmbridgeError as exc:
-        missing(str(exc))
+    require_micropython()
     emu = EmulatedBoard("esp32", speed=0, interpreter="micropython", plant="random", seed=3)
     try:
         h = Host(emu)
