@@ -185,3 +185,23 @@ def test_the_help_names_every_boards_steps():
     for board, module in base.PROCEDURES.items():
         steps = importlib.import_module(module).STEPS
         assert f"{board}: {', '.join(steps)}" in " ".join(doc.split()), (board, steps)
+
+
+def test_the_esp32_jig_step_through_the_cli(tmp_path):
+    """`armbridge calibrate esp32 --jig emu`: the emulated user places the pen on the printed marks
+    (calibrate/jig.py), the flow saves the servos' CAL lines; --jig-sheet writes the marks to print;
+    --jig on another board, or an unknown jig, is one line and exit 2."""
+    fs, cal, sheet = tmp_path / "fs", tmp_path / "cal", tmp_path / "marks.svg"
+    port = f"emu:esp32?speed=0&servos=pca9685&plant=random&seed=4&fs={fs}"
+    r = subprocess.run([ARMBRIDGE, "calibrate", "esp32", "--port", port, "--dir", str(cal), "--jig", "emu",
+                        "--jig-sheet", str(sheet), "--json", "-"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    assert sorted(s[1] for s in report["settings"] if s[0] == "CAL") == [1, 2, 3]
+    assert calfile.read(Path(report["file"])).id == report["id"]
+    assert sheet.read_text().startswith("<svg") and "</svg>" in sheet.read_text()
+    for args, msg in ((["masr_ma", "--port", "emu:masr_ma?speed=0", "--jig", "emu"], "--jig is for the esp32"),
+                      (["esp32", "--port", "emu:esp32?speed=0", "--jig", "paper"], "--jig: jig 'paper'")):
+        r = subprocess.run([ARMBRIDGE, "calibrate", *args, "--dir", str(cal)], capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and msg in r.stderr, r.stderr

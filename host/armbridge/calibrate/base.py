@@ -101,13 +101,16 @@ def merged(old: list[tuple[str, tuple[int, ...]]], new: list[tuple[str, tuple[in
 
 
 def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] | None = None,
-                    cal_dir: Path | None = None, connect_timeout: float = 5.0) -> CalReport:
+                    cal_dir: Path | None = None, connect_timeout: float = 5.0, jig: str | None = None) -> CalReport:
     """The whole flow (module docstring): who the board is, its procedure, the
     settings sent, CALID, IDENT read back, the host file written. Nothing is
     persisted unless every step and every setting succeeded (the settings sent
     before a failure stay in the board's RAM until its next reset). With `only`,
     the settings of the steps not run are kept from this host's earlier file,
-    when the board still holds that calibration."""
+    when the board still holds that calibration. `jig`: who places the pen on the
+    printed marks of the esp32's jig step (calibrate/jig.py: "terminal", the user
+    at the keys; "emu", the emulated user of an in-process emu: board); without
+    one that step is skipped."""
     from armbridge import boards
     from armbridge.boards import calfile
     from armbridge.executor import calcheck
@@ -115,6 +118,8 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
 
     steps = check_steps(board, only)
     _, run = procedure(board)
+    if jig is not None and board != "esp32":
+        raise ArmbridgeError(f"--jig is for the esp32 board's jig step; the {board} board calibrates without one")
     cfg = boards.config(board)
     with open_session(port, None, latched="refuse", calibration="report", connect_timeout=connect_timeout) as client:
         info = client.info
@@ -130,7 +135,15 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
         previous = calfile.find(board, uid, cal_dir)
         if previous is not None and previous.id != held:
             previous = None   # the board no longer holds it: start afresh
-        found = run(client, cfg, steps)
+        extra: dict[str, Any] = {}
+        if jig is not None:
+            from armbridge.calibrate.jig import make_jig
+
+            try:
+                extra["jig"] = make_jig(jig, client)
+            except ValueError as exc:
+                raise ArmbridgeError(f"--jig: {exc}") from None
+        found = run(client, cfg, steps, **extra)
         for verb, args in found.settings:
             client.command(verb, *args)
         settings = merged(list(previous.settings) if previous is not None else [], found.settings)

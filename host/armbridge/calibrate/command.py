@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from armbridge.calibrate.base import PROCEDURES, calibrate_board
+from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import write_json
 
 
@@ -25,6 +26,12 @@ def calibrate_cmd(
     cal_dir: Optional[Path] = typer.Option(None, "--dir", help="Where the host's calibration files are "
                                                                 "[default: $ARMBRIDGE_CALIBRATION_DIR, else "
                                                                 "~/.config/armbridge/calibration]."),
+    jig: Optional[str] = typer.Option(None, "--jig", metavar="terminal|emu",
+                                      help="esp32: who puts the pen on the printed marks of the jig step: terminal "
+                                           "(you, jogging with keys), emu (the emulated user of an emu: board). "
+                                           "Without it that step is skipped."),
+    jig_sheet: Optional[Path] = typer.Option(None, "--jig-sheet", metavar="FILE",
+                                             help="esp32: also write the jig's marks as an SVG to print at 1:1."),
     json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
                                            help="Also write what was found as JSON to FILE ('-': stdout)."),
 ) -> None:
@@ -35,8 +42,18 @@ def calibrate_cmd(
 
     Exit codes: 0 calibrated, 1 the board failed or refused, 2 bad input."""
     console = Console(stderr=json_out == "-")
-    with console.status(f"calibrating the {board} board on {port} ..."):
-        report = calibrate_board(port, board, only=only, cal_dir=cal_dir)
+    if jig_sheet is not None:
+        from armbridge.calibrate.jig import sheet_svg
+
+        try:
+            jig_sheet.write_text(sheet_svg())
+        except OSError as exc:
+            raise ArmbridgeError(f"{jig_sheet}: cannot write the jig sheet: {exc.strerror}") from None
+    if jig == "terminal":  # the user answers at the keys: no spinner over the prompts
+        report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig)
+    else:
+        with console.status(f"calibrating the {board} board on {port} ..."):
+            report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig)
     if json_out is not None:
         if json_out == "-":
             sys.stdout.write(json.dumps(report.to_json(), indent=2) + "\n")
