@@ -89,10 +89,13 @@ class Scene:
     source: Optional[Path] = None
     goal_states: Optional[np.ndarray] = field(default=None, repr=False)
 
-    def checker(self, res: float = EDGE_RES, link_width: Optional[float] = None) -> ChainChecker:
-        """A fresh checker (its own `checks` count) at edge resolution res (m)."""
+    def checker(self, res: float = EDGE_RES, link_width: Optional[float] = None,
+                certified: bool = True) -> ChainChecker:
+        """A fresh checker (its own `checks` count): certified edges (space.py), probing at res (m); with
+        certified=False edges are only checked at resolution res."""
         w = self.link_width if link_width is None else link_width
-        return ChainChecker.create(self.robot, self.obstacles, base=self.base, link_width=w, res=res)
+        return ChainChecker.create(self.robot, self.obstacles, base=self.base, link_width=w, res=res,
+                                   certified=certified)
 
     def space(self) -> ChainSpace:
         return ChainSpace(np.array(self.robot.q_min), np.array(self.robot.q_max))

@@ -10,12 +10,42 @@ each other. Joint limits are the robot's [q_min, q_max].
   joint space (rad), straight-line interpolation, edge cost = joint-space
   length.
 * ChainChecker: is_valid (limits, obstacles, self-collision), motion_valid
-  (the straight joint-space edge, checked at sub-steps chosen so that no
-  point of the arm moves more than `res` metres between two checked shapes:
-  a point beyond joint j moves at most |dq_j| * reach_j, reach_j = the
-  length from joint j to the tip), clearance (eq. 8: the least distance
-  from any link's surface to any obstacle, m; negative in collision) and
-  link_clearance (each link's, for W_s of eq. 20).
+  (the straight joint-space edge, certified free for the continuous motion
+  by conservative advancement, below; `certified=False`: the old check at
+  sub-steps chosen so that no point of the arm moves more than `res` metres
+  between two checked shapes, which can miss a collision between them),
+  clearance (eq. 8: the least distance from any link's surface to any
+  obstacle, m; negative in collision) and link_clearance (each link's, for
+  W_s of eq. 20).
+
+Certified edges (issue 24 section 1; `edge_code`). The bound: joint i sits
+at p_i and turns every link k >= i; along the straight edge
+q(t) = qa + t dq, t in [0, 1], a point x on link k (centre line, from p_k to
+p_{k+1}) moves with velocity dx/dt = sum_{i<=k} dq_i perp(x - p_i), and
+|x - p_i| <= R_ik = L_i + ... + L_k (the chain from joint i to the far end
+of link k, whatever the angles), so over any sub-interval of length s
+
+    |x(t + s) - x(t)| <= s B_k,    B_k = sum_{i<=k} |dq_i| R_ik
+                                       = B_{k-1} + (|dq_0| + ... + |dq_k|) L_k.
+
+The same argument in the frame of link a (rigid motions keep distances)
+bounds how fast link b > a moves relative to it: only joints a+1..b count,
+S_ab = sum_{a<i<=b} |dq_i| R_ib. Collision is "a centre line within w/2 of
+an obstacle" or "two non-adjacent centre lines within w" (the state check),
+and a segment's distance to a set changes by at most the largest
+displacement of its points. So with c_k = dist(link k, obstacles) - w/2 and
+c_ab = dist(link a, link b) - w at q(t), nothing can touch while
+s < min(c_k / B_k, c_ab / S_ab): the edge is free on [t, t + s) and the
+check advances to t + s, measures the clearances again and repeats until
+t >= 1. No resolution: every state of the edge is covered by an interval
+on which its clearance is proven positive. An edge is refused when a
+clearance falls to CLEAR_MIN (1 um) or below or after MAX_STEPS steps
+(what would otherwise be Zeno's approach to a contact), and at once when a
+probe state finds a collision: while the advancement moves slower than the
+fixed resolution (s < res / sum_j |dq_j| reach_j) the state one `res`-step
+ahead is checked, so a colliding edge costs about what the fixed-resolution
+check cost. Joint limits: the joint box is convex, so qb inside it is
+enough (qa is taken as valid, as before).
 
 Every call counts in `checks` (Table 1's "Obstacle Check" column counts the
 checker's answers).
@@ -30,12 +60,17 @@ import numpy as np
 from numba import njit
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.polygons import chain_points, points_clearance, points_hit, polygon_arrays, self_hit
+from armbridge.planning.polygons import (chain_points, inside, points_clearance, points_hit, polygon_arrays,
+                                        seg_seg_d2, self_hit)
 
 #: Default edge resolution: no point of the arm moves more than this between checked shapes (m).
 EDGE_RES = 0.002
 
-FREE, LIMITS, SELF = -1, -2, -4
+#: Certified edges: a clearance at or below this refuses the edge (m), as does a need for more steps.
+CLEAR_MIN = 1e-6
+MAX_STEPS = 20000
+
+FREE, LIMITS, SELF, NEAR = -1, -2, -4, -8
 
 
 @njit(cache=True)
@@ -55,8 +90,9 @@ def state_code(q, lengths, base, lo, hi, verts, starts, bbox, r2, self_r2, pts):
 
 
 @njit(cache=True)
-def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, r2, self_r2, res, pts, q):
-    """The straight edge qa -> qb: (sub-steps checked, first bad state's code or -1). qa is taken as valid."""
+def edge_code_sampled(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, r2, self_r2, res, pts, q):
+    """The straight edge qa -> qb at fixed resolution res (no point moves more than res between two checked
+    states; a collision between them can be missed): (sub-steps checked, first bad state's code or -1)."""
     n = lengths.size
     move = 0.0
     for j in range(n):
@@ -70,6 +106,115 @@ def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, r2, sel
         if c != FREE:
             return s, c
     return steps, FREE
+
+
+@njit(cache=True)
+def motion_bounds(dq, lengths, B, S):
+    """The module doc's bounds for the joint step dq: B[k] bounds the displacement of any point of link k,
+    S[a, b] (b >= a + 2) that of link b relative to link a (m per unit of the edge parameter)."""
+    n = lengths.size
+    acc = 0.0
+    prev = 0.0
+    for k in range(n):
+        acc += abs(dq[k])
+        prev += acc * lengths[k]
+        B[k] = prev
+    for a in range(n):
+        rel = 0.0
+        acc = 0.0
+        for b in range(a + 1, n):
+            acc += abs(dq[b])
+            rel += acc * lengths[b]
+            S[a, b] = rel
+
+
+@njit(cache=True)
+def obstacle_clearance(pts, verts, starts, bbox, out):
+    """out[k] = distance of link k's centre line to the nearest polygon (0 inside or crossing), as
+    points_clearance, skipping polygons whose box is already farther than the best (boxes are a lower
+    bound); returns the least."""
+    nl = pts.shape[0] - 1
+    least = np.inf
+    for k in range(nl):
+        ax, ay, bx, by = pts[k, 0], pts[k, 1], pts[k + 1, 0], pts[k + 1, 1]
+        x0, x1, y0, y1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+        best = np.inf
+        for p in range(starts.size - 1):
+            gx = max(bbox[p, 0] - x1, x0 - bbox[p, 2], 0.0)
+            gy = max(bbox[p, 1] - y1, y0 - bbox[p, 3], 0.0)
+            if gx * gx + gy * gy >= best:
+                continue
+            s, e = starts[p], starts[p + 1]
+            if inside(ax, ay, verts, s, e):
+                best = 0.0
+                break
+            j = e - 1
+            for i in range(s, e):
+                d2 = seg_seg_d2(ax, ay, bx, by, verts[j, 0], verts[j, 1], verts[i, 0], verts[i, 1])
+                if d2 < best:
+                    best = d2
+                j = i
+            if best == 0.0:
+                break
+        out[k] = math.sqrt(best) if best < np.inf else np.inf
+        if out[k] < least:
+            least = out[k]
+    return least
+
+
+@njit(cache=True)
+def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, margin, width, res, pts, q, cl, dq, B, S):
+    """The straight edge qa -> qb certified by conservative advancement (module doc): (steps, -1 when every
+    state of the edge is free, else the code of a colliding probe state, or NEAR when a clearance fell to
+    CLEAR_MIN or the steps ran out). qa is taken as valid."""
+    n = lengths.size
+    move = 0.0
+    for j in range(n):
+        if not (qb[j] >= lo[j] and qb[j] <= hi[j]):
+            return 1, LIMITS
+        dq[j] = qb[j] - qa[j]
+        move += abs(dq[j]) * reach[j]
+    motion_bounds(dq, lengths, B, S)
+    h = res / move if move > 0.0 else 2.0
+    r2 = margin * margin
+    w2 = width * width
+    t = 0.0
+    probed = 0.0
+    steps = 0
+    while steps < MAX_STEPS:
+        steps += 1
+        for j in range(n):
+            q[j] = qa[j] + t * dq[j]
+        chain_points(q, lengths, base[0], base[1], base[2], pts)
+        obstacle_clearance(pts, verts, starts, bbox, cl)
+        s = np.inf
+        for k in range(n):
+            c = cl[k] - margin
+            if c <= CLEAR_MIN:
+                code = state_code(q, lengths, base, lo, hi, verts, starts, bbox, r2, w2, pts)
+                return steps, code if code != FREE else NEAR
+            if B[k] > 0.0 and c < s * B[k]:
+                s = c / B[k]
+        for a in range(n - 2):
+            for b in range(a + 2, n):
+                c = math.sqrt(seg_seg_d2(pts[a, 0], pts[a, 1], pts[a + 1, 0], pts[a + 1, 1],
+                                         pts[b, 0], pts[b, 1], pts[b + 1, 0], pts[b + 1, 1])) - width
+                if c <= CLEAR_MIN:
+                    code = state_code(q, lengths, base, lo, hi, verts, starts, bbox, r2, w2, pts)
+                    return steps, code if code != FREE else NEAR
+                if S[a, b] > 0.0 and c < s * S[a, b]:
+                    s = c / S[a, b]
+        if t + s >= 1.0:
+            return steps, FREE
+        if s < h and t >= probed:
+            probed = min(1.0, t + h)
+            for j in range(n):
+                q[j] = qa[j] + probed * dq[j]
+            code = state_code(q, lengths, base, lo, hi, verts, starts, bbox, r2, w2, pts)
+            if code != FREE:
+                return steps, code
+        t += s
+    return steps, NEAR
 
 
 @njit(cache=True)
@@ -168,6 +313,7 @@ class ChainChecker:
     polygons: tuple
     link_width: float
     res: float
+    certified: bool = True
     reach: np.ndarray = field(init=False)
     verts: np.ndarray = field(init=False)
     starts: np.ndarray = field(init=False)
@@ -189,12 +335,16 @@ class ChainChecker:
         self._pts = np.empty((n + 1, 2))
         self._q = np.empty(n)
         self._cl = np.empty(n)
+        self._dq = np.empty(n)
+        self._B = np.empty(n)
+        self._S = np.zeros((n, n))
 
     @classmethod
     def create(cls, robot: Any, polygons: Sequence[Any], *, base: Any = (0.0, 0.0, 0.0), link_width: float = 0.0,
-               res: float = EDGE_RES) -> "ChainChecker":
+               res: float = EDGE_RES, certified: bool = True) -> "ChainChecker":
         return cls(robot.link_lengths, np.asarray(base, float), robot.q_min, robot.q_max,
-                   tuple(np.asarray(p, float).reshape(-1, 2) for p in polygons), float(link_width), float(res))
+                   tuple(np.asarray(p, float).reshape(-1, 2) for p in polygons), float(link_width), float(res),
+                   bool(certified))
 
     @property
     def n(self) -> int:
@@ -216,15 +366,33 @@ class ChainChecker:
     def is_valid(self, q: Any) -> bool:
         return self.code(q) == FREE
 
-    def motion_code(self, a: Any, b: Any) -> int:
+    def motion_steps(self, a: Any, b: Any) -> tuple[int, int]:
+        """(states measured, code) of the edge a -> b: edge_code, or edge_code_sampled if not certified."""
         self.checks += 1
+        qa, qb = np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float)
         L, B, lo, hi, V, S, BB, r2, s2 = self._args()
-        return int(edge_code(np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float), L,
-                             self.reach, B, lo, hi, V, S, BB, r2, s2, self.res, self._pts, self._q)[1])
+        if self.certified:
+            k, c = edge_code(qa, qb, L, self.reach, B, lo, hi, V, S, BB, self.margin, self.link_width, self.res,
+                             self._pts, self._q, self._cl, self._dq, self._B, self._S)
+        else:
+            k, c = edge_code_sampled(qa, qb, L, self.reach, B, lo, hi, V, S, BB, r2, s2, self.res, self._pts,
+                                     self._q)
+        return int(k), int(c)
+
+    def motion_code(self, a: Any, b: Any) -> int:
+        return self.motion_steps(a, b)[1]
 
     def motion_valid(self, a: Any, b: Any) -> bool:
-        """The straight joint-space edge a -> b is free at resolution `res` (a itself is not re-checked)."""
+        """The straight joint-space edge a -> b is free for the whole continuous motion (certified; at
+        resolution `res` if not `certified`); a itself is not re-checked."""
         return self.motion_code(a, b) == FREE
+
+    def motion_bounds(self, a: Any, b: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(B (n,), S (n, n)) of the module doc for the edge a -> b: per unit of the edge parameter, the
+        largest displacement of any point of link k, and of link b relative to link a (b >= a + 2)."""
+        B, S = np.empty(self.n), np.zeros((self.n, self.n))
+        motion_bounds(np.ascontiguousarray(np.asarray(b, float) - np.asarray(a, float)), self.lengths, B, S)
+        return B, S
 
     def link_clearance(self, q: Any) -> np.ndarray:
         """(n,) each link's surface distance to the nearest obstacle, m (inf with no obstacles)."""
@@ -256,10 +424,12 @@ class ChainChecker:
             return "outside the joint limits"
         if code == SELF:
             return "two links collide (self-collision)"
+        if code == NEAR:
+            return f"the motion cannot be certified free (a clearance within {CLEAR_MIN * 1e6:g} um)"
         return f"link {code % self.n + 1} hits obstacle {code // self.n}"
 
     def path_problem(self, path: Any) -> str | None:
-        """None if path (K, n) starts valid and every straight edge is free at `res`, else a message."""
+        """None if path (K, n) starts valid and every straight edge is free (motion_code), else a message."""
         P = np.asarray(path, dtype=float)
         if P.ndim != 2 or P.shape[1] != self.n or P.shape[0] == 0:
             raise ArmbridgeError(f"path must have shape (K, {self.n}) with K >= 1, got {P.shape}")
