@@ -31,9 +31,10 @@ from typing import Any
 
 import numpy as np
 
-from armbridge.calibrate.base import Found
+from armbridge.calibrate.base import Found, mean_telemetry
 from armbridge.calibrate.jig import MARKS, Jogger, ik
 from armbridge.calibrate.tuning import pid_gains, ultimate
+from armbridge.errors import BoardFailure
 
 STEPS = ("gains", "jig")
 
@@ -111,7 +112,7 @@ def relay_test(client: Any, j: int, amp: int, hyst: int, cycles: int,
     finally:
         client.on_event = prev
     if not got:
-        raise RuntimeError(f"joint {j}: no RELAY event in {timeout_s:g} s")
+        raise BoardFailure(f"joint {j}: the board sent no RELAY event in {timeout_s:g} s")
     return got[0]
 
 
@@ -178,21 +179,7 @@ def pwm_pulse(cfg: Any, j: int, q: float) -> float:
 
 def readings(client: Any, seconds: float = 0.4, field: str = "q") -> np.ndarray:
     """The mean of the telemetry's measured joints (`field` "q"; "target": the set point) over `seconds` (rad)."""
-    got: list[np.ndarray] = []
-    prev = client.on_telemetry
-
-    def on_tel(t, m):
-        got.append(np.asarray(getattr(m, field), float))
-        if prev is not None:
-            prev(t, m)
-    client.on_telemetry = on_tel
-    try:
-        client.drain(seconds)
-    finally:
-        client.on_telemetry = prev
-    if not got:
-        raise RuntimeError("no telemetry from the board (RATE 0?)")
-    return np.mean(got, axis=0)
+    return mean_telemetry(client, seconds, field)
 
 
 def fit_line(q: np.ndarray, r: np.ndarray, min_spread: float) -> tuple[float, float]:

@@ -50,6 +50,30 @@ class Found:
         return Found(self.settings + other.settings, {**self.values, **other.values}, self.lines + other.lines)
 
 
+def mean_telemetry(client: Any, seconds: float, field: str = "q") -> Any:
+    """The mean of the telemetry's `field` ("q": the measured joints, "target": the set
+    point) over `seconds` of the client's clock, what a procedure reads a resting
+    board with; whoever listened to the telemetry before still hears it."""
+    import numpy as np
+
+    got: list[Any] = []
+    prev = client.on_telemetry
+
+    def tap(t: float, m: Any) -> None:
+        got.append(np.asarray(getattr(m, field), float))
+        if prev is not None:
+            prev(t, m)
+
+    client.on_telemetry = tap
+    try:
+        client.drain(seconds)
+    finally:
+        client.on_telemetry = prev
+    if not got:
+        raise ArmbridgeError("no telemetry from the board (its RATE is 0?)")
+    return np.mean(got, axis=0)
+
+
 def procedure(board: str) -> tuple[tuple[str, ...], Callable[[Any, Any, frozenset[str]], Found]]:
     """(STEPS, calibrate) of `board`'s procedure."""
     name = PROCEDURES.get(board)

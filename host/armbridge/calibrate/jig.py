@@ -29,8 +29,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-LINKS = (0.19, 0.12, 0.07)   # m: the arm's links (firmware config LINK_LENGTHS_M)
-
+from armbridge.errors import BoardFailure
+from armbridge.ik.analytic3r import ik as ik3r
+from armbridge.robots import ARM3R
 
 @dataclass(frozen=True)
 class Mark:
@@ -42,22 +43,19 @@ class Mark:
     theta: float
 
 
-def ik(mark: Mark, links=LINKS) -> np.ndarray:
-    """The joint angles (rad) that put the pen on `mark`, elbow bent q2 < 0."""
-    l1, l2, l3 = links
-    wx, wy = mark.x - l3 * math.cos(mark.theta), mark.y - l3 * math.sin(mark.theta)
-    c2 = (wx * wx + wy * wy - l1 * l1 - l2 * l2) / (2 * l1 * l2)
-    if not -1.0 <= c2 <= 1.0:
+def ik(mark: Mark) -> np.ndarray:
+    """The joint angles (rad) that put the pen on `mark` (the closed-form IK on arm3r's
+    limits, where the elbow bends q2 < 0)."""
+    q, ok = ik3r(ARM3R, [mark.x, mark.y, mark.theta])
+    if not bool(ok):
         raise ValueError(f"mark {mark.name} is out of the arm's reach")
-    q2 = -math.acos(c2)
-    q1 = math.atan2(wy, wx) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
-    return np.array([q1, q2, mark.theta - q1 - q2])
+    return np.asarray(q, float)
 
 
-def fk(q, links=LINKS) -> tuple[float, float, float]:
+def fk(q) -> tuple[float, float, float]:
     """(x, y, theta) of the pen at joint angles q."""
-    a = np.cumsum(np.asarray(q, float))
-    return (float(np.dot(links, np.cos(a))), float(np.dot(links, np.sin(a))), float(a[-1]))
+    x, y = np.asarray(ARM3R.ee_point(np.asarray(q, float)), float)[:2]
+    return float(x), float(y), float(np.sum(q))
 
 
 def _mark(name: str, q) -> Mark:
@@ -135,7 +133,7 @@ class Jogger:
             if d == wid:
                 break
             if self.client.now() > end:
-                raise RuntimeError(f"jog waypoint {wid} did not finish")
+                raise BoardFailure(f"jog waypoint {wid} did not finish")
             self.client.drain(0.05)
         self.client.drain(self.SETTLE_S)
 

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from armbridge.calibrate.base import Found
+from armbridge.calibrate.base import Found, mean_telemetry
 from armbridge.errors import ArmbridgeError
 
 STEPS = ("bend", "gains")
@@ -340,19 +340,4 @@ def jig_point(client: Any, j: int, angle_mrad: int, seconds: float = 2.0) -> flo
     block), the mean ADC count its sensor reads there, through the board's current BEND
     (assumed the firmware's default: call it before BEND is changed). Two such points
     give BEND j without the full-bend reference."""
-    samples: list[float] = []
-    prev = getattr(client, "on_telemetry", None)
-
-    def tap(t: float, msg: Any) -> None:
-        samples.append(float(msg.q[j - 1]) * 1000.0)
-        if prev is not None:
-            prev(t, msg)
-
-    client.on_telemetry = tap
-    try:
-        client.drain(seconds)
-    finally:
-        client.on_telemetry = prev
-    if not samples:
-        raise ArmbridgeError("no telemetry from the board: set RATE first")
-    return float(np.mean(samples))
+    return float(mean_telemetry(client, seconds)[j - 1]) * 1000.0
