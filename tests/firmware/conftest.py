@@ -15,8 +15,6 @@ import sys
 
 _ROOT = pathlib.Path(__file__).resolve().parents[2]
 _PATHS = [str(_ROOT / sub) for sub in ("firmware/masr_ma", "firmware/esp32", "firmware/common", "tests/firmware")]
-_FLAT = ("proto", "protodef", "link", "session", "pid", "traj", "arm", "config", "fwutil", "ik3r", "mlp",
-         "ma", "ma_act", "loc", "drive", "fwma")
 
 for _p in _PATHS:
     if _p not in sys.path:
@@ -31,8 +29,7 @@ except ImportError:
 
 
 def pytest_collection_finish(session):
-    for name in _FLAT:
-        mod = sys.modules.get(name)
+    for name, mod in list(sys.modules.items()):  # every flat firmware module, whatever its name
         f = getattr(mod, "__file__", None) or ""
         if f.startswith(str(_ROOT / "firmware")) or f.startswith(str(_ROOT / "tests" / "firmware")):
             del sys.modules[name]
