@@ -121,7 +121,6 @@ def test_ident_cal_persistence_and_bad_values_on_one_board(tmp_path):
     CALID refused out of range; RELAY refused out of range, with motion queued and while latched;
     the board answers throughout; CALID across an emulator run through the EEPROM file."""
     needs_simavr()
-    from armbridge.emulator import simavr_runner
     from armbridge.emulator.simboard import board_uid
     from armbridge.executor.session import open_session
     from armbridge.link import protocol as P
@@ -134,35 +133,31 @@ def test_ident_cal_persistence_and_bad_values_on_one_board(tmp_path):
     assert uids[("nominal", 0)] == uids[("nominal", 5)]
     assert len({uids[("nominal", 0)], uids[("random", 1)], uids[("random", 2)]}) == 3
 
-    saved = simavr_runner.EEPROM_DIR
-    simavr_runner.EEPROM_DIR = tmp_path
-    try:
-        url = "emu:arduino_pump?speed=0&plant=random&seed=1"
-        with open_session(url, None) as client:
-            for bad in (("CALID", 0), ("CALID", 1 << 30), ("RELAY", 4, 500, 0, 1), ("RELAY", 1, 0, 0, 1),
-                        ("RELAY", 1, 500, 0, 51), ("BEND", 1, 300, 0, 300, 100), ("DBAND", 1, 1001)):
-                ans = client.ask(*bad)
-                assert isinstance(ans, P.Er) and ans.name in ("RANGE", "ARGS"), (bad, ans)
-            assert client.command("IDENT").payload[1] == "0"
-            client.command("W", 1, 1000, 100, 100, 100)
-            ans = client.ask("RELAY", 1, 500, 0, 1)
-            assert isinstance(ans, P.Er) and ans.name == "RANGE", ans    # motion queued
-            client.drain(1.5)
-            # (a relay that cannot switch, run to its end stop and given up: tests/test_board.cpp)
-            client.command("GAIN", 1, 3000, 0, 0)
-            client.command("DBAND", 1, 50)
-            client.command("CALID", 99)
-            client.drain(1.5)
-            uid = client.command("IDENT").payload[0]
-            assert client.command("PING")
-        # a new emulator run of the same board: the EEPROM file holds the calibration
-        with open_session(url, None) as client:
-            assert client.command("IDENT").payload[:2] == (uid, "99")
-            ans = client.ask("RELAY", 1, 500, 0, 1)
-            assert isinstance(ans, P.Ok)
-            client.estop()
-            client.drain(0.3, resync=False)
-            ans = client.ask("RELAY", 1, 500, 0, 1)
-            assert isinstance(ans, P.Er) and ans.name == "LATCHED", ans
-    finally:
-        simavr_runner.EEPROM_DIR = saved
+    # the board's EEPROM kept in tmp_path (fs=), as a chip keeps it across power cycles
+    url = f"emu:arduino_pump?speed=0&plant=random&seed=1&fs={tmp_path}"
+    with open_session(url, None) as client:
+        for bad in (("CALID", 0), ("CALID", 1 << 30), ("RELAY", 4, 500, 0, 1), ("RELAY", 1, 0, 0, 1),
+                    ("RELAY", 1, 500, 0, 51), ("BEND", 1, 300, 0, 300, 100), ("DBAND", 1, 1001)):
+            ans = client.ask(*bad)
+            assert isinstance(ans, P.Er) and ans.name in ("RANGE", "ARGS"), (bad, ans)
+        assert client.command("IDENT").payload[1] == "0"
+        client.command("W", 1, 1000, 100, 100, 100)
+        ans = client.ask("RELAY", 1, 500, 0, 1)
+        assert isinstance(ans, P.Er) and ans.name == "RANGE", ans    # motion queued
+        client.drain(1.5)
+        # (a relay that cannot switch, run to its end stop and given up: tests/test_board.cpp)
+        client.command("GAIN", 1, 3000, 0, 0)
+        client.command("DBAND", 1, 50)
+        client.command("CALID", 99)
+        client.drain(1.5)
+        uid = client.command("IDENT").payload[0]
+        assert client.command("PING")
+    # a new emulator run of the same board: the EEPROM file holds the calibration
+    with open_session(url, None) as client:
+        assert client.command("IDENT").payload[:2] == (uid, "99")
+        ans = client.ask("RELAY", 1, 500, 0, 1)
+        assert isinstance(ans, P.Ok)
+        client.estop()
+        client.drain(0.3, resync=False)
+        ans = client.ask("RELAY", 1, 500, 0, 1)
+        assert isinstance(ans, P.Er) and ans.name == "LATCHED", ans

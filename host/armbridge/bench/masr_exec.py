@@ -123,8 +123,8 @@ def single_plans(arm: Any) -> list[Any]:
     from armbridge.planning.masr.plan_file import masr_plan_document, plan_from_document
 
     out = []
-    for name, q0, q1 in SINGLES:
-        q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    for name, start, end in SINGLES:
+        q0, q1 = np.asarray(start, float), np.asarray(end, float)
         env = Environment(name=name, arm=arm, obstacles=[], start=q0, goal_pose=np.asarray(arm.fk(q1), float),
                           goal_q=q1)
         doc = masr_plan_document(env, np.stack([q0, q1]), {"tool": "armbridge bench masr-exec", "single": name})
@@ -356,7 +356,7 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
                                      f"dphi {r['dphi_deg']:.2f} deg"))
 
         for k in range(size.plants if mp is not None else 0):
-            variants = [("", None)]
+            variants: list[tuple[str, Any]] = [("", None)]
             if size.calibrated:
                 try:
                     cal = calibrate_board(k)

@@ -35,24 +35,15 @@ TARGETS = {"joint_mean_deg": 1.0, "joint_max_deg": 2.0, "tip_max_mm": 10.0}
 PAPER_THRESHOLD_DEG = {"two-arm": 2.0, "three-arm": 4.0}
 
 
-def calibrate_board(url: str, cal_id: int = 1) -> dict[str, Any]:
-    """`armbridge calibrate`'s work on the board at `url` (the pump's procedure, calibrate/pump.py):
-    measure, set what was found, CALID, and wait until the EEPROM holds it (the write-behind
-    programs a byte per main-loop pass). The board must keep its EEPROM past this run
-    (simavr_runner.EEPROM_DIR). -> the procedure's values and the BEND it set per joint."""
-    from armbridge.boards import config
-    from armbridge.calibrate.pump import calibrate
-    from armbridge.executor.session import open_session
+def calibrate_board(url: str, cal_dir: Path) -> dict[str, Any]:
+    """`armbridge calibrate arduino_pump` on the board at `url` (calibrate/base.py's flow: the
+    procedure, the settings, CALID, the host file in `cal_dir`); the url keeps the board's
+    EEPROM (fs=) for the run after. -> the procedure's values and the BEND it set per joint."""
+    from armbridge.calibrate.base import calibrate_board as flow
 
-    with open_session(url, None) as client:
-        found = calibrate(client, config("arduino_pump"), frozenset())
-        for verb, args in found.settings:
-            client.command(verb, *args)
-        client.command("CALID", cal_id)
-        client.drain(1.5)
-        uid, held = client.command("IDENT").payload[:2]
-    bends = [list(a[1:]) for v, a in found.settings if v == "BEND"]
-    return {"uid": uid, "cal": int(held), "bends": bends, "found": found.values}
+    report = flow(url, "arduino_pump", cal_dir=cal_dir)
+    bends = [list(a[1:]) for v, a in report.settings if v == "BEND"]
+    return {"uid": report.uid, "cal": report.id, "bends": bends, "found": report.found.values}
 
 
 def run_one(plant: str, seed: int, folder: Path, calibrated: bool = False) -> dict[str, Any]:
@@ -62,25 +53,21 @@ def run_one(plant: str, seed: int, folder: Path, calibrated: bool = False) -> di
 
     from armbridge.demos import DemoOptions
     from armbridge.demos.soft import execute
-    from armbridge.emulator import simavr_runner
     from armbridge.errors import ArmbridgeError
 
-    port = f"emu:arduino_pump?speed=0&plant={plant}&seed={seed}"
-    quiet = Console(file=io.StringIO())
     tag = "cal" if calibrated else "raw"
-    saved = simavr_runner.EEPROM_DIR
-    simavr_runner.EEPROM_DIR = folder / f"eeprom-{tag}-{plant}-{seed}"    # this board's EEPROM, for both runs
+    # this board's EEPROM (fs=), kept from the calibration to the run, as the chip keeps it
+    port = f"emu:arduino_pump?speed=0&plant={plant}&seed={seed}&fs={folder / f'eeprom-{tag}-{plant}-{seed}'}"
+    quiet = Console(file=io.StringIO())
     bends = None
     try:
         if calibrated:
-            cal = calibrate_board(port)
+            cal = calibrate_board(port, folder / f"cal-{plant}-{seed}")
             bends = cal["bends"]
         rrd = folder / f"{tag}-{plant}-{seed}.rrd"
         done = execute(DemoOptions(port=port, rrd=rrd, seed=0), quiet)
     except (ArmbridgeError, typer.Exit) as exc:  # a run that failed is reported, not hidden
         return {"plant": plant, "seed": seed, "calibrated": calibrated, "error": str(exc) or type(exc).__name__}
-    finally:
-        simavr_runner.EEPROM_DIR = saved
     assert done is not None
     r = done.report
     truth = true_errors(r["poses"], plant, seed, done.planning.scene.checker(), bends)
@@ -105,7 +92,7 @@ def found_vs_truth(found: dict[str, Any], plant: str, seed: int) -> dict[str, fl
 
     cfg = config("arduino_pump")
     n = int(cfg.N_JOINTS)
-    t = hidden_truth(cfg, truth_rng(seed)) if plant == "random" else PumpTruth.nominal(nominal_rig(cfg), n)
+    t: Any = hidden_truth(cfg, truth_rng(seed)) if plant == "random" else PumpTruth.nominal(nominal_rig(cfg), n)
     joints = found["pump"]["joints"]
     return {"cal_offset_err_mrad": max(abs(f["offset_mrad"] - t.offset_mrad[j]) for j, f in enumerate(joints)),
             "cal_gain_err": max(abs(f["sensor_gain"] / t.gain[j] - 1.0) for j, f in enumerate(joints)),

@@ -148,7 +148,7 @@ def fit(edges: list[tuple[int, int, int]], r_mm: np.ndarray, nominal_mm_per_coun
     nj = len(r_mm)
     centre_c = np.full(nj, np.nan)
     half_c = np.full(nj, np.nan)
-    pairs = [[] for _ in range(nj)]
+    pairs: list[list[tuple[float, float]]] = [[] for _ in range(nj)]
     for a, b in zip(edges, edges[1:]):
         if a[0] == b[0] and a[2] != b[2] and a[2] and b[2]:
             up, down = (a, b) if a[2] > 0 else (b, a)

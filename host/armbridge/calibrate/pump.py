@@ -209,9 +209,9 @@ def _curve(s: Stroke, direction: int, v_mm_s: float, x_start: float, noise: floa
             a, b = int(a_idx[0]), int(b_idx[0])
             out["deflate_mrad_per_ml"] = float((q[a] - q[b]) / (x[a] - x[b]))
         if open_mm is not None:
-            k = np.nonzero((x <= open_mm) & after)[0]
-            if len(k):
-                out["hysteresis_mrad"] = float(q[int(k[0])])
+            hold = np.nonzero((x <= open_mm) & after)[0]
+            if len(hold):
+                out["hysteresis_mrad"] = float(q[int(hold[0])])
         straight = np.nonzero((q < thresh) & after)[0]
         if len(straight):
             out["straight_mm"] = float(max(x[int(straight[0])], 0.0))

@@ -120,12 +120,6 @@ def firmware_elf(folder: Path, elf: str) -> Path:
     return target
 
 
-#: When set, each emulated AVR board keeps its EEPROM in EEPROM_DIR/<uid>.eeprom across emulator
-#: runs (a physical board keeps its EEPROM across power cycles): the calibration bench calibrates a
-#: board in one run and executes the plan on it in the next. None (default): a temporary file.
-EEPROM_DIR: Path | None = None
-
-
 def fresh_eeprom(hal: Any, size: int = 4096) -> bytes | None:
     """The EEPROM of a board that has never run: erased (0xFF), but for the serial the
     firmware reports as IDENT's uid (config.h EE_SERIAL): one per physical board the
@@ -224,9 +218,8 @@ class SimavrRunner:
     def _eeprom_path(self, hal: Any) -> Path:
         if self.eeprom_file is not None:
             return self.eeprom_file
-        folder = self.eeprom_dir if self.eeprom_dir is not None else EEPROM_DIR
-        if folder is not None and getattr(hal, "uid_hex", None):   # the board's EEPROM across emulator runs
-            path = Path(folder) / f"{hal.uid_hex}.eeprom"
+        if self.eeprom_dir is not None and getattr(hal, "uid_hex", None):   # the board's EEPROM across emulator runs
+            path = Path(self.eeprom_dir) / f"{hal.uid_hex}.eeprom"
             if not path.exists():
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(fresh_eeprom(hal) or b"\xff" * 4096)

@@ -262,7 +262,9 @@ def safety_filter(plan: Plan) -> tuple[Plan, dict | None]:
     once, so it streams as it is; a hand-written one that leaves the disc is
     pulled in, and its summary reports the executed pen against the disc.
     -> (the plan to stream, the filter's report or None)."""
-    if plan.pen is None or plan.robot.name != "arm3r":
+    from armbridge.robots.planar import PlanarChain
+
+    if plan.pen is None or plan.robot.name != "arm3r" or not isinstance(plan.robot, PlanarChain):
         return plan, None
     from dataclasses import replace
 
