@@ -43,6 +43,8 @@ from __future__ import annotations
 
 import math
 import platform
+import shutil
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -132,32 +134,32 @@ def single_plans(arm: Any) -> list[Any]:
     return out
 
 
-def calibrate_board(seed: int) -> dict[str, Any]:
-    """Calibrate the board of hidden truth `seed` (magnets and wheel, calibrate/masr.py, from its
-    own sensors) -> its settings and what was found; the same seed is the same board."""
-    from armbridge.calibrate import masr
-    from armbridge.executor.client import BoardClient
+def calibrate_board(seed: int, fs: Path) -> dict[str, Any]:
+    """`armbridge calibrate masr_ma --only magnets --only wheel` (calibrate/base.py's flow: the
+    procedure from the board's own sensors, the settings, CALID, the host file) on the board of
+    hidden truth `seed`, its filesystem kept in `fs` so the runs after boot with the calibration
+    it saved -> its settings, what was found and (the bench may look) the truth."""
+    from armbridge.calibrate.base import calibrate_board as flow
     from armbridge.link.transport import open_port
 
     t0 = time.perf_counter()
-    port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant=random")
+    url = f"emu:masr_ma?speed=0&seed={seed}&plant=random&fs={fs}"
+    report = flow(url, "masr_ma", only=("magnets", "wheel"), cal_dir=fs / "host-calibration")
+    port = open_port(url)        # the same board again, only to read its truth
     try:
-        client = BoardClient(port, None)
-        client.connect()
-        found = masr.calibrate(client, port.emulator.cfg, frozenset({"magnets", "wheel"}))
         pl = port.emulator.plant
         truth = {"centre_mm": [m * 1000.0 for m in pl.magnets], "half_window_mm": pl.window * 1000.0,
                  "wheel_nm_per_count": pl.wheel_q * 1e9}
     finally:
         port.close()
-    return {"settings": [[v, list(a)] for v, a in found.settings], "found": found.values, "truth": truth,
+    return {"settings": [[v, list(a)] for v, a in report.settings], "found": report.found.values, "truth": truth,
             "wall_s": time.perf_counter() - t0}
 
 
-def execute(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) -> dict[str, Any]:
+def execute(mp: Any, seed: int, plant: str = "nominal", fs: Path | None = None) -> dict[str, Any]:
     """Run one MasrPlan on emu:masr_ma (setup, then its steps; `plant`: nominal or random,
-    drawn with `seed`) -> the measured numbers of one run. `settings`: (verb, args) a
-    calibration found, sent before the plan."""
+    drawn with `seed`) -> the measured numbers of one run. `fs`: the board's filesystem,
+    where a calibration saved it (the board boots with it)."""
     from armbridge.executor.client import BoardClient
     from armbridge.executor.masr import masr_commands
     from armbridge.geometry import wrap_angle
@@ -166,7 +168,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) ->
     plan, commands = masr_commands(mp, home=True)
     setup = int(plan.provenance["masr_plan"]["setup"])
     durs = [max(1, int(round(d * 1000))) for d in plan.durations]
-    port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant={plant}")
+    port = open_port(f"emu:masr_ma?speed=0&seed={seed}&plant={plant}" + (f"&fs={fs}" if fs is not None else ""))
     samples: list[tuple[float, float, float, int, float, int]] = []  # true d, estimate, bound (mm), done index, t,
     #                                                                   the count the estimate is anchored at
     try:
@@ -181,8 +183,6 @@ def execute(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) ->
 
         client = BoardClient(port, plan.robot, on_telemetry=on_telemetry)
         client.connect()
-        for verb, args in settings or ():
-            client.command(verb, *args)
         client.set_rate(50)
         client.execute(durs, [], commands=commands)
         client.drain(0.1)
@@ -219,7 +219,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) ->
     s = np.array([x for x in samples if x[3] >= setup - 1], float).reshape(-1, 6)
     err = np.abs(s[:, 1] - s[:, 0])
     after = [abs(x) for x in after_edges(s[:, 4], s[:, 1] - s[:, 0], s[:, 5], hall)]
-    return {"environment": mp.env.name, "seed": seed, "plant": plant, "calibrated": bool(settings),
+    return {"environment": mp.env.name, "seed": seed, "plant": plant, "calibrated": fs is not None,
             "actions": len(commands) - setup, "tau_s": mp.total_time,
             "executed_s": executed, "time_ratio": executed / mp.total_time, "dp_mm": dp * 1000.0,
             "dphi_deg": math.degrees(dphi), "e_p_mm": mp.env.e_p * 1000.0, "e_phi_deg": math.degrees(mp.env.e_phi),
@@ -300,9 +300,9 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
                               "machine": {"python": platform.python_version(),
                                           "cpu": platform.processor() or platform.machine()}}
 
-    def run_on(mp: Any, seed: int, plant: str = "nominal", settings: Any = None) -> dict[str, Any]:
+    def run_on(mp: Any, seed: int, plant: str = "nominal", fs: Path | None = None) -> dict[str, Any]:
         try:
-            return execute(mp, seed, plant, settings)
+            return execute(mp, seed, plant, fs)
         except ArmbridgeError as exc:  # a run that failed is reported, not hidden
             return {"environment": mp.env.name, "seed": seed, "plant": plant, "tau_s": mp.total_time,
                     "error": str(exc)}
@@ -355,11 +355,12 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
                                      f"executed {r['executed_s']:.2f} s (tau {r['tau_s']:.2f}), dp {r['dp_mm']:.1f} mm, "
                                      f"dphi {r['dphi_deg']:.2f} deg"))
 
+        boards = Path(tempfile.mkdtemp(prefix="armbridge-masr-exec-"))   # each calibrated board's filesystem
         for k in range(size.plants if mp is not None else 0):
-            variants: list[tuple[str, Any]] = [("", None)]
+            variants: list[tuple[str, Path | None]] = [("", None)]
             if size.calibrated:
                 try:
-                    cal = calibrate_board(k)
+                    cal = calibrate_board(k, boards / f"ma-{k}")
                 except ArmbridgeError as exc:
                     cal = {"seed": k, "error": str(exc)}
                 cal["seed"] = k
@@ -367,20 +368,21 @@ def run(size: MasrExecBenchSize, progress: Callable[[str], None] = lambda s: Non
                 progress(f"random plant {k}: calibrated in {cal.get('wall_s', 0):.0f} s"
                          + (f", failed: {cal['error']}" if "error" in cal else ""))
                 if "error" not in cal:
-                    variants.append((" calibrated", [(v, tuple(a)) for v, a in cal["settings"]]))
-            for tag, settings in variants:
+                    variants.append((" calibrated", boards / f"ma-{k}"))
+            for tag, fs in variants:
                 key = "_calibrated" if tag else "_random_plants"
-                r = run_on(mp, k, "random", settings)
+                r = run_on(mp, k, "random", fs)
                 sets["e1" + key].append(r)
                 note(f"E1 on random plant {k}{tag}", r)
                 for sp in singles:
-                    r = run_on(sp, k, "random", settings)
+                    r = run_on(sp, k, "random", fs)
                     sets["singles" + key].append(r)
                     note(f"{sp.env.name} on random plant {k}{tag}", r)
         for key, runs in sets.items():
             result[key] = {"runs": runs} if key == "calibrations" else {"runs": runs, "summary": summarize(runs)}
         if size.calibrated:
             result["calibrations"]["summary"] = calibration_summary(sets["calibrations"])
+        shutil.rmtree(boards, ignore_errors=True)
     result["wall_s"] = time.perf_counter() - t0
     return result
 
