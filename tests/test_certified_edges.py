@@ -9,6 +9,10 @@ and shapely finds no overlap (chain within half the link width of an obstacle,
 or non-adjacent links within the width) at states no more than 0.1 mm of point
 motion apart, on the SHAPELY edges of them that pass nearest an obstacle. The
 motion bound itself is checked against sampled displacements.
+
+The MASR (planning/masr/collision.py, certified rotations): the same on E1-E3,
+MASR_EDGES actions each from configurations within NEAR_M of an obstacle,
+against the convention's shapes 1 mm (a tenth of SWEEP_RES) and 0.1 mm apart.
 """
 from __future__ import annotations
 
@@ -198,3 +202,91 @@ def test_the_reported_overlap_is_gone():
         assert checker.path_problem(r.path) is None
         Q = np.concatenate([dense_states(checker, r.path[k], r.path[k + 1]) for k in range(len(r.path) - 1)])
         assert not shapely_overlaps(checker, Q).any(), name
+
+
+# ------------------------------------------------------------------------------------------------------ the MASR
+MASR_ENVS = ("E1", "E2", "E3")
+MASR_EDGES = 4_000  # per environment: 12,000 for the robot
+
+
+def masr_near_edges(env, chk, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """count actions (a, b): a in C_free within NEAR_M of an obstacle, 1-3 joints turned (up to 0.3 rad), the MA
+    moved or put on a joint."""
+    arm = env.arm
+    lo, hi = np.append(-arm.theta_b, 0.0), np.append(arm.theta_b, arm.total_length)
+    A, B = [], []
+    while len(A) < count:
+        for a in rng.uniform(lo, hi, (4 * count, arm.n + 1)):
+            if len(A) == count:
+                break
+            if not chk.is_valid(a) or chk.clearance(a) > NEAR_M:
+                continue
+            b = a.copy()
+            joints = rng.choice(arm.n, size=rng.integers(1, 4), replace=False)
+            b[joints] += rng.uniform(-0.3, 0.3, joints.size)
+            b[-1] = arm.r[rng.integers(arm.n)] if rng.random() < 0.2 else rng.uniform(0.0, arm.total_length)
+            A.append(a)
+            B.append(np.clip(b, lo, hi))
+    return np.array(A), np.array(B)
+
+
+def masr_shapes(chk, qa: np.ndarray, qb: np.ndarray, res: float) -> np.ndarray:
+    """The arm's configurations along the convention's rotations, no point moving more than res between two."""
+    from armbridge.planning.masr.collision import rotation_order
+
+    order = np.empty(chk.arm.n, dtype=np.int64)
+    m = rotation_order(qa, qb, chk.collision.rj, order)
+    q = qa.copy()
+    out = []
+    for j in order[:m]:
+        k = max(1, int(math.ceil(abs(qb[j] - qa[j]) * chk.collision.reach[j] / res)))
+        for s in range(1, k + 1):
+            q[j] = qa[j] + (qb[j] - qa[j]) * s / k
+            out.append(q.copy())
+        q[j] = qb[j]
+    out.append(qb.copy())
+    return np.array(out)
+
+
+@pytest.fixture(scope="module", params=MASR_ENVS)
+def masr_edges(request):
+    from armbridge.planning.masr.environment import fixed_environment
+    from armbridge.planning.masr.space import MasrChecker
+
+    env = fixed_environment(request.param)
+    chk = MasrChecker(env.checker())
+    A, B = masr_near_edges(env, chk, np.random.default_rng(24), MASR_EDGES)
+    free = np.array([chk.motion_valid(a, b) for a, b in zip(A, B)])
+    return request.param, env, chk, A, B, free
+
+
+def test_masr_certified_free_actions_are_free_at_a_ten_times_finer_resolution(masr_edges):
+    from armbridge.planning.masr.collision import SWEEP_RES
+
+    name, env, chk, A, B, free = masr_edges
+    c = chk.collision
+    fine = np.array([not np.any(c.hits(masr_shapes(chk, a, b, SWEEP_RES / 10)) >= 0) for a, b in zip(A, B)])
+    missed = np.flatnonzero(free & ~fine)
+    assert missed.size == 0, (name, missed[:5])
+    assert 0.05 * len(A) < free.sum() < 0.98 * len(A), (name, free.sum())
+    assert np.count_nonzero(fine & ~free) <= 0.02 * fine.sum(), (name, np.count_nonzero(fine & ~free))
+
+
+def test_masr_certified_free_actions_do_not_overlap_in_shapely(masr_edges):
+    from armbridge.planning.masr.collision import arm_points
+
+    name, env, chk, A, B, free = masr_edges
+    idx = np.flatnonzero(free)
+    least = np.array([min(chk.clearance(q) for q in masr_shapes(chk, A[k], B[k], 0.01)) for k in idx])
+    pick = idx[np.argsort(least)[:SHAPELY]]
+    Q = np.concatenate([masr_shapes(chk, A[k], B[k], DENSE_M) for k in pick])
+    assert len(Q) > 10 * SHAPELY
+    pts = np.empty((chk.arm.n + 1, 2))
+    P = np.empty((len(Q), chk.arm.n + 1, 2))
+    for i, q in enumerate(Q):
+        arm_points(q, chk.collision.lengths, pts)
+        P[i] = pts
+    obstacles = shapely.union_all([shapely.Polygon(p) for p in env.obstacles])
+    shapely.prepare(obstacles)
+    d = shapely.distance(shapely.linestrings(P), obstacles)
+    assert np.all(d > chk.margin), (name, d.min() - chk.margin)

@@ -16,10 +16,25 @@ the MA do not change the arm's shape. `edge_free` checks:
 * q_b in C_f (eq. 5), and optionally q_a in C_free;
 * the arm after every rotation of the convention, in the convention's order
   (the paper's check), and
-* with `sweep_res > 0` (default 0.01 m) also sub-steps of each rotation, so
-  that no point of the arm moves more than `sweep_res` between two checked
-  shapes. `sweep_res = 0` is the paper's literal check (only after each
-  rotation).
+* with `sweep_res > 0` (default 0.01 m) every rotation's whole continuous
+  sweep, certified by conservative advancement (`rotation_hit`, issue 24
+  section 1), `sweep_res` being only the spacing of its probe states.
+  `sweep_res = 0` is the paper's literal check (only after each rotation).
+
+The bound: turning joint j (at p_j) by dth turns links k >= j rigidly about
+p_j; a point x of link k is within R_jk = L_j + ... + L_k of p_j, so over a
+fraction s of the rotation it moves at most s |dth| R_jk, and the link's
+distance to any polygon changes at most as much (links k < j do not move;
+MA moves do not change the shape: the MA rides on the links). With
+c_k = dist(link k, polygons) - r at the current angle, nothing can touch
+while s < min_k c_k / (|dth| R_jk): the check advances by that fraction,
+measures again and repeats to the rotation's end, so no shape between two
+checks is left out. A rotation is refused when a clearance is <= CLEAR_MIN
+(1 um; code NEAR, -8) or after MAX_STEPS steps, and at once when a probe
+state one `sweep_res` of point motion ahead collides (taken only while the
+advancement moves slower than that), so colliding sweeps cost about what the
+sub-stepped check cost. The earlier check (sub-steps `sweep_res` apart,
+which could miss a collision between them) is gone.
 
 Kernels take plain arrays so the planner's own numba code can call them;
 `CollisionChecker` wraps them for Python callers.
@@ -35,6 +50,7 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.polygons import chain_points, points_hit, polygon_arrays
+from armbridge.planning.soft.space import CLEAR_MIN, MAX_STEPS, NEAR, obstacle_clearance
 from armbridge.robots.masr import ANGLE_TOL, POS_TOL, MasrArm
 
 #: Default sweep resolution in m (see module doc).
@@ -106,17 +122,62 @@ def rotation_order(qa, qb, rj, order):
 
 
 @njit(cache=True)
+def rotation_hit(q, j, th0, dth, lengths, verts, starts, bbox, r2, res, pts, cl):
+    """The continuous rotation of joint j from th0 by dth (q's other entries fixed), certified by
+    conservative advancement (module doc): -1 free, else a colliding probe's points_hit code or NEAR.
+    Leaves q[j] at the last state measured."""
+    n = lengths.size
+    r = math.sqrt(r2)
+    a = abs(dth)
+    move = 0.0
+    for k in range(j, n):
+        move += lengths[k]
+    move *= a
+    h = res / move if move > 0.0 else 2.0
+    t = 0.0
+    probed = 0.0
+    steps = 0
+    while steps < MAX_STEPS:
+        steps += 1
+        q[j] = th0 + t * dth
+        arm_points(q, lengths, pts)
+        obstacle_clearance(pts, verts, starts, bbox, cl)
+        s = np.inf
+        R = 0.0
+        for k in range(j, n):
+            R += lengths[k]
+            c = cl[k] - r
+            if c <= CLEAR_MIN:
+                hit = points_hit(pts, verts, starts, bbox, r2)
+                return hit if hit >= 0 else NEAR
+            b = a * R
+            if b > 0.0 and c < s * b:
+                s = c / b
+        if t + s >= 1.0:
+            return -1
+        if s < h and t >= probed:
+            probed = min(1.0, t + h)
+            q[j] = th0 + probed * dth
+            hit = config_hit(q, lengths, verts, starts, bbox, r2, pts)
+            if hit >= 0:
+                return hit
+        t += s
+    return NEAR
+
+
+@njit(cache=True)
 def edge_hit(qa, qb, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2, sweep_res, check_start):
     """Check the action qa -> qb along the convention.
 
-    Returns -3 if qb (or qa) is outside C_f, -1 if free, else the
-    points_hit code of the first shape that collides. reach[j] bounds the
-    distance from joint j to any distal point of the arm (sum of lengths j..n-1).
+    Returns -3 if qb (or qa) is outside C_f, -1 if free, NEAR (-8) if a rotation cannot be certified
+    free (a clearance within CLEAR_MIN), else the points_hit code of the first shape found colliding.
+    sweep_res > 0: every rotation certified (rotation_hit); 0: the shapes after each rotation only.
     """
     n = lengths.size
     if not feasible(qb, theta_b, total):
         return -3
     pts = np.empty((n + 1, 2))
+    cl = np.empty(n)
     q = qa.copy()
     if check_start:
         if not feasible(qa, theta_b, total):
@@ -130,13 +191,9 @@ def edge_hit(qa, qb, lengths, rj, reach, theta_b, total, verts, starts, bbox, r2
         j = order[k]
         th0 = qa[j]
         dth = qb[j] - th0
-        steps = 1
         if sweep_res > 0.0:
-            steps = max(1, int(math.ceil(abs(dth) * reach[j] / sweep_res)))
-        for s in range(1, steps):
-            q[j] = th0 + dth * (s / steps)
-            h = config_hit(q, lengths, verts, starts, bbox, r2, pts)
-            if h >= 0:
+            h = rotation_hit(q, j, th0, dth, lengths, verts, starts, bbox, r2, sweep_res, pts, cl)
+            if h != -1:
                 return h
         q[j] = qb[j]
         if k < m - 1:
@@ -244,5 +301,7 @@ class CollisionChecker:
         where = "the first configuration" if k < 0 else f"edge {k} -> {k + 1}"
         if code == -3:
             return f"{where}: outside the joint limits or the arm (eq. 5)"
+        if code == NEAR:
+            return f"{where}: a rotation cannot be certified free (a clearance within {CLEAR_MIN * 1e6:g} um)"
         p, link = self._decode(code)
         return f"{where}: link {link + 1} hits obstacle {p}"

@@ -12,6 +12,10 @@ that the loop stays in numba: the tree's (planning.tree.Tree) and, as
 tuples, the space's, the checker's and the goal's (space.py: MasrSpace.cost_args,
 MasrChecker.kernel_args, MasrGoal.kernel_args), which are the arrays those
 objects' own methods hand to the same kernels.
+
+CollisionFree is collision.edge_hit, whose rotations are certified free for the continuous sweep (issue 24
+section 1). numba caches `extend` with edge_hit compiled in and checks only this file's date: an edit of
+collision.py (or of the soft space.py kernels it uses) needs this file touched too.
 """
 from __future__ import annotations
 
