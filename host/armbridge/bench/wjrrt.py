@@ -3,7 +3,15 @@
 Protocol (docs/benchmarks.md, "Soft arm"):
 
 * scenes: the shipped fixed scenes (planning.soft.scene.FIXED: the paper's
-  two-arm, three-arm and seven-arm cases, and OMPL's horn); seeds 0..seeds-1.
+  two-arm, three-arm and seven-arm cases, and OMPL's horn), scene files
+  (armbridge-chain-env) and generated scenes (planning.soft.random_scene:
+  random:LINKS:KIND:SEEDS, e.g. random:3:corridor:0-9, ten scenes, a
+  "group"); seeds 0..seeds-1. A group is summarised over all its scenes'
+  runs as well (result["groups"]); the paper's targets are checked on the
+  other scenes only.
+* warm-up: before any run, every planner runs once on a tiny scene
+  (wjrrt_run.warm_up; again once in each worker process), so numba's
+  compilation (or its cache's loading) and OMPL's set-up fall on no run.
 * planners: ours (planning.soft.planners: WJRRT, JT-RRT, Bi-RRT) with the
   scene's parameters and its iteration budget N (Table 1's "Iter.": a run
   ends at the goal or after N iterations), and OMPL's RRTConnect, KPIECE1,
@@ -168,18 +176,58 @@ def targets(result: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def resolve_scenes(items: Sequence[Any]) -> tuple[list[Any], dict[str, list[str]]]:
+    """(scenes, groups) of --scenes' items: a fixed scene's name, a scene file, a generated spec
+    (random:LINKS:KIND:SEEDS -> one scene per seed, a group: spec -> its scene names) or a Scene.
+    Names stay unique (a repeated one gets "-2", "-3", ...); anything else is one ArmbridgeError."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from armbridge.planning.soft.random_scene import is_spec, open_scene, parse_spec, random_scene
+    from armbridge.planning.soft.scene import Scene
+
+    out: list[Any] = []
+    groups: dict[str, list[str]] = {}
+    used: set[str] = set()
+
+    def named(scene: Scene) -> Scene:
+        name, k = scene.name, 1
+        while name in used:
+            k += 1
+            name = f"{scene.name}-{k}"
+        used.add(name)
+        return scene if name == scene.name else replace(scene, name=name)
+
+    for item in items:
+        if isinstance(item, Scene):
+            out.append(named(item))
+        elif isinstance(item, (str, Path)) and is_spec(str(item)) and not Path(item).exists():
+            made = [named(random_scene(*t)) for t in parse_spec(str(item))]
+            key = str(item).strip()
+            groups[key] = groups.get(key, []) + [s.name for s in made]
+            out += made
+        elif isinstance(item, (str, Path)):
+            out.append(named(open_scene(str(item))))
+        else:
+            raise ArmbridgeError(f"--scenes: {item!r} is not a scene name, file or random:LINKS:KIND:SEEDS spec")
+    return out, groups
+
+
 def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str] = PLANNERS,
         iterations: Optional[int] = None, res: Optional[float] = None,
         progress: Callable[[str], None] = lambda s: None, runner: Optional[Runner] = None) -> dict[str, Any]:
     """Every planner on every scene and seed (module doc) -> the JSON document of `armbridge bench wjrrt`.
 
-    scenes: fixed-scene names (default: all of FIXED) or Scene objects;
+    scenes: fixed-scene names (default: all of FIXED), scene files, generated specs (resolve_scenes) or
+    Scene objects;
     runner: where the (scene, seed) shards run (None: here, serially).
     """
     from armbridge.bench.wjrrt_shards import sweep
     from armbridge.planning.soft import ompl_planners
-    from armbridge.planning.soft.scene import FIXED, fixed_scene
+    from armbridge.planning.soft.scene import FIXED
     from armbridge.planning.soft.space import EDGE_RES
+
+    from armbridge.bench.wjrrt_run import warm_up
 
     names = tuple(scenes) or FIXED
     for pl in planners:
@@ -188,16 +236,17 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
     if size.seeds < 1 or not size.time_limit > 0:
         raise ArmbridgeError(f"--seeds must be >= 1 and --time-limit > 0 s, got {size.seeds}, {size.time_limit}")
     res = EDGE_RES if res is None else float(res)
-    loaded = [fixed_scene(n) if isinstance(n, str) else n for n in names]  # a bad name fails before any work
+    loaded, groups = resolve_scenes(names)  # a bad name, file or spec fails before any work
     skipped = {pl: why for pl in planners if pl in OMPL and (why := ompl_planners.missing(pl))}
     active = [pl for pl in planners if pl not in skipped]
+    warm_s = warm_up(active, res)
     result: dict[str, Any] = {
         "benchmark": "wjrrt (Table 1 of the WJRRT paper, with OMPL)", "size": asdict(size), "res_m": res,
         "iterations_override": iterations, "planners": list(planners), "not_run": skipped,
         "budgets_s": budgets(size.time_limit),
         "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
         "paper_table1": {k: {pl: dict(zip(PAPER_COLUMNS, v)) for pl, v in rows.items()} for k, rows in PAPER.items()},
-        "shards": runner.backend if runner is not None else "serial", "scenes": {},
+        "shards": runner.backend if runner is not None else "serial", "warm_up_s": warm_s, "scenes": {},
     }
     t0 = time.perf_counter()
     wins: list[dict[str, int]] = [dict.fromkeys(active, 0) for _ in loaded]
@@ -219,7 +268,18 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
             "planners": {pl: {"summary": summarise(runs[pl], size.time_limit, budget if pl in OURS else None),
                               "runs": runs[pl]} for pl in active},
         }
-    result["targets"] = targets(result)
+    result["groups"] = {}
+    for spec, members in groups.items():
+        its = {result["scenes"][n]["iterations_budget"] for n in members}
+        group_budget = its.pop() if len(its) == 1 else None
+        result["groups"][spec] = {
+            "scenes": members, "links": result["scenes"][members[0]]["links"],
+            "planners": {pl: {"summary": summarise([r for n in members for r in result["scenes"][n]["planners"][pl]
+                                                    ["runs"]], size.time_limit, group_budget if pl in OURS else None)}
+                         for pl in active}}
+    generated = {n for members in groups.values() for n in members}
+    result["targets"] = targets({**result, "scenes": {k: v for k, v in result["scenes"].items()
+                                                      if k not in generated}})
     result["wall_s"] = time.perf_counter() - t0
     return result
 
@@ -228,10 +288,18 @@ def _cell(v: Any, spec: str) -> str:
     return "-" if v is None else format(v, spec)
 
 
+def _generated(result: dict[str, Any]) -> set[str]:
+    return {n for g in result.get("groups", {}).values() for n in g["scenes"]}
+
+
 def table_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
-    """Table 1's rows (scene, planner, then COLUMNS as text), paper rows beside ours."""
+    """Table 1's rows (scene, planner, then COLUMNS as text), paper rows beside ours; generated scenes
+    are in group_rows instead."""
     rows: list[tuple[str, ...]] = []
+    skip = _generated(result)
     for name, sc in result["scenes"].items():
+        if name in skip:
+            continue
         for pl, d in sc["planners"].items():
             s = d["summary"]
             it = f"{s['iterations_budget']} ({s['iterations_median']:.0f})" if s["iterations_budget"] else \
@@ -240,6 +308,19 @@ def table_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
                          _cell(s["nodes"], ".0f"), _cell(s["track_nodes"], ".0f"), _cell(s["goal_nodes"], ".0f"),
                          _cell(s["random_nodes"], ".0f"), _cell(s["obstacle_checks"], ".0f"),
                          _cell(s["final_H"], ".3g")))
+    return rows
+
+
+def group_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
+    """Per group of generated scenes and planner: scenes, success over all its runs, the median time of
+    the successful runs, time to success median / p90 (s)."""
+    rows: list[tuple[str, ...]] = []
+    for spec, g in result.get("groups", {}).items():
+        for pl, d in g["planners"].items():
+            s = d["summary"]
+            rows.append((spec, LABELS[pl], str(len(g["scenes"])), f"{s['success']}/{s['runs']}",
+                         f"{100 * s['success_rate']:.0f}", _cell(s["time_median_s"], ".3g"),
+                         f"{_cell(s['time_to_success_median_s'], '.3g')} / {_cell(s['time_to_success_p90_s'], '.3g')}"))
     return rows
 
 
@@ -254,7 +335,16 @@ def print_result(result: dict[str, Any], console: Any) -> None:
         t.add_column(col, justify="left" if col in ("scene", "planner") else "right")
     for row in table_rows(result):
         t.add_row(*row)
-    console.print(t)
+    if t.row_count:
+        console.print(t)
+    if result.get("groups"):
+        g = Table(title=f"generated scenes ({result['size']['seeds']} seeds per scene, budget {T:g} s per run): "
+                        "over all runs of a group")
+        for col in ("scenes", "planner", "n", "success", "%", "time (s, median)", "time to success median / p90"):
+            g.add_column(col, justify="left" if col in ("scenes", "planner") else "right")
+        for row in group_rows(result):
+            g.add_row(*row)
+        console.print(g)
     e = Table(title="equal time: success (%) at a budget of t s, time to success median / p90 (s)")
     e.add_column("scene")
     e.add_column("planner")
@@ -262,7 +352,9 @@ def print_result(result: dict[str, Any], console: Any) -> None:
     for b in shown:
         e.add_column(f"{b:g}", justify="right")
     e.add_column("median / p90", justify="right")
-    for name, sc in result["scenes"].items():
+    skip = _generated(result)
+    for name, sc in [*[(n, sc) for n, sc in result["scenes"].items() if n not in skip],
+                     *result.get("groups", {}).items()]:
         for pl, d in sc["planners"].items():
             s = d["summary"]
             e.add_row(name, LABELS[pl], *[f"{100 * s['success_at'][f'{b:g}']:.0f}" for b in shown],

@@ -190,8 +190,24 @@ def time_figure(result: dict[str, Any]) -> Any:
     return fig
 
 
+def by_group(result: dict[str, Any]) -> dict[str, Any]:
+    """The result with each group of generated scenes as one scene (its scenes' runs together), so the
+    figures keep a panel per fixed scene or file and get one per group, not one per generated scene."""
+    groups = result.get("groups") or {}
+    if not groups:
+        return result
+    generated = {n for g in groups.values() for n in g["scenes"]}
+    scenes = {n: sc for n, sc in result["scenes"].items() if n not in generated}
+    for spec, g in groups.items():
+        members = [result["scenes"][n] for n in g["scenes"]]
+        scenes[spec] = {"links": g["links"], "planners": {
+            pl: {"runs": [r for sc in members for r in sc["planners"][pl]["runs"]]} for pl in g["planners"]}}
+    return {**result, "scenes": scenes}
+
+
 def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
-    """Write wjrrt-success.png and wjrrt-time.png into png_dir."""
+    """Write wjrrt-success.png and wjrrt-time.png into png_dir (a group of generated scenes: one panel)."""
+    result = by_group(result)
     plt = pyplot()
     png_dir.mkdir(parents=True, exist_ok=True)
     out = []
@@ -207,7 +223,13 @@ def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
 def wjrrt_cmd(
     seeds: int = typer.Option(None, "--seeds", min=1, help="Seeds per scene and planner (full run: 100)."),
     scenes: str = typer.Option("two-arm,three-arm,seven-tube,horn", "--scenes",
-                               help="Comma-separated fixed scenes (planning/soft/scenes)."),
+                               help="Comma-separated: fixed scenes (two-arm, three-arm, seven-tube, horn), scene "
+                                    "files (armbridge-chain-env JSON) and generated scenes random:LINKS:KIND:SEEDS "
+                                    "(LINKS 2, 3 or 7; KIND corridor, passage or clutter; SEEDS N or A-B, e.g. "
+                                    "random:3:corridor:0-9)."),
+    save_scenes: Optional[Path] = typer.Option(None, "--save-scenes",
+                                               help="Also write every generated scene as a scene file into this "
+                                                    "folder (NAME.json; --scenes takes them back)."),
     planners: str = typer.Option("wjrrt,jt-rrt,birrt,RRTConnect,KPIECE1,STRIDE", "--planners",
                                  help="Comma-separated: ours (wjrrt, jt-rrt, birrt) and OMPL's (RRTConnect, "
                                       "KPIECE1, STRIDE)."),
@@ -228,6 +250,10 @@ def wjrrt_cmd(
     obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT and OMPL's RRTConnect, KPIECE1, STRIDE on the
     same scenes and checker, every run with the same time budget; success against the budget.
 
+    Scenes: fixed ones, scene files and generated ones (random:3:corridor:0-9: ten scenes, summarised
+    together as well). Every planner runs once on a tiny scene first, so numba's compilation falls on
+    no run's budget.
+
     One shard per scene and seed, every planner on it in turn (--ray, --workers; docs/cluster.md):
     our planners' runs are the serial run's but their times, where no run ran out of the budget;
     OMPL's are time-bound and not reproducible; times are measured where each shard ran."""
@@ -241,8 +267,17 @@ def wjrrt_cmd(
     if time_limit is not None:
         size = replace(size, time_limit=time_limit)
     console = Console()
+    items = tuple(s.strip() for s in scenes.split(",") if s.strip())
+    if save_scenes is not None:
+        from armbridge.bench.wjrrt import resolve_scenes
+        from armbridge.planning.soft.scene import save_scene
+
+        loaded, groups = resolve_scenes(items)
+        for sc in loaded:
+            if any(sc.name in g for g in groups.values()):
+                console.print(f"[dim]bench wjrrt: wrote {save_scene(sc, save_scenes / f'{sc.name}.json')}[/]")
     with shard_options.runner(ray, workers, checkpoint, progress) as runner:
-        result = run(size, tuple(s.strip() for s in scenes.split(",") if s.strip()),
+        result = run(size, items,
                      tuple(p.strip() for p in planners.split(",") if p.strip()), iterations=iterations,
                      progress=lambda text: console.print(f"[dim]bench wjrrt: {text}[/]"), runner=runner)
     write_json(result, json_out)

@@ -6,7 +6,9 @@ machine falls on all planners alike. The scene travels as its document
 (Scene.to_dict, in the job's parameters, hashed into the checkpoint's
 manifest); the worker rebuilds it once per process and finds its goal
 configurations (deterministic: planning.soft.ik.goal_configs, seed 0), so
-every worker plans on the driver's scene.
+every worker plans on the driver's scene. Before its first run a worker
+process warms its planners up (wjrrt_run.warm_up: numba compiles or loads
+every jitted function on a tiny scene), so no run's budget pays for that.
 
 What equals the serial run, and what does not:
 
@@ -122,13 +124,14 @@ def scene_of(doc: Mapping[str, Any]) -> Scene:
 
 def seed_shard(params: Mapping[str, Any], shard: Shard) -> dict[str, np.ndarray]:
     """Every planner of params on scene shard.params["scene"] at seed shard.seed, in turn."""
-    from armbridge.bench.wjrrt_run import OMPL, one_run
+    from armbridge.bench.wjrrt_run import OMPL, one_run, warm_up
     from armbridge.planning import ompl_bridge
 
     scene = scene_of(params["scenes"][shard.params["scene"]])
     planners = list(params["planners"])
     if any(pl in OMPL for pl in planners):
         ompl_bridge.seed_once(0)  # the first seed of this process stays (module doc)
+    warm_up(planners, float(params["res"]))  # once per process, before any run's budget starts
     its = params["iterations"]
     return encode_runs([one_run(scene, pl, int(shard.seed), float(params["time_limit"]),
                                 None if its is None else int(its), float(params["res"])) for pl in planners])

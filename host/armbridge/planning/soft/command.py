@@ -43,13 +43,15 @@ class SoftPlanning:
 
 def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations: Optional[int] = None,
                   tolerance: Optional[float] = None, tool: str = "armbridge plan soft") -> SoftPlanning:
-    """Load the scene (a file or a fixed scene's name), plan, pick and time the pump waypoints."""
+    """Load the scene (a file, a fixed scene's name or random:LINKS:KIND:SEED), plan, pick and time the pump
+    waypoints."""
     from armbridge.planning.soft import waypoints as W
     from armbridge.planning.soft.ik import onto_goal
     from armbridge.planning.soft.planners import PLANNERS, plan
     from armbridge.planning.soft.plan_file import soft_plan
     from armbridge.planning.soft.pump_timing import board_timing
-    from armbridge.planning.soft.scene import Scene, load_scene
+    from armbridge.planning.soft.random_scene import open_scene
+    from armbridge.planning.soft.scene import Scene
 
     if planner not in PLANNERS:
         raise ArmbridgeError(f"--planner {planner!r}: unknown planner (known: {', '.join(PLANNERS)})")
@@ -58,7 +60,7 @@ def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations
     tol = W.TOLERANCE_M if tolerance is None else float(tolerance)
     if not 0 < tol <= 1.0:
         raise ArmbridgeError(f"--tolerance {tol:g} m is outside (0, 1]")
-    scene = env if isinstance(env, Scene) else load_scene(str(env))
+    scene = env if isinstance(env, Scene) else open_scene(str(env))
     result = plan(scene, planner, seed=seed, iterations=iterations)
     if result.path is None:
         raise ArmbridgeError(f"{planner} found no path to the goal of {scene.name} in {result.iterations} iterations "
@@ -71,8 +73,9 @@ def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations
 
 
 def soft_cmd(
-    env: str = typer.Option(..., "--env", help="Scene JSON file (armbridge-chain-env), or a fixed scene: two-arm, "
-                                               "three-arm, seven-tube, horn."),
+    env: str = typer.Option(..., "--env", help="Scene JSON file (armbridge-chain-env), a fixed scene: two-arm, "
+                                               "three-arm, seven-tube, horn, or a generated one: "
+                                               "random:LINKS:KIND:SEED (e.g. random:3:corridor:7)."),
     out: Path = typer.Option(..., "--out", help="Plan file to write (armbridge-plan JSON; `armbridge run` runs it)."),
     planner: str = typer.Option("wjrrt", "--planner", help="wjrrt, jt-rrt or birrt."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same plan)."),
