@@ -84,6 +84,12 @@ def test_the_jig_finds_the_pca9685_servos_lines(seed):
             for us in (1000.0, 1250.0, 1500.0, 1750.0, 2000.0):
                 said = (a + (us - us_a) * (b - a) / (us_b - us_a)) / 1000.0
                 assert said == pytest.approx(true_servo_angle(emu.plant, j, us), abs=SERVO_MRAD / 1000), (j, us)
+        # the hysteresis between the two sides (DBAND: the servos' lead): never more than the plant's
+        # (its dead band both ways and its play) and one PWM count, so the lead cannot overshoot
+        width = {args[0]: args[1] for verb, args in f.settings if verb == "DBAND"}
+        truth = 2 * (np.asarray(emu.plant.deadband) + np.asarray(emu.plant.half_play)) * 1000
+        assert sorted(width) == [1, 2, 3]
+        assert all(0 <= width[j + 1] <= truth[j] + 12 for j in range(3)), (width, truth)
 
 
 @pytest.mark.parametrize("seed", (1,))

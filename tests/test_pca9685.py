@@ -444,3 +444,18 @@ def test_the_servos_lead_runs_ahead_along_the_velocity_within_the_limits(rig):
     b.traj.vel = [3000.0, 3000.0, 3000.0]
     out = b._led([3130.0, -10.0, 1560.0])
     assert out == pytest.approx([3.142, 0.0, 1.571])
+
+
+def test_the_servos_lead_their_pulse_toward_the_side_they_move_to():
+    """servos.Servo.led (DBAND on this rig): half the hysteresis width, on the side the pulse last
+    moved to by more than SIDE_US; none before it has moved, none with lead 0; clipped to the range."""
+    s = servos_mod.Servo(1000, 0, 2000, 1000)
+    assert s.led(1500.0) == 1500.0                     # no lead set: the pulse as it is
+    s.lead_us = 4.0
+    assert s.led(1500.0) == 1500.0                     # not moved yet: no side
+    assert s.led(1510.0) == 1514.0                     # moving up: led up
+    assert s.led(1510.3) == 1514.3                     # within SIDE_US: the side stays
+    assert s.led(1505.0) == 1501.0                     # moving down: led down
+    assert s.led(1505.2) == 1501.2
+    s.lead_us = 10.0
+    assert s.led(2498.0) == 2500.0 and s.led(502.0) == 500.0   # within the servo's range

@@ -169,6 +169,8 @@ class Board(L.LinkedBoard):
         if self.positional:
             if hasattr(hal, "set_calibration"):
                 self.verbs["CAL"] = self.cal.cmd_cal
+            if hasattr(hal, "set_lead"):
+                self.verbs["DBAND"] = self.cal.cmd_dband  # the servos' hysteresis (servos.py's lead)
         else:
             self.verbs["CAL"] = self.cal.cmd_cal      # the pots' calibration (arm_cal.py)
             self.verbs["RELAY"] = self.cal.cmd_relay

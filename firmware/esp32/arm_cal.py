@@ -33,9 +33,14 @@ CAL j us_a a us_b b:
     The identity (`CAL j 1000 mid-500 2000 mid+500`) undoes it.
   Both RAM only until CALID.
 
+DBAND j mrad (pca9685 rig only): servo j's hysteresis width, the difference
+between where its joint rests for one pulse coming from above and from below
+(its dead band on both sides and its gear play, 0..LEAD_MAX_MRAD); servos.py
+leads the pulse by half of it toward the side it moves to. RAM until CALID.
+
 cal_text() / cal_apply(tokens) (common/calstore.py): the settings CALID saves
-and a boot loads back, as tokens `G<j>=kp,ki,kd` (thousandths, as GAIN) and
-`C<j>=us_a,a,us_b,b` (as CAL, for either rig). A token that does not fit
+and a boot loads back, as tokens `G<j>=kp,ki,kd` (thousandths, as GAIN),
+`C<j>=us_a,a,us_b,b` (as CAL, for either rig) and `D<j>=mrad` (as DBAND). A token that does not fit
 (unknown, malformed, a joint out of range, a CAL the verb would refuse) raises
 ValueError and the boot keeps the config's defaults.
 """
@@ -47,6 +52,7 @@ from relay import Relay
 RELAY_TIMEOUT_MS = 10000
 POT_SLOPE = (0.8, 1.25)         # pot CAL: corrected per read mrad
 SERVO_SLOPE = (0.5, 2.0)        # servo CAL: its us per mrad against the config's
+LEAD_MAX_MRAD = 100            # DBAND on the servo rig: a hysteresis wider than this is no servo's
 
 
 class ArmCal:
@@ -62,6 +68,7 @@ class ArmCal:
         if self.positional:
             self.cal = [tuple(c) for c in cfg.SERVO_CAL]
         self.pot = [None] * n  # type: list  # effort rig: (r0 rad, a0 rad, slope) per joint, or None
+        self.lead = [0] * n             # pca9685 rig: DBAND, each servo's hysteresis width (mrad)
         self.relay = None  # type: Relay | None
         self.relay_j = -1
         self.relay_sp = 0.0
@@ -77,6 +84,18 @@ class ArmCal:
         self.relay_j = j - 1
         self.relay_sp = b.traj.sp[j - 1] / 1000.0
         return []
+
+    def cmd_dband(self, v: list) -> list:
+        """DBAND j mrad on the pca9685 rig: servo j's hysteresis width (its dead band, both
+        sides, and its gear play), which servos.py leads the pulse by half of."""
+        if v[1] > LEAD_MAX_MRAD:
+            raise proto.ProtocolError(P.RANGE, "", "mrad")
+        self.set_lead(v[0] - 1, v[1])
+        return []
+
+    def set_lead(self, j0: int, mrad: int) -> None:
+        self.b.hal.set_lead(j0, mrad)
+        self.lead[j0] = mrad
 
     def cmd_cal(self, v: list) -> list:
         j = v[0]
@@ -156,13 +175,17 @@ class ArmCal:
             c = self.cal[j]
             if c is not None:
                 out.append("C%d=%d,%d,%d,%d" % (j + 1, c[0], c[1], c[2], c[3]))
+        for j in range(self.n):
+            if self.lead[j]:
+                out.append("D%d=%d" % (j + 1, self.lead[j]))
         return out
 
     def cal_apply(self, tokens: list) -> None:
         gains = []
         cals = []
+        leads = []
         for t in tokens:            # all parsed and checked before any is set
-            if len(t) < 3 or t[0] not in "GC" or t[1:].find("=") < 0:
+            if len(t) < 3 or t[0] not in "GCD" or t[1:].find("=") < 0:
                 raise ValueError("token")
             k, vals = t[1:].split("=", 1)
             j = int(k)
@@ -173,6 +196,10 @@ class ArmCal:
                 if len(x) != 3 or min(x) < 0 or max(x) > 1000000:
                     raise ValueError("gain")
                 gains.append((j, x))
+            elif t[0] == "D":
+                if len(x) != 1 or not 0 <= x[0] <= LEAD_MAX_MRAD or not self.positional:
+                    raise ValueError("dband")
+                leads.append((j, x[0]))
             else:
                 if len(x) != 4 or not (500 <= x[0] <= x[2] <= 2500):
                     raise ValueError("cal")
@@ -192,3 +219,5 @@ class ArmCal:
             raise
         for j, x in gains:
             self.b.pids[j - 1].set_gains(x[0] / 1000.0, x[1] / 1000.0, x[2] / 1000.0)
+        for j, m in leads:
+            self.set_lead(j - 1, m)

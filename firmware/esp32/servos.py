@@ -8,7 +8,19 @@ in mrad, and
 
     pulse(q) = us_a + (q - a) * (us_b - us_a) / (b - a)
 
-clipped to the servo's pulse range US_MIN..US_MAX. `ServoBank` drives the
+clipped to the servo's pulse range US_MIN..US_MAX.
+
+A positional servo stops as soon as its shaft is within its dead band of the
+pulse, so short of the target on the side it came from, and its gear play
+lets the joint trail further: the joint's resting angle for one pulse differs
+by the hysteresis width (twice the dead band plus the play) between the two
+sides it can come from. As a 3D printer's backlash compensation (Marlin's
+M425) does, each servo leads its pulse by `lead_us` (half that width, which
+`armbridge calibrate esp32`'s jig step measures: DBAND on this rig) toward the
+side the pulse last moved to, so the joint rests on the target from either
+side. The side changes only when the pulse moves by more than SIDE_US.
+
+`ServoBank` drives the
 joints' channels (SERVO_CHANNELS) and the optional pen-lift servo
 (PEN_CHANNEL, PEN_UP_US / PEN_DOWN_US) through a pca9685.Pca9685.
 """
@@ -17,6 +29,7 @@ from pca9685 import FULL
 
 US_MIN = 500     # us: the pulse range of a 270 deg hobby servo, and what CAL accepts
 US_MAX = 2500
+SIDE_US = 0.5    # us: a pulse that moves less than this keeps the side it leads to
 
 
 class Servo:
@@ -25,6 +38,9 @@ class Servo:
     def __init__(self, us_a, mrad_a, us_b, mrad_b) -> None:
         self.us0 = 0.0            # pulse at 0 rad
         self.us_per_rad = 0.0
+        self.lead_us = 0.0        # half the hysteresis width (see the module docstring)
+        self.side = 0             # +1 / -1: the side the pulse last moved to; 0: none yet
+        self._from = None         # the pulse the side was last decided at (None: no pulse yet)
         self.cal = (us_a, mrad_a, us_b, mrad_b)
         self.set(us_a, mrad_a, us_b, mrad_b)
 
@@ -45,6 +61,21 @@ class Servo:
         if us > US_MAX:
             return float(US_MAX)
         return us
+
+    def led(self, us) -> float:
+        """`us` led by lead_us toward the side it moves to, within US_MIN..US_MAX."""
+        f = self._from
+        if f is None:
+            self._from = us
+        elif us > f + SIDE_US or us < f - SIDE_US:
+            self.side = 1 if us > f else -1
+            self._from = us
+        out = us + self.side * self.lead_us
+        if out < US_MIN:
+            return float(US_MIN)
+        if out > US_MAX:
+            return float(US_MAX)
+        return out
 
     def angle(self, us) -> float:
         """Joint angle (rad) that pulse `us` stands for (the inverse of pulse)."""
@@ -86,7 +117,8 @@ class ServoBank:
         b = self._buf
         pca = self.pca
         for j in range(self.n):
-            c = pca.counts(self.servos[j].pulse(q[j]))
+            s = self.servos[j]
+            c = pca.counts(s.led(s.pulse(q[j])))
             k = 4 * j
             b[k] = 0
             b[k + 1] = 0
@@ -128,3 +160,8 @@ class ServoBank:
     def set_calibration(self, j, us_a, mrad_a, us_b, mrad_b) -> None:
         """Joint j (0-based): a new two-point calibration, used from the next write."""
         self.servos[j].set(us_a, mrad_a, us_b, mrad_b)
+
+    def set_lead(self, j, mrad) -> None:
+        """Joint j (0-based): the hysteresis width (mrad) its pulse is led by half of."""
+        s = self.servos[j]
+        s.lead_us = 0.5 * abs(s.us_per_rad) * mrad / 1000.0

@@ -29,6 +29,7 @@ class PositionalHal(PenHal):
         PenHal.__init__(self, **kw)
         self.sent = None
         self.cal = {}
+        self.leads = []   # (joint 0-based, mrad) of every DBAND
 
     def write_positions(self, q) -> None:
         self.on = True
@@ -41,6 +42,9 @@ class PositionalHal(PenHal):
 
     def set_calibration(self, j, us_a, a, us_b, b) -> None:
         self.cal[j] = (us_a, a, us_b, b)
+
+    def set_lead(self, j, mrad) -> None:
+        self.leads.append((j, mrad))
 
 
 def _session(hal):
@@ -192,3 +196,21 @@ def test_x_and_xy_queue_the_solved_joints_and_refuse_reach():
     done = [ln for ln in replies(hal.take(), "EV") if ln[2][1] == "DONE"]
     assert done[-1][2][2] == "6"
     assert abs(hal.q[0] - 1.2) < 0.03
+
+
+def test_dband_is_the_servos_hysteresis_on_the_positional_rig_only():
+    """DBAND j mrad: the pca9685 rig's servo lead (half of it, servos.py), kept by CALID's
+    cal_text as D<j>=mrad; refused RANGE above LEAD_MAX_MRAD; VERB on the effort rig."""
+    hal = FakeHal()
+    board, host = _session(hal)
+    ans = host.answer(2, "DBAND", 1, 10)
+    assert ans[1] == "ER" and _code(ans) == protodef.VERB
+    hal = PositionalHal()
+    board, host = _session(hal)
+    assert host.answer(2, "DBAND", 2, 16)[1] == "OK"
+    assert hal.leads[-1] == (1, 16)
+    ans = host.answer(3, "DBAND", 2, 101)
+    assert ans[1] == "ER" and _code(ans) == protodef.RANGE
+    assert "D2=16" in board.cal.cal_text()
+    board.cal.cal_apply(["D3=7"])
+    assert hal.leads[-1] == (2, 7)

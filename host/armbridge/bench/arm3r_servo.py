@@ -139,23 +139,16 @@ def firmware_at(overrides: dict[str, int], folder: Path) -> Path:
     return root
 
 
-def calibrate_board(url: str, rule: str | None = None) -> dict[str, Any]:
-    """calibrate/arm3r.py's procedure on the board at `url` with the emulated jig; its settings
-    sent, then CALID 1 (saved in the board's filesystem) -> what it found. `rule`: the gains
-    step's (None: its default; "shipped": no gains step)."""
-    from armbridge.calibrate import arm3r
-    from armbridge.calibrate.jig import EmuJig
-    from armbridge.executor.session import open_session
+def calibrate_board(url: str, cal_dir: Path, rule: str | None = None, root: Path | None = None) -> dict[str, Any]:
+    """`armbridge calibrate esp32 --jig emu` on the board at `url` (calibrate/base.py's flow:
+    the procedure with the emulated jig, the settings, CALID in the board's filesystem, the
+    host file in `cal_dir`) -> what it found. `rule`: the gains step's (None: its default;
+    "shipped": no gains step). `root`: the firmware tree the board runs (its config)."""
+    from armbridge.calibrate.base import calibrate_board as flow
 
-    with open_session(url, None) as c:
-        emu = c.port.emulator
-        only = frozenset({"jig"}) if rule == "shipped" else frozenset()
-        kw = {"rule": rule} if rule and rule != "shipped" else {}
-        found = arm3r.calibrate(c, emu.cfg, only, jig=EmuJig.of_client(c), **kw)
-        for verb, args in found.settings:
-            c.command(verb, *args)
-        c.command("CALID", 1)
-    return found.values
+    only = ("jig",) if rule == "shipped" else None
+    options = {"rule": rule} if rule and rule != "shipped" else None
+    return flow(url, "esp32", only=only, cal_dir=cal_dir, jig="emu", options=options, firmware=root).found.values
 
 
 def run_one(rig: str, seed: int, plan: Any, folder: Path, rule: str | None = None,
@@ -171,7 +164,7 @@ def run_one(rig: str, seed: int, plan: Any, folder: Path, rule: str | None = Non
         try:
             if label == "calibrated":
                 with traced_emulators(firmware_root=root):
-                    out["found"] = calibrate_board(f"{base}&fs={fs}", rule)
+                    out["found"] = calibrate_board(f"{base}&fs={fs}", folder / "host-calibration", rule, root)
             with traced_emulators(firmware_root=root) as seen:
                 s = run_plan(plan, f"{base}&fs={fs}", folder / f"{rig}-{seed}-{label}.rrd", progress=False)
             out[label] = {"completed": bool(s.completed), **judge(plan, seen[-1])}

@@ -45,6 +45,7 @@ RULE = "pd"
 RELAY = (150, 4, 6)
 #: a joint's marks must spread it this far (rad) for its gain to be fitted
 MIN_SPREAD = 0.6
+LEAD_MAX_MRAD = 100          # DBAND on the servo rig (firmware/esp32/arm_cal.py): the widest it takes
 RELAY_TIMEOUT_S = 30.0
 
 
@@ -156,9 +157,11 @@ def _mid(cfg: Any) -> np.ndarray:
 
 
 def identity_cal(cfg: Any, rig: str) -> list[tuple[str, tuple[int, ...]]]:
-    """The CALs that put the rig's default back: effort, the pots' identity; pca9685, SERVO_CAL."""
+    """The CALs that put the rig's default back: effort, the pots' identity; pca9685, SERVO_CAL
+    and no lead (DBAND 0: the jig measures the servos' hysteresis as it is)."""
     if rig == "pca9685":
-        return [("CAL", (j + 1, *map(int, c))) for j, c in enumerate(cfg.SERVO_CAL)]
+        return ([("CAL", (j + 1, *map(int, c))) for j, c in enumerate(cfg.SERVO_CAL)]
+                + [("DBAND", (j + 1, 0)) for j in range(len(cfg.SERVO_CAL))])
     mid = [int(round((lo + hi) / 2)) for lo, hi in cfg.LIMITS_MRAD]
     return [("CAL", (j + 1, 1000, m - 500, 2000, m + 500)) for j, m in enumerate(mid)]
 
@@ -198,7 +201,7 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
         client.command(verb, *args)
     start = readings(client, 0.1, "target")
     arm = Jogger(client, start)
-    qs, rs, used = [], [], []
+    qs, rs, used, widths = [], [], [], []
     for m in marks:
         if rig == "effort":          # the pots read the joints themselves: one placement
             ok = jig.place(m, arm)
@@ -213,6 +216,8 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
             arm.side = 0
             ok = len(got) == 2
             r = np.mean(got, axis=0) if ok else None
+            if ok:
+                widths.append(np.abs(np.subtract(got[0], got[1])))   # us: the hysteresis, per joint
         if not ok:
             f.lines.append(f"jig: mark {m.name} skipped")
             continue
@@ -248,13 +253,16 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
                 beta, alpha = (float(x) for x in np.polyfit(wj, qj, 1))
             a, b = alpha + beta * 1000.0, alpha + beta * 2000.0
             f.settings.append(("CAL", (j + 1, 1000, int(round(a * 1000)), 2000, int(round(b * 1000)))))
+            width = float(np.median([w[j] for w in widths])) * abs(beta)    # rad
+            f.settings.append(("DBAND", (j + 1, int(min(LEAD_MAX_MRAD, round(width * 1000))))))
             us_a, a_cfg, us_b, b_cfg = cfg.SERVO_CAL[j]
             nominal = a_cfg / 1000.0 + (1500.0 - us_a) * (b_cfg - a_cfg) / 1000.0 / (us_b - us_a)
             horn = alpha + beta * 1500.0 - nominal
             resid = qj - (alpha + beta * wj)
             per[str(j + 1)] = {"offset_at_1500us_rad": round(horn, 5), "rad_per_us": round(beta, 8),
+                               "hysteresis_mrad": round(width * 1000, 2),
                                "residual_max_mrad": round(float(np.max(np.abs(resid))) * 1000, 2)}
             f.lines.append(f"joint {j + 1}: the servo sits {horn * 1000:+.1f} mrad off at 1500 us, "
-                           f"{beta * 1e6:.1f} urad/us")
+                           f"{beta * 1e6:.1f} urad/us; {width * 1000:.1f} mrad between its two sides (DBAND)")
     f.values["jig"] = {"rig": rig, "marks": used, "joints": per}
     return f

@@ -125,7 +125,8 @@ def merged(old: list[tuple[str, tuple[int, ...]]], new: list[tuple[str, tuple[in
 
 
 def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] | None = None,
-                    cal_dir: Path | None = None, connect_timeout: float = 5.0, jig: str | None = None) -> CalReport:
+                    cal_dir: Path | None = None, connect_timeout: float = 5.0, jig: str | None = None,
+                    options: dict[str, Any] | None = None, firmware: Path | None = None) -> CalReport:
     """The whole flow (module docstring): who the board is, its procedure, the
     settings sent, CALID, IDENT read back, the host file written. Nothing is
     persisted unless every step and every setting succeeded (the settings sent
@@ -134,7 +135,9 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
     when the board still holds that calibration. `jig`: who places the pen on the
     printed marks of the esp32's jig step (calibrate/jig.py: "terminal", the user
     at the keys; "emu", the emulated user of an in-process emu: board); without
-    one that step is skipped."""
+    one that step is skipped. `options`: keywords of the board's procedure (a bench's
+    tuning rule). `firmware`: the firmware tree the board was flashed from, whose config
+    the procedure reads (rig, PWM frequency, limits); default the shipped one."""
     from armbridge import boards
     from armbridge.boards import calfile
     from armbridge.executor import calcheck
@@ -144,7 +147,7 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
     _, run = procedure(board)
     if jig is not None and board != "esp32":
         raise ArmbridgeError(f"--jig is for the esp32 board's jig step; the {board} board calibrates without one")
-    cfg = boards.config(board)
+    cfg = boards.config(board, firmware)
     with open_session(port, None, latched="refuse", calibration="report", connect_timeout=connect_timeout) as client:
         info = client.info
         assert info is not None  # open_session yields a connected client
@@ -159,7 +162,7 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
         previous = calfile.find(board, uid, cal_dir)
         if previous is not None and previous.id != held:
             previous = None   # the board no longer holds it: start afresh
-        extra: dict[str, Any] = {}
+        extra: dict[str, Any] = dict(options or {})
         if jig is not None:
             from armbridge.calibrate.jig import make_jig
 

@@ -32,6 +32,10 @@ def calibrate_cmd(
                                            "Without it that step is skipped."),
     jig_sheet: Optional[Path] = typer.Option(None, "--jig-sheet", metavar="FILE",
                                              help="esp32: also write the jig's marks as an SVG to print at 1:1."),
+    firmware: Optional[Path] = typer.Option(None, "--firmware", metavar="DIR",
+                                            help="The firmware tree the board was flashed from (as flash's "
+                                                 "--firmware), whose config the procedure reads [default: the "
+                                                 "shipped firmware]."),
     json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
                                            help="Also write what was found as JSON to FILE ('-': stdout)."),
 ) -> None:
@@ -50,10 +54,10 @@ def calibrate_cmd(
         except OSError as exc:
             raise ArmbridgeError(f"{jig_sheet}: cannot write the jig sheet: {exc.strerror}") from None
     if jig == "terminal":  # the user answers at the keys: no spinner over the prompts
-        report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig)
+        report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig, firmware=firmware)
     else:
         with console.status(f"calibrating the {board} board on {port} ..."):
-            report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig)
+            report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig, firmware=firmware)
     if json_out is not None:
         if json_out == "-":
             sys.stdout.write(json.dumps(report.to_json(), indent=2) + "\n")

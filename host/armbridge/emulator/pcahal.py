@@ -133,6 +133,9 @@ class PcaSimHal(SimHal):
         self.servos.set_calibration(j0, us_a, mrad_a, us_b, mrad_b)
         self.calibrations.append((self.clock.t, int(j0), int(us_a), int(mrad_a), int(us_b), int(mrad_b)))
 
+    def set_lead(self, j0: int, mrad: int) -> None:
+        self.servos.set_lead(j0, mrad)
+
     def write_pen(self, down: bool) -> None:
         self.servos.pen(down)
         super().write_pen(down)
