@@ -161,6 +161,41 @@ def points_clearance(pts, verts, starts, out):
 
 
 @njit(cache=True)
+def obstacle_clearance(pts, verts, starts, bbox, out):
+    """out[k] = distance of link k's centre line to the nearest polygon (0 inside or crossing), as
+    points_clearance (the same loop; this one is the certified edge check's, in its inner loop),
+    skipping polygons whose box is already farther than the best (boxes are a lower
+    bound); returns the least."""
+    nl = pts.shape[0] - 1
+    least = np.inf
+    for k in range(nl):
+        ax, ay, bx, by = pts[k, 0], pts[k, 1], pts[k + 1, 0], pts[k + 1, 1]
+        x0, x1, y0, y1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+        best = np.inf
+        for p in range(starts.size - 1):
+            gx = max(bbox[p, 0] - x1, x0 - bbox[p, 2], 0.0)
+            gy = max(bbox[p, 1] - y1, y0 - bbox[p, 3], 0.0)
+            if gx * gx + gy * gy >= best:
+                continue
+            s, e = starts[p], starts[p + 1]
+            if inside(ax, ay, verts, s, e):
+                best = 0.0
+                break
+            j = e - 1
+            for i in range(s, e):
+                d2 = seg_seg_d2(ax, ay, bx, by, verts[j, 0], verts[j, 1], verts[i, 0], verts[i, 1])
+                if d2 < best:
+                    best = d2
+                j = i
+            if best == 0.0:
+                break
+        out[k] = math.sqrt(best) if best < np.inf else np.inf
+        if out[k] < least:
+            least = out[k]
+    return least
+
+
+@njit(cache=True)
 def self_hit(pts, r2):
     """True when two non-adjacent links of the polyline pts come within sqrt(r2) of each other."""
     nl = pts.shape[0] - 1

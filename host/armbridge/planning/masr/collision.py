@@ -50,7 +50,8 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.polygons import chain_points, points_hit, polygon_arrays
-from armbridge.planning.soft.space import CLEAR_MIN, MAX_STEPS, NEAR, obstacle_clearance
+from armbridge.planning.polygons import obstacle_clearance
+from armbridge.planning.soft.space import CLEAR_MIN, MAX_STEPS, NEAR
 from armbridge.robots.masr import ANGLE_TOL, POS_TOL, MasrArm
 
 #: Default sweep resolution in m (see module doc).

@@ -60,8 +60,8 @@ import numpy as np
 from numba import njit
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.polygons import (chain_points, inside, points_clearance, points_hit, polygon_arrays,
-                                        seg_seg_d2, self_hit)
+from armbridge.planning.polygons import (chain_points, obstacle_clearance, points_clearance, points_hit,
+                                         polygon_arrays, seg_seg_d2, self_hit)
 
 #: Default edge resolution: no point of the arm moves more than this between checked shapes (m).
 EDGE_RES = 0.002
@@ -126,40 +126,6 @@ def motion_bounds(dq, lengths, B, S):
             acc += abs(dq[b])
             rel += acc * lengths[b]
             S[a, b] = rel
-
-
-@njit(cache=True)
-def obstacle_clearance(pts, verts, starts, bbox, out):
-    """out[k] = distance of link k's centre line to the nearest polygon (0 inside or crossing), as
-    points_clearance, skipping polygons whose box is already farther than the best (boxes are a lower
-    bound); returns the least."""
-    nl = pts.shape[0] - 1
-    least = np.inf
-    for k in range(nl):
-        ax, ay, bx, by = pts[k, 0], pts[k, 1], pts[k + 1, 0], pts[k + 1, 1]
-        x0, x1, y0, y1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
-        best = np.inf
-        for p in range(starts.size - 1):
-            gx = max(bbox[p, 0] - x1, x0 - bbox[p, 2], 0.0)
-            gy = max(bbox[p, 1] - y1, y0 - bbox[p, 3], 0.0)
-            if gx * gx + gy * gy >= best:
-                continue
-            s, e = starts[p], starts[p + 1]
-            if inside(ax, ay, verts, s, e):
-                best = 0.0
-                break
-            j = e - 1
-            for i in range(s, e):
-                d2 = seg_seg_d2(ax, ay, bx, by, verts[j, 0], verts[j, 1], verts[i, 0], verts[i, 1])
-                if d2 < best:
-                    best = d2
-                j = i
-            if best == 0.0:
-                break
-        out[k] = math.sqrt(best) if best < np.inf else np.inf
-        if out[k] < least:
-            least = out[k]
-    return least
 
 
 @njit(cache=True)
