@@ -7,12 +7,17 @@ settings sent with the ordinary verbs, CALID (the board persists them under an
 id, as Klipper's SAVE_CONFIG), and the host's calibration file with the same
 id (boards/calfile.py), which a later run checks the board against.
 
-A board's procedure is `calibrate(client, cfg, only) -> Found`: `client` a
-connected BoardClient, `cfg` the board's firmware config (boards/config.py),
-`only` the steps asked for (a subset of its STEPS; all when empty). It measures
-and returns; it sends no settings itself unless measuring needs them (a relay
-test needs the loop it tunes), so a failed procedure leaves the board's saved
-calibration as it was.
+A board's procedure is `calibrate(client, cfg, only, **options) -> Found`:
+`client` a connected BoardClient, `cfg` the board's firmware config
+(boards/config.py), `only` the steps asked for (a subset of its STEPS; all
+when empty), `options` its own keywords (the esp32's `jig`, a bench's tuning
+`rule`). It measures and returns the settings; what it sends itself is what
+measuring needs (a relay test; the default lines put back before the jig; the
+pump's bend reference shifted while it strokes), in RAM, so a procedure that
+fails leaves the calibration saved by CALID as it was. (The pump board keeps
+BEND in EEPROM at once: one reset in the middle of its strokes, on a board
+with no saved calibration, boots with the shifted reference; calibrating
+again puts it right.)
 """
 from __future__ import annotations
 
