@@ -47,8 +47,8 @@
  * SETTLE_RESEEK_MRAD (hysteresis); inside the dead band a ramp adds SEEK_RAMP_PERMILLE
  * of duty per control period (2 per 10 ms: 200 per-mille/s) up to SEEK_RAMP_MAX, reset
  * at every settle. The paper's P controller stopped at the edge of its 4 deg band. */
-#define SETTLE_FINE_MRAD 6               /* 0.34 deg */
-#define SETTLE_RESEEK_MRAD 20            /* 1.15 deg */
+#define SETTLE_FINE_MRAD 3               /* 0.17 deg: 1.5 counts of the bend sensor */
+#define SETTLE_RESEEK_MRAD 8             /* 0.46 deg: 4 counts, above its noise (docs/pump.md) */
 #define SEEK_RAMP_PERMILLE 2
 #define SEEK_RAMP_MAX 400
 

@@ -370,10 +370,10 @@ static void settle_with_hysteresis_and_ramp() {
     seek_reset(s);
     for (int i = 0; i < 1000; i++) seek_control(s, g, 60);
     CHECK(seek_control(s, g, 60) <= DUTY_MAX_INFLATE);
-    /* DBAND caps both bands: 10 re-seeks past 10; 0 holds to the count */
-    g.dband = 10;
+    /* DBAND caps both bands: 5 (under SETTLE_RESEEK_MRAD) re-seeks past 5; 0 holds to the count */
+    g.dband = 5;
     seek_reset(s);
-    CHECK(seek_control(s, g, 10) == 0 && seek_control(s, g, 11) > 0);
+    CHECK(seek_control(s, g, 5) == 0 && seek_control(s, g, 6) > 0);
     g.dband = 0;
     seek_reset(s);
     CHECK(seek_control(s, g, 1) > 0 && seek_control(s, g, 0) == 0 && !s.seeking);
