@@ -28,7 +28,7 @@ from armbridge.boards.config import read_config_h, read_micropython_config
 from armbridge.errors import ArmbridgeError
 
 __all__ = ["BOARDS", "Board", "ElfFirmware", "MicroPythonFirmware", "Rig", "board", "boards_of_robot", "config",
-           "joint_limits_rad", "names", "register"]
+           "joint_limits_rad", "names", "of_identity", "register"]
 
 
 @dataclass(frozen=True)
@@ -130,6 +130,14 @@ def board(name: str | Board) -> Board:
         return BOARDS[name]
     except (KeyError, TypeError):
         raise ArmbridgeError(f"unknown device {name!r}; known devices: {', '.join(names())}") from None
+
+
+def of_identity(fw: str) -> str | None:
+    """The board whose firmware reports `fw` in BOOT and HELLO (its identity, or its name), None."""
+    for b in BOARDS.values():
+        if b.identity == fw or b.name == fw:
+            return b.name
+    return None
 
 
 def boards_of_robot(robot: str) -> tuple[str, ...]:

@@ -157,7 +157,7 @@ def calibrate_board(port: str, board: str, *, only: list[str] | tuple[str, ...] 
         info = client.info
         assert info is not None  # open_session yields a connected client
         fw = info.fw
-        if calcheck.board_name(fw) != board:
+        if boards.of_identity(fw) != board:
             raise ArmbridgeError(f"the board on {port} runs firmware {fw!r}, not the {board} board's")
         got = calcheck.ident(client)
         if got is None:

@@ -21,8 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from armbridge.boards import BOARDS
-from armbridge.boards import calfile
+from armbridge.boards import calfile, of_identity
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
 
@@ -45,14 +44,6 @@ class Calibration:
 
     def to_json(self) -> dict[str, Any]:
         return {"status": self.status, "uid": self.uid, "id": self.board_id, "file": self.file}
-
-
-def board_name(fw: str) -> str | None:
-    """The board (boards.BOARDS) whose firmware reports `fw`."""
-    for b in BOARDS.values():
-        if b.identity == fw or b.name == fw:
-            return b.name
-    return None
 
 
 def ident(client: Any) -> tuple[str, int] | None:
@@ -78,7 +69,7 @@ def check(client: Any, policy: str = "check", folder: Path | None = None) -> Cal
     if got is None:
         return Calibration("unknown")
     uid, held = got
-    board = board_name(client.info.fw) or client.info.fw
+    board = of_identity(client.info.fw) or client.info.fw
     path = calfile.path_for(board, uid, folder)
     host = calfile.find(board, uid, folder)
     if host is None:

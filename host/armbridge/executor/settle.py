@@ -46,7 +46,7 @@ def settle_tolerance(fw: str, n: int) -> tuple[np.ndarray, str] | None:
     from armbridge import boards
 
     try:
-        cfg = boards.config(_board_of(fw))
+        cfg = boards.config(boards.of_identity(fw) or fw)
     except (ArmbridgeError, OSError):  # a board kind this host has no firmware of
         return None
     mrad = getattr(cfg, "DBAND_DEFAULT_MRAD", None)
@@ -55,16 +55,6 @@ def settle_tolerance(fw: str, n: int) -> tuple[np.ndarray, str] | None:
     bend = getattr(cfg, "BEND_DEFAULT", None)
     count = count_mrad(bend) if bend is not None and len(bend) == n else np.zeros(n)
     return (float(mrad) + count) / 1000.0, "default"
-
-
-def _board_of(fw: str) -> str:
-    """The board whose firmware reports `fw` (its identity), for its config."""
-    from armbridge import boards
-
-    for b in boards.BOARDS.values():
-        if b.identity == fw:
-            return b.name
-    return fw
 
 
 #: rad: how far a joint's reading may wander while it counts as still (a few counts of the bend
