@@ -11,8 +11,10 @@ executor's BoardClient exactly as `armbridge run --home` drives it (HOME, the
 setup to the plan's start, then one MV/ROT per step; executor/masr.py).
 
 What is measured, against the truth the host cannot see (the plant):
-  * time: the planned tau (eq. 7, the sum of eq. (8) over the actions) against
-    the executed time, from the setup's last DONE to the plan's last DONE;
+  * time: the executed time, from the setup's last DONE to the plan's last
+    DONE, against the planned time (the plan's steps with the board's ramps,
+    executor/masr.py planned_time: the issue's 10 % target) and against tau
+    (eq. 7, the sum of eq. (8) over the actions, which has no ramps);
   * the final TRUE pose: the plant's q through MasrArm.fk against the goal
     (dp, dphi; the goal's e_p, e_phi);
   * localisation: |board estimate - true d| at every telemetry sample of the
@@ -59,7 +61,7 @@ from armbridge.bench.command import write_json
 PAPER_TABLE_II: dict[str, Any] = {"environment": "E1", "planned_s": 46.16, "executed_mean_s": 48.78, "executed_std_s": 1.81,
                                   "dp_mean_mm": 11.0, "dp_std_mm": 3.1, "dphi_mean_deg": 1.2, "dphi_std_deg": 0.8}
 FIXED = ("E1", "E2", "E3")
-TIME_TARGET = 0.10  # the issue: executed within 10 % of tau
+TIME_TARGET = 0.10  # the issue: executed within 10 % of the planned time
 #: the short single-action plans (name, start q, goal q; angles rad, d m): from rest, one action each
 SINGLES = (("MV 50 -> 350 mm", (0, 0, 0, 0, 0, 0.05), (0, 0, 0, 0, 0, 0.35)),
            ("turn joint 3, back to d", (0, 0, 0, 0, 0, 0.35), (0, 0, 0.4, 0, 0, 0.35)),
@@ -98,12 +100,9 @@ def after_edges(t: Any, err: Any, anchor: Any, hall: list) -> list[float]:
 
 def ramp_extra(x: float, v: float, a: float) -> float:
     """Time a trapezoidal profile (speed v, acceleration a) takes over |x|/v for a move of x. Pure."""
-    x = abs(x)
-    if x == 0.0:
-        return 0.0
-    if x >= v * v / a:
-        return v / a
-    return 2.0 * math.sqrt(x / a) - x / v
+    from armbridge.plans.masr import trapezoid_time
+
+    return trapezoid_time(x, v, a) - abs(x) / v
 
 
 def plan_masr(env: Any, iterations: int, seed: int, goal_ik: Callable) -> Any:
@@ -161,7 +160,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal", fs: Path | None = None) 
     drawn with `seed`) -> the measured numbers of one run. `fs`: the board's filesystem,
     where a calibration saved it (the board boots with it)."""
     from armbridge.executor.client import BoardClient
-    from armbridge.executor.masr import masr_commands
+    from armbridge.executor.masr import masr_commands, planned_time
     from armbridge.geometry import wrap_angle
     from armbridge.link.transport import open_port
 
@@ -194,6 +193,7 @@ def execute(mp: Any, seed: int, plant: str = "nominal", fs: Path | None = None) 
                                                                  enumerate(commands)]
     finally:
         port.close()
+    planned = planned_time(mp)
     t0 = done[setup - 1]
     executed = done[len(commands) - 1] - t0
     arm = mp.arm
@@ -220,8 +220,8 @@ def execute(mp: Any, seed: int, plant: str = "nominal", fs: Path | None = None) 
     err = np.abs(s[:, 1] - s[:, 0])
     after = [abs(x) for x in after_edges(s[:, 4], s[:, 1] - s[:, 0], s[:, 5], hall)]
     return {"environment": mp.env.name, "seed": seed, "plant": plant, "calibrated": fs is not None,
-            "actions": len(commands) - setup, "tau_s": mp.total_time,
-            "executed_s": executed, "time_ratio": executed / mp.total_time, "dp_mm": dp * 1000.0,
+            "actions": len(commands) - setup, "tau_s": mp.total_time, "planned_s": planned,
+            "executed_s": executed, "time_ratio": executed / planned, "tau_ratio": executed / mp.total_time, "dp_mm": dp * 1000.0,
             "dphi_deg": math.degrees(dphi), "e_p_mm": mp.env.e_p * 1000.0, "e_phi_deg": math.degrees(mp.env.e_phi),
             "log_exactly_once": log_ok,
             "loc": {"mean_mm": float(err.mean()), "max_mm": float(err.max()),
@@ -254,7 +254,8 @@ def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "runs": len(runs), "completed": len(ok),
         "tau_s": _stats([r["tau_s"] for r in ok]), "executed_s": _stats([r["executed_s"] for r in ok]),
-        "time_ratio": _stats([r["time_ratio"] for r in ok]),
+        "planned_s": _stats([r["planned_s"] for r in ok]),
+        "time_ratio": _stats([r["time_ratio"] for r in ok]), "tau_ratio": _stats([r["tau_ratio"] for r in ok]),
         "within_10_percent": float(np.mean([r["time_ratio"] <= 1.0 + TIME_TARGET for r in ok])),
         "dp_mm": _stats([r["dp_mm"] for r in ok]), "dphi_deg": _stats([r["dphi_deg"] for r in ok]),
         "at_goal": float(np.mean([r["dp_mm"] <= r["e_p_mm"] and r["dphi_deg"] <= r["e_phi_deg"] for r in ok])),
@@ -417,7 +418,8 @@ def masr_exec_cmd(
     result = run(size, progress=lambda text: console.print(f"[dim]bench masr-exec: {text}[/]"))
     write_json(result, json_out)
     t = Table(title="MASR plans executed on the emulated MA (true pose from the plant)")
-    for col in ("set", "runs", "tau (s)", "executed (s)", "executed / tau", "within 10 %", "dp mm (mean +- std / max)",
+    for col in ("set", "runs", "tau, planned (s)", "executed (s)", "executed / planned (/ tau)", "within 10 %",
+                "dp mm (mean +- std / max)",
                 "dphi deg (mean +- std / max)", "at goal"):
         t.add_column(col, justify="left" if col == "set" else "right")
     paper = PAPER_TABLE_II
@@ -435,9 +437,11 @@ def masr_exec_cmd(
         s = result.get(key, {}).get("summary")
         if not s or not s.get("completed"):
             continue
-        t.add_row(label, f"{s['completed']}/{s['runs']}", f"{s['tau_s']['mean']:.2f} +- {s['tau_s']['std']:.2f}",
+        t.add_row(label, f"{s['completed']}/{s['runs']}",
+                  f"{s['tau_s']['mean']:.2f} +- {s['tau_s']['std']:.2f}, {s['planned_s']['mean']:.2f}",
                   f"{s['executed_s']['mean']:.2f} +- {s['executed_s']['std']:.2f}",
-                  f"{s['time_ratio']['mean']:.3f} (max {s['time_ratio']['max']:.3f})", f"{s['within_10_percent']:.0%}",
+                  f"{s['time_ratio']['mean']:.3f} (max {s['time_ratio']['max']:.3f}; / tau "
+                  f"{s['tau_ratio']['mean']:.3f})", f"{s['within_10_percent']:.0%}",
                   f"{s['dp_mm']['mean']:.2f} +- {s['dp_mm']['std']:.2f} / {s['dp_mm']['max']:.2f}",
                   f"{s['dphi_deg']['mean']:.2f} +- {s['dphi_deg']['std']:.2f} / {s['dphi_deg']['max']:.2f}",
                   f"{s['at_goal']:.0%}")

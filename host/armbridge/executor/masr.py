@@ -13,7 +13,8 @@ as for a servo arm. The board, not the host, times the steps (its speeds are
 its limits), so the Plan's durations are the plan's model, eq. (7)-(8).
 
 `masr_report` is the summary's `masr` section: the MA's final pose against
-the plan's goal (eq. 9), the executed action time against tau, and how far the
+the plan's goal (eq. 9), the executed action time against the plan timed with
+the board's ramps (and against tau), and how far the
 MA's last position rests on dead reckoning (`dead_reckoning`): the board knows
 d from its wheel encoder, re-anchored at every magnet it passes, so after the
 plan's last magnet nothing it senses shows a wheel slip; the summary says over
@@ -111,6 +112,19 @@ def board_localisation(fw: str = BOARD_OF_MASR) -> dict[str, float]:
             "stop": float(cfg.STOP_TOL_MM)}
 
 
+def board_ramps(fw: str = BOARD_OF_MASR) -> tuple[float, float]:
+    """The MA board's ramps from its firmware config: (d in m/s^2, the joints in rad/s^2)."""
+    from armbridge import boards
+
+    cfg = boards.config(fw)
+    return float(cfg.LOCO_ACCEL_MM_S2) / 1000.0, float(cfg.ROT_ACCEL_MRAD_S2) / 1000.0
+
+
+def planned_time(mp, fw: str = BOARD_OF_MASR) -> float:
+    """The plan's time on the board (s): its steps with the board's ramps (plans/masr.py ramped_time)."""
+    return M.ramped_time(_plan(mp), *board_ramps(fw))
+
+
 def dead_reckoning(mp) -> tuple[int | None, float | None, bool]:
     """(the joint whose magnet the MA passed last, the MA's travel since it in mm, whether the
     plan ends with a move that stops off a magnet), along the plan's own steps: a rotation
@@ -140,14 +154,18 @@ def dead_reckoning(mp) -> tuple[int | None, float | None, bool]:
 
 def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, Any]:
     """The MA's final pose error (dp in mm, dphi in deg) against the plan's goal, the
-    executed action time against the planned tau (s), and the dead reckoning the final d
+    executed action time against the planned time (`planned_s`: the plan's steps with the
+    board's ramps, plans/masr.py ramped_time; `time_ratio`) and against eq. (7)'s tau
+    (`tau_s`, `tau_ratio`), and the dead reckoning the final d
     rests on (`dead_reckoning`): `dead_reckoning_mm` since the magnet of joint `last_magnet`,
     and `d_bound_mm`, the board's bound there under its slip model (`board_localisation`);
     a slip beyond that model after the last magnet is not seen by the board."""
     mp = _plan(mp)
     tau = M.total_time(mp)
-    out: dict[str, Any] = {"tau_s": tau, "executed_s": executed_s,
-                           "time_ratio": executed_s / tau if tau > 0 else None}
+    planned = planned_time(mp)
+    out: dict[str, Any] = {"tau_s": tau, "planned_s": planned, "executed_s": executed_s,
+                           "time_ratio": executed_s / planned if planned > 0 else None,
+                           "tau_ratio": executed_s / tau if tau > 0 else None}
     last, since, off = dead_reckoning(mp)
     loc = board_localisation()
     out.update(last_magnet=last, dead_reckoning_mm=since, slip_bound=loc["s"],

@@ -89,8 +89,7 @@ def run_plan(
     serial device), before anything was sent and with nothing written.
     """
     # 1. Validate before anything touches a port.
-    from armbridge.executor.masr import masr_commands
-    from armbridge.plans import masr as M
+    from armbridge.executor.masr import masr_commands, planned_time
 
     if isinstance(plan, (str, Path)):
         plan = load_plan(plan)
@@ -131,7 +130,7 @@ def run_plan(
         ik="board" if cartesian else "host",
     )
     if masr is not None:
-        summary.planned_duration_s = M.total_time(masr)
+        summary.planned_duration_s = planned_time(masr)  # the steps with the board's ramps
     summary.safety_filter = safety
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg

@@ -168,6 +168,35 @@ def total_time(plan: Any) -> float:
     return float(plan.masr["tau"])
 
 
+def trapezoid_time(x: float, v: float, a: float) -> float:
+    """Time of a move of |x| from rest to rest at top speed v and acceleration a
+    (a trapezoid; a triangle when |x| < v^2 / a; a <= 0: no ramp, |x| / v). Pure."""
+    x = abs(float(x))
+    if x == 0.0:
+        return 0.0
+    if a <= 0.0:
+        return x / v
+    if x >= v * v / a:
+        return x / v + v / a
+    return 2.0 * math.sqrt(x / a)
+
+
+def ramped_time(plan: Any, ma_accel: float, joint_accel: float) -> float:
+    """The plan's time on a board that ramps each step from rest to rest (s): every step of
+    the motion convention timed by `trapezoid_time` at the robot's speeds (ma_speed,
+    joint_speed) and the board's accelerations (m/s^2, rad/s^2). Eq. (8) prices a step at
+    |x| / v, as if the MA changed speed at once; each stop-to-stop step on a board adds
+    v / a to that (less on a short one), the share of tau that single actions miss by."""
+    arm = plan.robot
+    total = 0.0
+    for st in steps(plan):
+        if st["op"] == "move":
+            total += trapezoid_time(st["d_to"] - st["d_from"], arm.ma_speed, ma_accel)
+        else:
+            total += trapezoid_time(st["theta_to"] - st["theta_from"], arm.joint_speed, joint_accel)
+    return total
+
+
 def tau(plan: Any) -> np.ndarray:
     """The cumulative action time at each waypoint (0 at the first)."""
     return np.concatenate([[0.0], np.cumsum([float(a["cost"]) for a in plan.masr["actions"]])])
