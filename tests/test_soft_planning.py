@@ -63,7 +63,7 @@ def test_weights_and_objective_against_shapely():
     qc, qn = np.array([0.2, 0.95]), np.array([0.25, 0.9])
     goal = np.array([0.15, 0.1])
     pts, cl = np.empty((3, 2)), np.empty(2)
-    d, least, ws, wd, length = weigh(qc, qn, goal, chk.lengths, chk.base, chk.verts, chk.starts, chk.margin, pts, cl)
+    d, least, ws, wd, length = weigh(qc, qn, goal, chk.lengths, chk.base, chk.verts, chk.starts, chk.half_width, pts, cl)
     P = chk.points(qn)
     links = [LineString(P[i:i + 2]) for i in range(2)]
     dist = [min(link.distance(Polygon(box)), link.distance(LineString(wall))) - width / 2 for link in links]
@@ -188,9 +188,11 @@ def test_each_fixed_scene_is_solved_by_wjrrt_at_seed_0(name):
 
 def test_birrt_joins_the_trees_at_a_goal_configuration():
     scene = fixed_scene("seven-tube")
-    r = planners.plan(scene, "birrt", seed=0)
+    # the trees' mechanics, without the clearance margin (soft7's 13.4 mm leaves Bi-RRT little room in the
+    # tube; the margin is tested in test_soft_clearance.py)
+    r = planners.plan(scene, "birrt", seed=0, margin=0.0)
     assert r.success and scene.checker(res=EDGE_RES / 10).path_problem(r.path) is None
-    roots = scene.find_goal_states()
+    roots = scene.find_goal_states(scene.checker())  # those of the touch check (margin 0)
     assert np.min(np.linalg.norm(roots - r.path[-1], axis=1)) == 0.0  # it ends on a goal tree's root
 
 

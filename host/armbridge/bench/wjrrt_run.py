@@ -52,7 +52,7 @@ def warm_up(planners: Sequence[str], res: Optional[float] = None) -> float:
             ompl_bridge.seed_once(0)  # as seed_shard does: the first seed of a process stays
             r = ompl_planners.plan(scene, pl, seed=0, time_limit=0.05, res=res)
         if r.path is not None:  # one_run's re-check
-            chk = scene.checker(res)
+            chk = scene.planning_checker(res)
             chk.path_problem(r.path)
             chk.tip(r.path[-1])
         _WARM.add(pl)
@@ -70,16 +70,17 @@ def one_run(scene: Any, planner: str, seed: int, time_limit: float, iterations: 
         r = ompl_planners.plan(scene, planner, seed=seed, time_limit=time_limit, res=res)
     recheck = None
     if r.path is not None:
-        chk = scene.checker(res)
+        chk = scene.planning_checker(res)  # with the margin the planners kept (planning/soft/margin.py)
         recheck = chk.path_problem(r.path)
         if recheck is None and not bool(np.linalg.norm(chk.tip(r.path[-1]) - scene.goal_point) <= scene.goal_tol):
             recheck = "the last state is not in the goal"
     rec: dict[str, Any] = {"seed": seed, "success": r.path is not None and recheck is None,
                            "planner_success": r.path is not None, "recheck": recheck, "time_s": float(r.time_s),
                            "iterations": int(r.iterations)}
-    for key in ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H", "tip_error_m"):
+    for key in ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H", "tip_error_m",
+                "clearance_min_m"):
         v = r.stats.get(key)
-        rec[key] = None if v is None else float(v) if key in ("final_H", "tip_error_m") else int(v)
+        rec[key] = None if v is None else float(v) if key in ("final_H", "tip_error_m", "clearance_min_m") else int(v)
     if "status" in r.stats:
         rec["status"] = r.stats["status"]
     return rec

@@ -56,7 +56,7 @@ if TYPE_CHECKING:
 FIELDS: tuple[tuple[str, type], ...] = (
     ("seed", int), ("success", bool), ("planner_success", bool), ("recheck", str), ("time_s", float),
     ("iterations", int), ("nodes", int), ("track_nodes", int), ("goal_nodes", int), ("random_nodes", int),
-    ("obstacle_checks", int), ("final_H", float), ("tip_error_m", float), ("status", str))
+    ("obstacle_checks", int), ("final_H", float), ("tip_error_m", float), ("clearance_min_m", float), ("status", str))
 ABSENT, NONE, GIVEN = 0, 1, 2  # a field's state in a record
 _NUM = [k for k, t in FIELDS if t is not str]
 _TXT = [k for k, t in FIELDS if t is str]

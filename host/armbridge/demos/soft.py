@@ -10,7 +10,10 @@ recording draws the arm, the obstacles, the planned tip path and poses, and the
 executed arm and tip trace in one 2-D view; the demo's summary (demos/soft_report.py)
 reports each waypoint's settled angles against its target, the settle times, the
 tip errors, the executed path's deviation and clearance, and the executed time
-against the planned.
+against the planned. The plan keeps the clearance margin (planning/soft/margin.py)
+from every obstacle; the report measures the executed arm's least clearance over the
+recording beside it, and the demo fails (exit 1, after its report) when the executed
+arm touched an obstacle.
 """
 from __future__ import annotations
 
@@ -89,8 +92,9 @@ def _table(r: dict[str, Any]) -> Any:
                  f"{r['settle_s']['max']} s; settled joint error mean / max {r['settled_joint_error_deg']['mean']} / "
                  f"{r['settled_joint_error_deg']['max']} deg; tip error mean / max {_mm(r['tip_error_m']['mean'])} / "
                  f"{_mm(r['tip_error_m']['max'])} mm; executed tip path from the planned: mean / max "
-                 f"{_mm(r['path_deviation_m']['mean'])} / {_mm(r['path_deviation_m']['max'])} mm; least clearance "
-                 f"{_mm(r['min_clearance_m'])} mm; goal {_mm(r['goal_distance_m'])} mm off (tolerance "
+                 f"{_mm(r['path_deviation_m']['mean'])} / {_mm(r['path_deviation_m']['max'])} mm; executed arm's "
+                 f"least clearance {r['executed_clearance_min_mm']} mm (planned for a {r['margin_mm']} mm margin: "
+                 f"{'kept' if r['keeps_margin'] else 'NOT kept'}); goal {_mm(r['goal_distance_m'])} mm off (tolerance "
                  f"{_mm(r['goal_tol_m'])} mm); executed {r['executed_s']} s to rest at the goal, planned "
                  f"{r['planned_arrival_s']} s to the last move's end ({r['planned_s']} s with the last hold); "
                  f"recording {r['rrd']}")
@@ -98,13 +102,24 @@ def _table(r: dict[str, Any]) -> Any:
 
 
 def run(opts: DemoOptions, console: Any) -> None:
-    """The demo, and its exit: 3 when the arm ended outside the goal's tolerance (docs/formats.md §7),
-    said after the demo's own report."""
+    """The demo, and its exit: 1 when the executed arm touched an obstacle, 3 when it ended outside the
+    goal's tolerance (docs/formats.md §7), said after the demo's own report."""
     import typer
 
     from armbridge.executor.command import GOAL_MISSED, goal_missed_text
 
     done = execute(opts, console)
+    if done is not None and not done.report["collision_free"]:
+        r = done.report
+        typer.secho(f"error: the executed arm touched an obstacle: least clearance {r['executed_clearance_min_mm']} "
+                    f"mm at t = {r['executed_clearance_t_s']} s ({r['executed_contact']}); the plan kept "
+                    f"{r['margin_mm']} mm", fg="red", err=True)
+        raise typer.Exit(1)
+    if done is not None and done.report["keeps_margin"] is False:
+        r = done.report
+        typer.secho(f"note: the executed arm came within {r['executed_clearance_min_mm']} mm of an obstacle at "
+                    f"t = {r['executed_clearance_t_s']} s, inside the plan's {r['margin_mm']} mm margin (the margin "
+                    "covers the joints' rest tolerance, not their lag while moving)", fg="yellow", err=True)
     if done is not None and done.summary.goal_missed:
         typer.secho(f"error: {goal_missed_text(done.summary)}", fg="red", err=True)
         raise typer.Exit(GOAL_MISSED)

@@ -12,7 +12,13 @@ compares them with the plan:
 * the executed tip path against the planned one (each measured tip's distance to
   the planner's tip polyline: max and mean, m);
 * the executed shapes against the obstacles: the least clearance over every
-  telemetry sample (the scene's checker, eq. 8's dist; negative = a collision);
+  telemetry sample (the scene's checker, eq. 8's dist; negative = a collision),
+  and over the executed joint path (`executed_clearance_min_mm`: between two
+  samples the straight joint-space edge, measured as planning measures a plan's
+  clearance, planning/soft/margin.py ClearanceObjective), beside the margin the
+  plan was planned for (`margin_mm`, from the plan's soft section) and whether
+  the arm kept it (`keeps_margin`); the angles are the board's readings, which
+  on the emulator's nominal plant are the true ones;
 * the executed time (START of the first waypoint to the arm settled at the goal)
   against the planned (to the end of the last move, and with the last hold).
 """
@@ -87,6 +93,24 @@ def _polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(points[:, None, :] - close, axis=2), axis=1)
 
 
+def _executed_clearance(trace: Trace, checker: Any) -> dict[str, Any]:
+    """The least clearance along the executed joint path (mm; straight between telemetry samples), when (s,
+    board time) and what came closest there (ChainChecker.describe of the touch check, or "free")."""
+    from armbridge.planning.soft.margin import ClearanceObjective
+
+    if trace.q.shape[0] == 0:
+        return {"executed_clearance_min_mm": None, "executed_clearance_t_s": None, "executed_contact": None}
+    obj = ClearanceObjective(checker)
+    per = [obj.state(trace.q[0])] + [obj.edge(a, b) for a, b in zip(trace.q[:-1], trace.q[1:])]
+    k = int(np.argmin(per))
+    contact = "free"
+    if per[k] <= 0:
+        code = checker.code(trace.q[k])
+        contact = checker.describe(code) if code != -1 else "between two telemetry samples"
+    return {"executed_clearance_min_mm": round(float(per[k]) * 1000, 3), "executed_clearance_t_s": _f(trace.t[k], 3),
+            "executed_contact": contact}
+
+
 def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any) -> dict[str, Any]:
     """The demo's summary (module doc) of `plan` (its soft section `info`, plans.soft.SoftInfo) run as
     `trace`; tolerance (n,) rad per joint; checker: the scene's (tips, clearance)."""
@@ -119,6 +143,7 @@ def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any
     planned_tips = np.array([checker.tip(q) for q in info.planned_path])
     dev = _polyline_distance(measured_tips, planned_tips) if len(measured_tips) else np.zeros(0)
     clearance = np.array([checker.clearance(q) for q in trace.q])
+    executed = _executed_clearance(trace, checker)
     last = rows[-1]
     t0 = trace.start.get(0, trace.done.get(0, math.nan) - float(plan.durations[0]))
     last_settle = poses[-1]["settle_s"]
@@ -138,7 +163,11 @@ def soft_report(plan: Any, info: Any, trace: Trace, tolerance: Any, checker: Any
         "path_deviation_m": {"max": _f(dev.max(), 5) if dev.size else None,
                              "mean": _f(dev.mean(), 5) if dev.size else None},
         "min_clearance_m": _f(clearance.min(), 5) if clearance.size else None,
-        "collision_free": bool(clearance.size and clearance.min() > 0),
+        **executed,
+        "margin_mm": info.margin_mm,
+        "keeps_margin": (None if info.margin_mm is None or executed["executed_clearance_min_mm"] is None
+                         else bool(executed["executed_clearance_min_mm"] >= info.margin_mm)),
+        "collision_free": bool(clearance.size and clearance.min() > 0 and executed["executed_contact"] == "free"),
         "goal_distance_m": _f(float(np.linalg.norm(final_tip - info.goal_point)), 5), "goal_tol_m": info.goal_tol,
         "planned_s": _f(plan.total_duration, 3),
         "planned_arrival_s": _f(float(np.sum(plan.durations[:last + 1])), 3),

@@ -14,6 +14,10 @@ section (version 1 files carried it in `provenance["soft_plan"]`, read the same)
                  tolerance, snapped joints, tracking errors, move and hold times)
     timing       the PumpTiming model the durations came from
     pose_rows    for each pose, the plan row whose move reaches it (a hold, when there is one, is the next row)
+    margin_mm    the clearance margin the plan was planned for: every link keeps it from every obstacle
+                 (planning/soft/margin.py; absent in plans written before it)
+    clearance_min_mm          the least link clearance along the pump waypoints' straight segments
+    planned_clearance_min_mm  the same along the planner's path (both sampled at 0.2 mm of point motion)
 
 `read_section` checks it at load (one ArmbridgeError naming the field when it is
 damaged), `soft_info(plan)` reads it back, and `recording_layers(plan)` gives the
@@ -57,6 +61,8 @@ class SoftInfo:
     nodes: np.ndarray
     pose_rows: np.ndarray
     tolerance_m: float
+    margin_mm: float | None = None
+    clearance_min_mm: float | None = None
 
 
 def soft_info(plan: Any) -> SoftInfo | None:
@@ -96,6 +102,12 @@ def read_section(sec: Any, n: int, k: int, where: str) -> SoftInfo:
     polys = [polygon(p, f"{where}.scene.obstacles[{i}]") for i, p in enumerate(obstacles)]
     path = arr("planned_path", (None, n))
     pose_rows = arr("pose_rows", (None,)).astype(int)
+    extra: dict[str, float | None] = {}
+    for key in ("margin_mm", "clearance_min_mm"):
+        v = sec.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)):
+            raise ArmbridgeError(f"{where}.{key} must be a finite number (mm), got {v!r}")
+        extra[key] = None if v is None else float(v)
     if pose_rows.size and (pose_rows.min() < 0 or pose_rows.max() >= k):
         raise ArmbridgeError(f"{where}.pose_rows must be plan rows 0..{k - 1}")
     return SoftInfo(scene=str(get(sec, "scene.name")), base=arr("scene.base", (3,)),
@@ -103,7 +115,7 @@ def read_section(sec: Any, n: int, k: int, where: str) -> SoftInfo:
                     goal_point=arr("scene.goal.point", (2,)), goal_tol=float(get(sec, "scene.goal.tol")),
                     planner=str(get(sec, "planner")), planned_path=path,
                     nodes=arr("waypoints.nodes", (None,)).astype(int), pose_rows=pose_rows,
-                    tolerance_m=float(get(sec, "waypoints.tolerance_m")))
+                    tolerance_m=float(get(sec, "waypoints.tolerance_m")), **extra)
 
 
 def recording_layers(plan: Any) -> dict[str, tuple[list[np.ndarray], tuple[int, int, int]]] | None:

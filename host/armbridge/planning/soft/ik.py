@@ -14,7 +14,8 @@ from typing import Any, Optional
 import numpy as np
 from numba import njit
 
-from armbridge.planning.soft.space import ChainChecker, jt_step
+from armbridge.planning.soft.jtstep import jt_step
+from armbridge.planning.soft.space import ChainChecker
 
 #: Tip step of one descent iteration (m); large enough to cross the arm's workspace in a few dozen steps.
 DESCENT_DX = 0.05

@@ -42,7 +42,8 @@ from numba import njit
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.base import PlanResult, Problem
-from armbridge.planning.soft.space import jt_step, link_clearance
+from armbridge.planning.soft.jtstep import jt_step
+from armbridge.planning.soft.space import link_clearance
 from armbridge.planning.tree import Tree
 
 VARIANTS = ("wjrrt", "jt-rrt")
@@ -114,7 +115,7 @@ def solve(problem: Problem, *, variant: str = "wjrrt", iterations: int = 1000, s
     tol = float(goal.tol)
     rng = np.random.default_rng(seed)
     n = chk.n
-    L, B, V, S, m = chk.lengths, chk.base, chk.verts, chk.starts, chk.margin
+    L, B, V, S, m = chk.lengths, chk.base, chk.verts, chk.starts, chk.half_width
     lo, hi = chk.lower, chk.upper
     pts, J, cl = np.empty((n + 1, 2)), np.empty((2, n)), np.empty(n)
     qp, qn, ones = np.empty(n), np.empty(n), np.ones(n)

@@ -4,7 +4,7 @@
     r = ompl_planners.plan(fixed_scene("three-arm"), "KPIECE1", seed=0, time_limit=1.0)
 
 The problem is the scene's own (`scene.problem(res)`: the same ChainSpace
-box, ChainChecker and TipGoal, the same goal configurations from the
+box, ChainChecker keeping the same clearance margin, and TipGoal, the same goal configurations from the
 scene's goal_q and the tip descent of ik.py) that our planners get, so
 the checks they count and the paths they return are comparable; OMPL's
 paths are checked again by that checker before they count (bench wjrrt).
@@ -35,6 +35,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.planning import ompl_bridge
 from armbridge.planning.base import PlanResult, Problem
 from armbridge.planning.ext import stride
+from armbridge.planning.soft.margin import check_margin
 from armbridge.planning.soft.space import EDGE_RES
 
 #: The OMPL planners of the soft-arm benchmark (bench wjrrt).
@@ -97,9 +98,15 @@ def solve(problem: Problem, planner: str = "RRTConnect", *, time_limit: float = 
 
 def plan(scene: Any, planner: str = "RRTConnect", *, seed: int = 0, time_limit: float = 1.0,
          iterations: Optional[int] = None, res: float = EDGE_RES, range: Optional[float] = None,
-         projection: str = "tip") -> PlanResult:
-    """solve() on scene.problem(res), as planners.plan does for ours."""
-    result = solve(scene.problem(res), planner, time_limit=time_limit, iterations=iterations, seed=seed,
-                   range=range, projection=projection)
+         projection: str = "tip", margin: Optional[float] = None) -> PlanResult:
+    """solve() on scene.problem(res, margin): the margined checker our planners get (planners.plan), and the
+    same `margin_m` setting and `clearance_min_m` stat."""
+    from armbridge.planning.soft.planners import path_clearance
+
+    margin = scene.planning_margin if margin is None else check_margin(margin)
+    result = solve(scene.problem(res, margin=margin), planner, time_limit=time_limit, iterations=iterations,
+                   seed=seed, range=range, projection=projection)
     result.settings["scene"] = scene.name
+    result.settings["margin_m"] = margin
+    result.stats["clearance_min_m"] = path_clearance(scene, result.path, res)
     return result

@@ -9,7 +9,7 @@ recording and the demo read back there.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -21,8 +21,10 @@ def _rounded(a: Any, nd: int = 6) -> list:
 
 
 def soft_plan(scene: Any, result: Any, waypoints: Any, timing: Any, *, planner: str, seed: int,
-              tool: str = "armbridge plan soft") -> Plan:
-    """The Plan of a planned path's pump waypoints (planning.soft.waypoints.PumpWaypoints), validated."""
+              tool: str = "armbridge plan soft", clearance: Optional[dict[str, float]] = None) -> Plan:
+    """The Plan of a planned path's pump waypoints (planning.soft.waypoints.PumpWaypoints), validated.
+    clearance: margin_mm (planned for), clearance_min_mm (the waypoints' segments), planned_clearance_min_mm
+    (the planner's path), as planning.soft.command computes them; written into the section as they are."""
     rows, durs = waypoints.plan_rows()
     pose_rows, r = [], 0
     for hold in waypoints.hold_s:
@@ -40,6 +42,7 @@ def soft_plan(scene: Any, result: Any, waypoints: Any, timing: Any, *, planner: 
         "waypoints": waypoints.criterion(),
         "timing": timing.to_dict(),
         "pose_rows": pose_rows,
+        **{k: float(v) for k, v in (clearance or {}).items()},
     }
     prov = {"tool": tool, "name": f"soft-{scene.name}-{planner}"}
     return make_plan(scene.robot, rows, durs, prov, soft=section)

@@ -43,7 +43,9 @@ scenes' 2 mm), with goal.q the witness's last state. "params" are the fixed
 scene's of as many links (two-arm, three-arm, seven-tube), with WJRRT's
 d_min and C1 lowered to half what the witness keeps (least link clearance,
 least sum of link clearances), so that WJRRT's thresholds do not refuse the
-only way through. The witness, c and the witness's clearance are in the
+only way through; "margin" (the clearance plans keep, margin.py) is the
+robot's execution margin, lowered likewise to half the witness's least
+clearance where that is less. The witness, c and the witness's clearance are in the
 scene's provenance.
 """
 from __future__ import annotations
@@ -57,6 +59,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.soft.scene import FORMAT, VERSION, Scene, fixed_scene, load_scene, scene_from_dict
+from armbridge.planning.soft.margin import execution_margin
 from armbridge.planning.soft.space import ChainChecker
 from armbridge.robots.catalog import get_robot
 
@@ -292,6 +295,7 @@ def _random_scene(links: int, kind: str, seed: int) -> Scene:
                            f"{len(obstacles)} {'walls' if kind != 'clutter' else 'polygons'}, a witness path of "
                            f"{len(path) - 1} edges keeps {least * 1000:.1f} mm",
             "robot": robot_name, "base": base.tolist(), "link_width": LINK_WIDTH,
+            "margin": min(round(execution_margin(robot), 6), round(0.5 * least, 4)),
             "obstacles": [np.asarray(o, float).tolist() for o in obstacles],
             "start": path[0].tolist(),
             "goal": {"point": free.tip(path[-1]).tolist(), "tol": GOAL_TOL, "q": path[-1].tolist()},

@@ -6,7 +6,12 @@
 
 File format (docs/planning-soft.md): `"format": "armbridge-chain-env"`,
 version 1; lengths in m, angles in rad. A scene carries its planner
-defaults in "params" (the WJRRT paper's iterations, C1, C2, lambda, k, P_G).
+defaults in "params" (the WJRRT paper's iterations, C1, C2, lambda, k, P_G)
+and may carry "margin" (m): the clearance its plans keep from every
+obstacle, else the robot's execution margin (margin.execution_margin: the
+pump controller's joint tolerance through the chain). `scene.checker()` is
+the touch check (margin 0); `scene.planning_checker()` and
+`scene.problem()` keep the margin.
 Loading validates and stops at the first problem with one ArmbridgeError
 naming the file, the field and the allowed range.
 """
@@ -26,6 +31,7 @@ from armbridge.jsonfile import read_json
 from armbridge.planning.base import Problem
 from armbridge.planning.envfile import Ctx, fmt, header, number, obstacle, vector
 from armbridge.planning.soft.ik import goal_configs
+from armbridge.planning.soft.margin import MARGIN_MAX_M, execution_margin
 from armbridge.planning.soft.space import EDGE_RES, FREE, LIMITS, ChainChecker, ChainSpace
 from armbridge.robots.catalog import get_robot, is_registered, robot_from_dict, robot_to_dict
 from armbridge.robots.planar import PlanarChain
@@ -37,8 +43,8 @@ FIXED = ("two-arm", "three-arm", "seven-tube", "horn")
 #: Random starts of the goal search (ik.goal_configs) when a file gives no goal.q.
 IK_STARTS = 64
 
-_TOP = ("format", "version", "name", "description", "robot", "base", "link_width", "obstacles", "start", "goal",
-        "params", "provenance")
+_TOP = ("format", "version", "name", "description", "robot", "base", "link_width", "margin", "obstacles", "start",
+        "goal", "params", "provenance")
 _GOAL = ("point", "tol", "q")
 #: params key -> (lowest, highest, integer?): the planner defaults a scene may carry (docs/planning-soft.md).
 PARAM_RANGES: dict[str, tuple[float, float, bool]] = {
@@ -88,29 +94,54 @@ class Scene:
     provenance: dict = field(default_factory=dict)
     source: Optional[Path] = None
     goal_states: Optional[np.ndarray] = field(default=None, repr=False)
+    margin: Optional[float] = None
+    _goals: dict = field(default_factory=dict, repr=False, init=False)
 
-    def checker(self, res: float = EDGE_RES, link_width: Optional[float] = None,
-                certified: bool = True) -> ChainChecker:
+    @property
+    def planning_margin(self) -> float:
+        """The clearance plans keep from every obstacle (m): the scene's margin, else the robot's
+        execution margin (margin.execution_margin)."""
+        return float(self.margin) if self.margin is not None else execution_margin(self.robot)
+
+    def checker(self, res: float = EDGE_RES, link_width: Optional[float] = None, certified: bool = True,
+                margin: float = 0.0) -> ChainChecker:
         """A fresh checker (its own `checks` count): certified edges (space.py), probing at res (m); with
-        certified=False edges are only checked at resolution res."""
+        certified=False edges are only checked at resolution res. margin (m): the clearance every link
+        must keep (0: the touch check; planning_checker() keeps the scene's)."""
         w = self.link_width if link_width is None else link_width
         return ChainChecker.create(self.robot, self.obstacles, base=self.base, link_width=w, res=res,
-                                   certified=certified)
+                                   certified=certified, margin=margin)
+
+    def planning_checker(self, res: float = EDGE_RES, certified: bool = True,
+                         margin: Optional[float] = None) -> ChainChecker:
+        """checker() keeping the planning margin (or `margin`, m): what planners and smoothing check with."""
+        return self.checker(res, certified=certified, margin=self.planning_margin if margin is None else margin)
 
     def space(self) -> ChainSpace:
         return ChainSpace(np.array(self.robot.q_min), np.array(self.robot.q_max))
 
     def find_goal_states(self, checker: Optional[ChainChecker] = None) -> np.ndarray:
-        """goal_q (if given) and the collision-free goal configurations the tip descent finds (ik.py); cached."""
-        if self.goal_states is None:
-            found, _ = goal_configs(checker or self.checker(), self.goal_point, self.goal_tol, starts=IK_STARTS,
-                                    extra=self.start)
-            known = [] if self.goal_q is None else [self.goal_q]
-            self.goal_states = np.array(known + list(found)).reshape(-1, self.robot.n)
-        return self.goal_states
+        """goal_q (if valid for `checker`) and the goal configurations the tip descent finds valid for it
+        (ik.py); cached per link width and margin. Default: the planning checker."""
+        chk = checker or self.planning_checker()
+        key = (round(chk.link_width, 12), round(chk.margin, 12))
+        if key not in self._goals:
+            if self.goal_states is not None and key == (round(self.link_width, 12), 0.0):
+                self._goals[key] = self.goal_states  # what loading found with the touch check
+            else:
+                found, _ = goal_configs(chk, self.goal_point, self.goal_tol, starts=IK_STARTS, extra=self.start)
+                known = [] if self.goal_q is None or not chk.is_valid(self.goal_q) else [self.goal_q]
+                self._goals[key] = np.array(known + list(found)).reshape(-1, self.robot.n)
+        return self._goals[key]
 
-    def problem(self, res: float = EDGE_RES) -> Problem:
-        checker = self.checker(res)
+    def problem(self, res: float = EDGE_RES, margin: Optional[float] = None) -> Problem:
+        """The planning query: the space, planning_checker(res, margin=margin), the start, the tip goal and
+        the goal configurations valid with that margin. ArmbridgeError when the start keeps less."""
+        checker = self.planning_checker(res, margin=margin)
+        if not checker.is_valid(self.start):
+            raise ArmbridgeError(f"{self.name}: the start keeps {checker.clearance(self.start) * 1000:.1f} mm from "
+                                 f"the obstacles, less than the {checker.margin * 1000:g} mm clearance margin "
+                                 f"({checker.describe(checker.code(self.start))}); plan with a smaller margin")
         return Problem(self.space(), checker, self.start.copy(), TipGoal(checker, self.goal_point, self.goal_tol),
                        self.find_goal_states(checker).copy(), name=self.name)
 
@@ -124,6 +155,8 @@ class Scene:
         d["robot"] = self.robot.name if is_registered(self.robot) else robot_to_dict(self.robot)
         d["base"] = [float(v) for v in self.base]
         d["link_width"] = float(self.link_width)
+        if self.margin is not None:
+            d["margin"] = float(self.margin)
         d["obstacles"] = [[[float(x), float(y)] for x, y in p] for p in self.obstacles]
         d["start"] = [float(v) for v in self.start]
         d["goal"] = goal
@@ -185,6 +218,11 @@ def scene_from_dict(doc: Any, source: Any = None) -> Scene:
     width = number(doc.get("link_width", 0.0), "link_width", ctx)
     if width < 0:
         raise ctx.err(f"link_width = {fmt(width)} m is outside [0, inf)")
+    margin = None
+    if "margin" in doc:
+        margin = number(doc["margin"], "margin", ctx)
+        if not 0 <= margin <= MARGIN_MAX_M:
+            raise ctx.err(f"margin = {margin * 1000:g} mm is outside [0, {MARGIN_MAX_M * 1000:g}] mm")
     if not isinstance(doc["obstacles"], list):
         raise ctx.err("obstacles must be a list of polygons and walls")
     obstacles = [obstacle(p, i, ctx, walls=True) for i, p in enumerate(doc["obstacles"])]
@@ -220,7 +258,7 @@ def scene_from_dict(doc: Any, source: Any = None) -> Scene:
     if not isinstance(prov, dict):
         raise ctx.err("provenance must be an object")
     scene = Scene(name, robot, base, width, obstacles, start, point, tol, goal_q, params, description, dict(prov),
-                  Path(source) if source is not None else None)
+                  Path(source) if source is not None else None, margin=margin)
     if goal_q is None:
         found, best = goal_configs(checker, point, tol, starts=IK_STARTS, extra=start)
         if found.shape[0] == 0:

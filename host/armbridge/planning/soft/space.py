@@ -15,8 +15,11 @@ each other. Joint limits are the robot's [q_min, q_max].
   sub-steps chosen so that no point of the arm moves more than `res` metres
   between two checked shapes, which can miss a collision between them),
   clearance (eq. 8: the least distance from any link's surface to any
-  obstacle, m; negative in collision) and link_clearance (each link's, for
-  W_s of eq. 20).
+  obstacle, m; 0 in collision) and link_clearance (each link's, for
+  W_s of eq. 20). Its `margin` (m, issue 24 section 2; planning/soft/margin.py
+  derives it from the pump controller's tolerance) is the clearance every
+  link's surface must keep from every obstacle: the obstacle tests use the
+  radius w/2 + margin where they used w/2 (self-collision keeps w).
 
 Certified edges (issue 24 section 1; `edge_code`). The bound: joint i sits
 at p_i and turns every link k >= i; along the straight edge
@@ -62,6 +65,7 @@ from numba import njit
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.polygons import (chain_points, obstacle_clearance, points_clearance, points_hit,
                                          polygon_arrays, seg_seg_d2, self_hit)
+from armbridge.planning.soft.jtstep import jt_step, tip_jacobian  # noqa: F401  (re-exported: moved to jtstep.py)
 
 #: Default edge resolution: no point of the arm moves more than this between checked shapes (m).
 EDGE_RES = 0.002
@@ -129,8 +133,9 @@ def motion_bounds(dq, lengths, B, S):
 
 
 @njit(cache=True)
-def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, margin, width, res, pts, q, cl, dq, B, S):
-    """The straight edge qa -> qb certified by conservative advancement (module doc): (steps, -1 when every
+def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, radius, width, res, pts, q, cl, dq, B, S):
+    """The straight edge qa -> qb certified by conservative advancement (module doc; obstacles count within
+    `radius` = w/2 + margin of a centre line, links within `width` of each other): (steps, -1 when every
     state of the edge is free, else the code of a colliding probe state, or NEAR when a clearance fell to
     CLEAR_MIN or the steps ran out). qa is taken as valid."""
     n = lengths.size
@@ -142,7 +147,7 @@ def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, margin,
         move += abs(dq[j]) * reach[j]
     motion_bounds(dq, lengths, B, S)
     h = res / move if move > 0.0 else 2.0
-    r2 = margin * margin
+    r2 = radius * radius
     w2 = width * width
     t = 0.0
     probed = 0.0
@@ -155,7 +160,7 @@ def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, margin,
         obstacle_clearance(pts, verts, starts, bbox, cl)
         s = np.inf
         for k in range(n):
-            c = cl[k] - margin
+            c = cl[k] - radius
             if c <= CLEAR_MIN:
                 code = state_code(q, lengths, base, lo, hi, verts, starts, bbox, r2, w2, pts)
                 return steps, code if code != FREE else NEAR
@@ -184,58 +189,17 @@ def edge_code(qa, qb, lengths, reach, base, lo, hi, verts, starts, bbox, margin,
 
 
 @njit(cache=True)
-def link_clearance(q, lengths, base, verts, starts, margin, pts, out):
-    """out[l] = distance from link l's surface to the nearest obstacle (m); returns the least."""
+def link_clearance(q, lengths, base, verts, starts, half_width, pts, out):
+    """out[l] = distance from link l's surface (half_width from its centre line) to the nearest obstacle (m),
+    negative in collision; returns the least."""
     chain_points(q, lengths, base[0], base[1], base[2], pts)
     points_clearance(pts, verts, starts, out)
     least = np.inf
     for k in range(out.size):
-        out[k] -= margin
+        out[k] -= half_width
         if out[k] < least:
             least = out[k]
     return least
-
-
-@njit(cache=True)
-def tip_jacobian(q, lengths, base, pts, J):
-    """Tip position (x, y) of q and d(tip)/dq into J (2, n): column j is perp(tip - joint j)."""
-    n = lengths.size
-    chain_points(q, lengths, base[0], base[1], base[2], pts)
-    tx, ty = pts[n, 0], pts[n, 1]
-    for j in range(n):
-        J[0, j] = -(ty - pts[j, 1])
-        J[1, j] = tx - pts[j, 0]
-    return tx, ty
-
-
-@njit(cache=True)
-def jt_step(q, goal, dx, lengths, base, lo, hi, pts, J, out):
-    """One Jacobian-transpose step of the tip towards goal into out, clipped to [lo, hi]; returns the tip's
-    distance to goal before the step (m).
-
-    WJRRT eq. (17)-(19): dX = goal - tip shortened to at most dx (m); dq = rho J^T dX with
-    rho = <dX, J J^T dX> / |J J^T dX|^2, the rho that brings the linearised tip step J dq closest to dX
-    (Buss's choice for the transpose method), so the predicted tip step is never longer than dX; out = q + dq.
-    """
-    n = lengths.size
-    tx, ty = tip_jacobian(q, lengths, base, pts, J)
-    ex, ey = goal[0] - tx, goal[1] - ty
-    d = math.sqrt(ex * ex + ey * ey)
-    if d > dx:
-        ex *= dx / d
-        ey *= dx / d
-    vx = 0.0
-    vy = 0.0
-    for j in range(n):
-        g = J[0, j] * ex + J[1, j] * ey
-        out[j] = g
-        vx += J[0, j] * g
-        vy += J[1, j] * g
-    den = vx * vx + vy * vy
-    rho = (ex * vx + ey * vy) / den if den > 0.0 else 0.0
-    for j in range(n):
-        out[j] = min(max(q[j] + rho * out[j], lo[j]), hi[j])
-    return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,6 +244,7 @@ class ChainChecker:
     link_width: float
     res: float
     certified: bool = True
+    margin: float = 0.0
     reach: np.ndarray = field(init=False)
     verts: np.ndarray = field(init=False)
     starts: np.ndarray = field(init=False)
@@ -291,12 +256,14 @@ class ChainChecker:
             raise ArmbridgeError(f"link width must be a finite number >= 0 m, got {self.link_width}")
         if not (self.res > 0 and math.isfinite(self.res)):
             raise ArmbridgeError(f"edge resolution must be a finite number > 0 m, got {self.res}")
+        if not (self.margin >= 0 and math.isfinite(self.margin)):
+            raise ArmbridgeError(f"clearance margin must be a finite number >= 0 m, got {self.margin}")
         self.lengths = np.ascontiguousarray(self.lengths, dtype=float)
         self.base = np.ascontiguousarray(self.base, dtype=float).reshape(3)
         self.lower = np.ascontiguousarray(self.lower, dtype=float)
         self.upper = np.ascontiguousarray(self.upper, dtype=float)
         self.reach = np.ascontiguousarray(np.cumsum(self.lengths[::-1])[::-1])
-        self.verts, self.starts, self.bbox = polygon_arrays(self.polygons, self.margin)
+        self.verts, self.starts, self.bbox = polygon_arrays(self.polygons, self.radius)
         n = self.lengths.size
         self._pts = np.empty((n + 1, 2))
         self._q = np.empty(n)
@@ -307,22 +274,28 @@ class ChainChecker:
 
     @classmethod
     def create(cls, robot: Any, polygons: Sequence[Any], *, base: Any = (0.0, 0.0, 0.0), link_width: float = 0.0,
-               res: float = EDGE_RES, certified: bool = True) -> "ChainChecker":
+               res: float = EDGE_RES, certified: bool = True, margin: float = 0.0) -> "ChainChecker":
         return cls(robot.link_lengths, np.asarray(base, float), robot.q_min, robot.q_max,
                    tuple(np.asarray(p, float).reshape(-1, 2) for p in polygons), float(link_width), float(res),
-                   bool(certified))
+                   bool(certified), float(margin))
 
     @property
     def n(self) -> int:
         return int(self.lengths.size)
 
     @property
-    def margin(self) -> float:
+    def half_width(self) -> float:
+        """w/2: a link's surface is this far from its centre line."""
         return 0.5 * self.link_width
+
+    @property
+    def radius(self) -> float:
+        """w/2 + margin: a state is valid only while every centre line keeps more than this from obstacles."""
+        return 0.5 * self.link_width + self.margin
 
     def _args(self) -> tuple:
         return (self.lengths, self.base, self.lower, self.upper, self.verts, self.starts, self.bbox,
-                self.margin ** 2, self.link_width ** 2)
+                self.radius ** 2, self.link_width ** 2)
 
     def code(self, q: Any) -> int:
         """state_code of one configuration (-1 free; see module constants)."""
@@ -338,7 +311,7 @@ class ChainChecker:
         qa, qb = np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float)
         L, B, lo, hi, V, S, BB, r2, s2 = self._args()
         if self.certified:
-            k, c = edge_code(qa, qb, L, self.reach, B, lo, hi, V, S, BB, self.margin, self.link_width, self.res,
+            k, c = edge_code(qa, qb, L, self.reach, B, lo, hi, V, S, BB, self.radius, self.link_width, self.res,
                              self._pts, self._q, self._cl, self._dq, self._B, self._S)
         else:
             k, c = edge_code_sampled(qa, qb, L, self.reach, B, lo, hi, V, S, BB, r2, s2, self.res, self._pts,
@@ -365,7 +338,7 @@ class ChainChecker:
         self.checks += 1
         out = np.empty(self.n)
         link_clearance(np.ascontiguousarray(q, dtype=float), self.lengths, self.base, self.verts, self.starts,
-                       self.margin, self._pts, out)
+                       self.half_width, self._pts, out)
         return out
 
     def clearance(self, q: Any) -> float:
@@ -391,8 +364,10 @@ class ChainChecker:
         if code == SELF:
             return "two links collide (self-collision)"
         if code == NEAR:
-            return f"the motion cannot be certified free (a clearance within {CLEAR_MIN * 1e6:g} um)"
-        return f"link {code % self.n + 1} hits obstacle {code // self.n}"
+            return (f"the motion cannot be certified free (a clearance within {CLEAR_MIN * 1e6:g} um"
+                    + (f" of the {self.margin * 1000:g} mm margin)" if self.margin > 0 else ")"))
+        within = f"comes within the {self.margin * 1000:g} mm margin of" if self.margin > 0 else "hits"
+        return f"link {code % self.n + 1} {within} obstacle {code // self.n}"
 
     def path_problem(self, path: Any) -> str | None:
         """None if path (K, n) starts valid and every straight edge is free (motion_code), else a message."""
