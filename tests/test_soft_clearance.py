@@ -279,6 +279,7 @@ def test_a_bad_margin_is_one_line_naming_the_range(tmp_path):
 def test_the_demo_report_measures_the_executed_clearance_against_the_margin():
     """soft_report on traces of the plan itself (the arm exactly on its rows, 50 samples per move) keeps the
     margin; the same trace pushed into the pit's rim reports the contact."""
+    from armbridge.demos.soft import clearance_line
     from armbridge.demos.soft_report import Trace, soft_report
     from armbridge.planning.soft.command import plan_for_pump
     from armbridge.plans.soft import soft_info
@@ -291,9 +292,13 @@ def test_the_demo_report_measures_the_executed_clearance_against_the_margin():
     rep = soft_report(plan, info, Trace(t, Q, {}, {}), np.full(3, 0.072), chk)
     assert rep["margin_mm"] == 4.8 and rep["keeps_margin"] and rep["collision_free"]
     assert rep["executed_clearance_min_mm"] >= 4.8 and rep["executed_contact"] == "free"
+    assert clearance_line(rep) is None
     rng = np.random.default_rng(1)
     bad = next(q for q in sp.scene.space().sample(rng, 5000) if not chk.is_valid(q) and chk.code(q) >= 0)
     Qb = np.vstack([Q, bad])
     rep = soft_report(plan, info, Trace(np.arange(len(Qb)) * 0.02, Qb, {}, {}), np.full(3, 0.072), chk)
     assert not rep["collision_free"] and not rep["keeps_margin"] and rep["executed_clearance_min_mm"] <= 0
     assert "obstacle" in rep["executed_contact"] or "between" in rep["executed_contact"]
+    line = clearance_line(rep)
+    assert line is not None and line.startswith("error: the executed arm touched an obstacle: least clearance ")
+    assert "\n" not in line and "the plan kept 4.8 mm" in line

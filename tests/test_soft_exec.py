@@ -387,6 +387,8 @@ def test_the_demo_settles_every_joint_in_its_dead_band_at_every_waypoint(demo):
     assert 0.0 <= rep["settle_s"]["mean"] <= rep["settle_s"]["max"]
     assert 0.0 <= rep["path_deviation_m"]["mean"] <= rep["path_deviation_m"]["max"] <= bound + 0.01
     assert rep["collision_free"] and rep["min_clearance_m"] > 0
+    # the executed arm keeps the margin its plan was planned for (soft3's 4.8 mm; planning/soft/margin.py)
+    assert rep["margin_mm"] == 4.8 and rep["keeps_margin"] and rep["executed_clearance_min_mm"] >= 4.8
     assert rep["planned_s"] == pytest.approx(plan.total_duration, abs=1e-3)
     assert rep["planned_arrival_s"] - 0.02 <= rep["executed_s"] <= rep["planned_s"] + 0.05
     assert s.measured_duration_s == pytest.approx(plan.total_duration, abs=0.05)

@@ -101,6 +101,19 @@ def _table(r: dict[str, Any]) -> Any:
     return t
 
 
+def clearance_line(r: dict[str, Any]) -> str | None:
+    """What the demo says of the executed arm's clearance (its report `r`): an error line when it touched an
+    obstacle, a note when it came inside the plan's margin, else None."""
+    if not r["collision_free"]:
+        return (f"error: the executed arm touched an obstacle: least clearance {r['executed_clearance_min_mm']} mm "
+                f"at t = {r['executed_clearance_t_s']} s ({r['executed_contact']}); the plan kept {r['margin_mm']} mm")
+    if r["keeps_margin"] is False:
+        return (f"note: the executed arm came within {r['executed_clearance_min_mm']} mm of an obstacle at "
+                f"t = {r['executed_clearance_t_s']} s, inside the plan's {r['margin_mm']} mm margin (the margin "
+                "covers the joints at rest, not their lag while moving)")
+    return None
+
+
 def run(opts: DemoOptions, console: Any) -> None:
     """The demo, and its exit: 1 when the executed arm touched an obstacle, 3 when it ended outside the
     goal's tolerance (docs/formats.md §7), said after the demo's own report."""
@@ -109,17 +122,11 @@ def run(opts: DemoOptions, console: Any) -> None:
     from armbridge.executor.command import GOAL_MISSED, goal_missed_text
 
     done = execute(opts, console)
-    if done is not None and not done.report["collision_free"]:
-        r = done.report
-        typer.secho(f"error: the executed arm touched an obstacle: least clearance {r['executed_clearance_min_mm']} "
-                    f"mm at t = {r['executed_clearance_t_s']} s ({r['executed_contact']}); the plan kept "
-                    f"{r['margin_mm']} mm", fg="red", err=True)
-        raise typer.Exit(1)
-    if done is not None and done.report["keeps_margin"] is False:
-        r = done.report
-        typer.secho(f"note: the executed arm came within {r['executed_clearance_min_mm']} mm of an obstacle at "
-                    f"t = {r['executed_clearance_t_s']} s, inside the plan's {r['margin_mm']} mm margin (the margin "
-                    "covers the joints' rest tolerance, not their lag while moving)", fg="yellow", err=True)
+    said = None if done is None else clearance_line(done.report)
+    if said is not None:
+        typer.secho(said, fg="red" if said.startswith("error") else "yellow", err=True)
+        if said.startswith("error"):
+            raise typer.Exit(1)
     if done is not None and done.summary.goal_missed:
         typer.secho(f"error: {goal_missed_text(done.summary)}", fg="red", err=True)
         raise typer.Exit(GOAL_MISSED)
