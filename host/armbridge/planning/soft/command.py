@@ -137,7 +137,8 @@ def soft_cmd(
     if png is not None:
         from armbridge.planning.soft.figure import soft_figure
 
-        soft_figure(sp.scene, sp.result.path, sp.waypoints.q, png, title=f"{sp.scene.name} ({planner}, seed {seed})")
+        soft_figure(sp.scene, sp.result.path, sp.waypoints.q, png, title=f"{sp.scene.name} ({planner}, seed {seed})",
+                    margin=sp.clearance["margin_mm"] / 1000.0)
         console.print(f"figure: {png}")
     if json_out is not None:
         write_json(json_out, summary)

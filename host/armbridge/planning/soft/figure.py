@@ -18,8 +18,11 @@ from armbridge.planning import figure as F
 
 
 def soft_figure(scene: Any, path: np.ndarray, waypoints: Optional[np.ndarray], out: Any, *,
-                title: Optional[str] = None) -> Path:
-    """Draw scene, the planned path (K, n) and the pump waypoints (m, n) (None: none) to out (PNG)."""
+                title: Optional[str] = None, margin: Optional[float] = None) -> Path:
+    """Draw scene, the planned path (K, n) and the pump waypoints (m, n) (None: none) to out (PNG). The dashed
+    outline around each obstacle is where the links' centre lines keep out of: half the link width and the
+    clearance margin (m; default the scene's planning margin)."""
+    keep = 0.5 * scene.link_width + (scene.planning_margin if margin is None else float(margin))
     checker = scene.checker()
     path = np.asarray(path, float)
     tips = np.array([checker.tip(q) for q in path])
@@ -31,7 +34,7 @@ def soft_figure(scene: Any, path: np.ndarray, waypoints: Optional[np.ndarray], o
 
     def layer(ax: Any, legend: bool) -> None:
         lab = (lambda s: s) if legend else (lambda s: None)
-        F.draw_obstacles(ax, scene.obstacles, margin=0.5 * scene.link_width, labels=legend)
+        F.draw_obstacles(ax, scene.obstacles, margin=keep, labels=legend)
         F.draw_chain(ax, checker.points(path[0]), role="start", label="" if legend else None)
         if shapes:
             F.draw_shapes(ax, shapes, label=lab("arm at each pump waypoint (lighter = earlier)"))
