@@ -274,6 +274,14 @@ def test_a_bad_margin_is_one_line_naming_the_range(tmp_path):
     assert not (tmp_path / "p.json").exists()
     r = subprocess.run([exe, "plan", "soft", "--help"], capture_output=True, text=True, timeout=120)
     assert "--margin" in r.stdout
+    # a margin the start itself does not keep (seven-tube's start keeps 42.5 mm)
+    r = subprocess.run([exe, "plan", "soft", "--env", "seven-tube", "--out", str(tmp_path / "p.json"), "--margin",
+                        "45"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert lines == ["error: seven-tube: the start keeps 42.5 mm from the obstacles, less than the 45 mm clearance "
+                     "margin; plan with a smaller --margin; no plan written"], lines
+    assert not (tmp_path / "p.json").exists()
 
 
 def test_the_demo_report_measures_the_executed_clearance_against_the_margin():
