@@ -46,7 +46,8 @@ def solve(problem: Problem, *, iterations: int = 1000, seed: int = 0, time_limit
     roots = np.asarray(problem.goal_states, dtype=float).reshape(-1, chk.n) if problem.goal_states.size else None
     if roots is None:
         raise ArmbridgeError("birrt needs goal configurations (problem.goal_states): Scene.problem() finds them "
-                             "by tip descent; none were found")
+                             f"by tip descent, keeping the checker's {getattr(chk, 'margin', 0.0) * 1000:g} mm "
+                             "clearance margin; none were found")
     rng = np.random.default_rng(seed)
     checks0 = chk.checks
     t0 = time.perf_counter()
