@@ -46,7 +46,8 @@ import numpy as np
 from numba import njit
 
 from armbridge.errors import ArmbridgeError
-from armbridge.planning.soft.space import link_clearance, motion_bounds
+from armbridge.planning.polygons import chain_points, obstacle_clearance
+from armbridge.planning.soft.space import motion_bounds
 
 #: The largest margin a scene or --margin may ask for (m).
 MARGIN_MAX_M = 0.05
@@ -87,9 +88,9 @@ def check_margin(margin: float, where: str = "margin") -> float:
 
 
 @njit(cache=True)
-def edge_least_clearance(qa, qb, lengths, reach, base, verts, starts, half_width, res, pts, q, out):
+def edge_least_clearance(qa, qb, lengths, reach, base, verts, starts, bbox, half_width, res, pts, q, out):
     """The least link-surface clearance over states of qa -> qb (both ends included) no more than res of
-    point motion apart (m)."""
+    point motion apart (m); bbox: the polygons' boxes (grown boxes are still lower bounds)."""
     n = lengths.size
     move = 0.0
     for j in range(n):
@@ -100,7 +101,8 @@ def edge_least_clearance(qa, qb, lengths, reach, base, verts, starts, half_width
         t = s / steps
         for j in range(n):
             q[j] = qa[j] + t * (qb[j] - qa[j])
-        c = link_clearance(q, lengths, base, verts, starts, half_width, pts, out)
+        chain_points(q, lengths, base[0], base[1], base[2], pts)
+        c = obstacle_clearance(pts, verts, starts, bbox, out) - half_width
         if c < least:
             least = c
     return least
@@ -126,7 +128,8 @@ class ClearanceObjective:
         c = self.checker
         c.checks += 1
         return float(edge_least_clearance(np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float),
-                                          c.lengths, c.reach, c.base, c.verts, c.starts, c.half_width, float(self.res),
+                                          c.lengths, c.reach, c.base, c.verts, c.starts, c.bbox, c.half_width,
+                                          float(self.res),
                                           self._pts, self._q, self._out))
 
     def path(self, path: Any) -> float:
