@@ -164,12 +164,13 @@ def image_lines(image: np.ndarray, name: str = "<image>") -> vp.LineCollection:
     image's pixel staircase would otherwise become hundreds of tiny steps),
     `measure.find_contours` traces each boundary at Otsu's threshold (ink
     from paper) at sub-pixel precision, and `approximate_polygon` keeps it
-    within IMAGE_TOLERANCE px with far fewer points. One pixel is one unit."""
-    from skimage import color, filters, measure
+    within IMAGE_TOLERANCE px with far fewer points. One pixel is one unit.
+    An image with an alpha channel (RGBA, grey + alpha) is laid on white paper
+    first; where that leaves one flat colour (a white shape on a transparent
+    ground) its alpha channel is traced instead: opaque is ink."""
+    from skimage import filters, measure
 
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = color.rgb2gray(img[..., :3]) if img.shape[-1] >= 3 else img[..., 0]
+    img = _grey(np.asarray(image))
     if img.ndim != 2 or min(img.shape) < 3:
         raise ArmbridgeError(f"{name}: not an image of at least 3x3 pixels (shape {img.shape})")
     img = img.astype(float)
@@ -185,6 +186,25 @@ def image_lines(image: np.ndarray, name: str = "<image>") -> vp.LineCollection:
     if not strokes:
         raise ArmbridgeError(f"{name}: no outline found in the image")
     return from_strokes(strokes)
+
+
+def _grey(img: np.ndarray) -> np.ndarray:
+    """An image as grey levels in [0, 1] (dark = ink); alpha composited over white, or the alpha
+    itself (1 - alpha) where the composite is flat and the alpha is not."""
+    from skimage import color
+
+    if img.ndim == 3 and img.shape[-1] == 1:
+        return img[..., 0]
+    if img.ndim != 3 or img.shape[-1] not in (2, 3, 4):
+        return img
+    full = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
+    x = img.astype(float) / full
+    grey = color.rgb2gray(x[..., :3]) if x.shape[-1] >= 3 else x[..., 0]
+    if x.shape[-1] in (2, 4):
+        alpha = np.clip(x[..., -1], 0.0, 1.0)
+        over_white = alpha * grey + (1.0 - alpha)
+        grey = 1.0 - alpha if np.ptp(over_white) == 0 and np.ptp(alpha) > 0 else over_white
+    return grey
 
 
 def image_file(path: Path | str) -> vp.LineCollection:
