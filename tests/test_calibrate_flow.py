@@ -93,7 +93,7 @@ def test_the_cli_refuses_with_one_line_and_board_info_reports(tmp_path, standin,
     fs, cal = tmp_path / "fs", tmp_path / "cal"
     env = {"ARMBRIDGE_CALIBRATION_DIR": str(cal), "PATH": "/usr/bin:/bin"}
     report = calibrate_board(url(fs), "esp32", cal_dir=cal)
-    info = subprocess.run([ARMBRIDGE, "board", "info", "--port", url(fs), "--json"], capture_output=True, text=True,
+    info = subprocess.run([ARMBRIDGE, "board", "info", "--port", url(fs), "--json", "-"], capture_output=True, text=True,
                           env=env, timeout=300)
     assert info.returncode == 0, info.stderr
     got = json.loads(info.stdout)["calibration"]

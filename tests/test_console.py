@@ -31,9 +31,9 @@ def console(*args: str, stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess
 
 
 def ok_json(*args: str) -> dict:
-    r = console(*args, "--json")
+    r = console(*args, "--json", "-")
     assert r.returncode == 0, r.stderr
-    return json.loads(r.stdout)
+    return json.loads(r.stdout)                       # stdout carries the JSON alone
 
 
 def estop(link: str) -> None:
@@ -95,6 +95,19 @@ def test_clear_after_an_estop(board):
     assert ok_json("state", "--port", link)["state"] == "IDLE"
     r = console("clear", "--port", link, "--yes")
     assert r.returncode == 0 and "nothing to clear: the board is IDLE" in r.stdout
+    # nothing latched: nothing to confirm, even without a terminal or --yes
+    r = console("clear", "--port", link)
+    assert r.returncode == 0 and "nothing to clear: the board is IDLE" in r.stdout, r.stderr
+
+
+def test_json_to_a_file_keeps_the_table(board, tmp_path):
+    _, link = board
+    out = tmp_path / "sub" / "state.json"
+    r = console("state", "--port", link, "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "state IDLE" in r.stdout and json.loads(out.read_text())["state"] == "IDLE"
+    r = console("ping", "--port", link, "-c", "2", "--json=-")
+    assert r.returncode == 0 and json.loads(r.stdout)["count"] == 2 and "PING 1" not in r.stdout + r.stderr
 
 
 def _on_a_terminal(args: list[str], answer: bytes) -> tuple[int, str]:

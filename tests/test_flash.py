@@ -286,7 +286,7 @@ def test_an_interrupted_flash_is_reported_by_board_info(esp32, monkeypatch):
     r = cli("flash", "esp32", "--port", port)
     assert r.returncode == 0, r.stderr
     assert "earlier flash" in r.stderr  # the board's own manifest said so too
-    r = cli("board", "info", "--port", port, "--json")
+    r = cli("board", "info", "--port", port, "--json", "-")
     assert r.returncode == 0 and json.loads(r.stdout)["fw_version"] == "0.1.0"
 
 

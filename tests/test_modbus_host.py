@@ -199,13 +199,13 @@ def test_run_refuses_a_latched_board(peer, tmp_path) -> None:
 # ---------------------------------------------------------------------- the console
 def test_board_info_and_state_cli(peer) -> None:
     url = f"modbus:{peer.port_name}?addr={ADDR}"
-    res = subprocess.run([ARMBRIDGE, "board", "info", "--port", url, "--json"], capture_output=True, text=True,
+    res = subprocess.run([ARMBRIDGE, "board", "info", "--port", url, "--json", "-"], capture_output=True, text=True,
                          timeout=60)
     assert res.returncode == 0, res.stderr
     d = json.loads(res.stdout)
     assert d["fw"] == "arduino_pump" and d["protocol"] == 2 and d["joints"] == 3 and d["queue"] == QSIZE
     assert [j["max_mrad"] for j in d["limits"]] == [524, 960, 1047]
-    res = subprocess.run([ARMBRIDGE, "board", "state", "--port", url, "--json"], capture_output=True, text=True,
+    res = subprocess.run([ARMBRIDGE, "board", "state", "--port", url, "--json", "-"], capture_output=True, text=True,
                          timeout=60)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["state"] == "IDLE"

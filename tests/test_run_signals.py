@@ -54,7 +54,7 @@ def verify(rrd: Path) -> None:
 
 
 def board_state(link: str) -> dict:
-    r = subprocess.run([ARMBRIDGE, "board", "state", "--port", link, "--json"], capture_output=True, text=True,
+    r = subprocess.run([ARMBRIDGE, "board", "state", "--port", link, "--json", "-"], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
     return json.loads(r.stdout)

@@ -6,11 +6,18 @@ up and turns user-facing errors into one clear line (a traceback only with
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 
 import typer
 
+try:  # typer 0.2x carries its own click (typer._click); older ones use click's
+    from typer._click import exceptions as cx
+except ImportError:  # pragma: no cover - the pinned typer has it
+    from click import exceptions as cx  # type: ignore[no-redef]
+
 from armbridge.errors import ArmbridgeError
+from armbridge.jsonfile import json_to_stdout, wants_json_stdout
 
 app = typer.Typer(
     help="Host runtime for research robot arms: emulate boards, run plans, record telemetry.",
@@ -64,6 +71,7 @@ def _register() -> None:
     from armbridge.bench.command import bench_app
     from armbridge.calibrate.command import calibrate_cmd
     from armbridge.console.command import board_app
+    from armbridge.console.ports import ports_cmd
     from armbridge.demo import demo_cmd
     from armbridge.draw.command import draw_cmd
     from armbridge.emulator.command import emulate_cmd
@@ -79,6 +87,7 @@ def _register() -> None:
     app.command("draw")(draw_cmd)
     app.command("emulate")(emulate_cmd)
     app.command("flash")(flash_cmd)
+    app.command("ports")(ports_cmd)
     app.command("run")(run_cmd)
     app.command("smm")(smm_cmd)
     app.command("view")(view_cmd)
@@ -88,19 +97,44 @@ def _register() -> None:
     app.add_typer(train_app, name="train")
 
 
+def _error(line: str) -> None:
+    try:
+        typer.secho(f"error: {line}", fg="red", err=True)
+    except OSError:
+        pass  # no terminal left (SIGHUP): the exit code still says it
+
+
+def usage_line(exc: cx.UsageError) -> str:
+    """A usage error as the tool's own errors read: one line, then where the help is
+    (click prints four: usage, a hint, a blank line and the error)."""
+    path = exc.ctx.command_path if exc.ctx is not None else "armbridge"
+    return f"{exc.format_message()} (see '{path} --help')"
+
+
 def main() -> None:
     """Exit codes (docs/formats.md §7): 0 success; 1 a run or a board request
     failed (BoardFailure: fault, refusal, no answer, busy or lost port); 2 bad
-    input or usage (ArmbridgeError, typer's usage errors); 128 + the signal
-    when a stop signal ended the command (130 Ctrl-C)."""
+    input or usage (ArmbridgeError, usage errors: one line each); 128 + the
+    signal when a stop signal ended the command (130 Ctrl-C)."""
     build_app()
+    quiet = json_to_stdout() if wants_json_stdout(sys.argv[1:]) else contextlib.nullcontext()
     try:
-        app()  # standalone: typer reports usage errors itself and exits
+        with quiet:  # --json -: stdout carries the JSON alone, the rest goes to stderr
+            rv = app(standalone_mode=False)
+    except cx.NoArgsIsHelpError as exc:  # a bare group: its help, as click prints it
+        typer.echo(exc.ctx.get_help() if exc.ctx is not None else exc.format_message())
+        sys.exit(2)
+    except cx.UsageError as exc:
+        _error(usage_line(exc))
+        sys.exit(2)
+    except typer.Abort as exc:  # Ctrl-C or end of input at a prompt
+        sys.exit(130 if isinstance(exc.__cause__, KeyboardInterrupt) else 1)
+    except cx.ClickException as exc:  # click's own file errors and the like
+        _error(exc.format_message())
+        sys.exit(exc.exit_code)
     except ArmbridgeError as exc:
         if _debug:
             raise
-        try:
-            typer.secho(f"error: {exc}", fg="red", err=True)
-        except OSError:
-            pass  # no terminal left (SIGHUP): the exit code still says it
+        _error(str(exc))
         sys.exit(getattr(exc, "exit_code", 2))
+    sys.exit(rv if isinstance(rv, int) else 0)

@@ -10,13 +10,16 @@ from pathlib import Path
 import typer
 
 from armbridge.demos import DemoOptions, default_port, names, run_demo
+from armbridge.jsonfile import JSON_HELP
+from armbridge.link.ports import auto_port
 
 
 def demo_cmd(
     robot: str = typer.Option("arm3r", help=f"Robot whose demo runs: {', '.join(names())}."),
-    port: str = typer.Option(None, help="Board to run on [default: the robot's emulated board: emu:esp32 for "
-                                        "arm3r, emu:masr_ma for masr5, emu:arduino_pump for soft3], a serial "
-                                        "device or a pyserial URL."),
+    port: str = typer.Option(None, "--port", "-p", envvar="ARMBRIDGE_PORT", callback=auto_port,
+                             help="Board to run on [default: the robot's emulated board: emu:esp32 for arm3r, "
+                                  "emu:masr_ma for masr5, emu:arduino_pump for soft3], a serial device, a pyserial "
+                                  "URL or auto (the one board plugged in) (env ARMBRIDGE_PORT)."),
     rrd: Path = typer.Option(None, help="Rerun recording to write [default: runs/<time>-<plan>.rrd]."),
     write_plan: Path = typer.Option(None, "--write-plan", help="Only write the demo's plan to this file and exit."),
     fault_tolerant: bool = typer.Option(
@@ -31,8 +34,7 @@ def demo_cmd(
     clear: bool = typer.Option(False, "--clear", help="Clear a board latched (ESTOP/WDOG/FAULT) from before; "
                                                       "without it a latched board is refused."),
     json_out: str = typer.Option(None, "--json", metavar="FILE|-",
-                                 help="Write the run's summary as JSON to FILE, or to stdout with - (as armbridge "
-                                      "run --json; docs/formats.md)."),
+                                 help=JSON_HELP.format(what="the run's summary") + " (as armbridge run; docs/formats.md)"),
 ) -> None:
     """Run a robot's demo on the emulated board and record it to Rerun (arm3r: draw a square, or with
     --fault-tolerant reach a target despite a joint that stalls on the way)."""

@@ -1,10 +1,22 @@
 """Reading the project's JSON files (plans, environments): every problem is one
-ArmbridgeError that names the file, and the line and column of bad JSON."""
+ArmbridgeError that names the file, and the line and column of bad JSON. And
+writing the JSON every reporting command offers with `--json FILE|-`
+(`emit_json`): '-' is standard output, which then carries the JSON alone,
+because the command line (cli.py) sends everything else a command prints to
+standard error while `json_to_stdout` holds."""
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
+
+#: --json's help, the same on every command
+JSON_HELP = "Also write {what} as JSON to FILE ('-': stdout, which then carries the JSON alone)."
+_stdout: TextIO | None = None     # the real stdout while json_to_stdout holds
 
 from armbridge.errors import ArmbridgeError
 
@@ -39,4 +51,44 @@ def write_json(path: Path, doc: Any, what: str = "the summary") -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(doc, indent=2, default=float) + "\n")
     except OSError as exc:
+        raise ArmbridgeError(f"{path}: cannot write {what}: {exc.strerror}") from None
+
+
+def wants_json_stdout(argv: list[str]) -> bool:
+    """Whether a command line asks for `--json -`."""
+    return any(a == "--json=-" or (a == "--json" and nxt == "-") for a, nxt in zip(argv, [*argv[1:], ""]))
+
+
+@contextlib.contextmanager
+def json_to_stdout() -> Iterator[None]:
+    """While it holds, what a command prints goes to stderr; `emit_json(..., "-")` to the real stdout."""
+    global _stdout
+    _stdout = sys.stdout
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        _stdout = None
+
+
+def emit_json(doc: Any, target: str | Path, what: str = "the summary") -> None:
+    """`--json TARGET`: '-' writes doc to stdout, anything else to that file, whole (a temporary
+    file renamed), making its folder; an OSError is one line naming the file."""
+    text = json.dumps(doc, indent=2, default=float) + "\n"
+    if str(target) == "-":
+        out = _stdout or sys.stdout
+        try:
+            out.write(text)
+            out.flush()
+        except OSError:  # the terminal is gone: the exit code still says it
+            pass
+        return
+    path = Path(target)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
         raise ArmbridgeError(f"{path}: cannot write {what}: {exc.strerror}") from None

@@ -348,7 +348,7 @@ def arm3r_cmd(
     quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 3 of the 12 samples, 2,000 random CBF "
                                "targets, 10 points timed singly and solved by RTB LM."),
     seed: int = typer.Option(10, "--seed", help="Seed of the random CBF targets."),
-    json_out: Path = typer.Option(Path("runs/bench-arm3r.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-arm3r.json"), "--json", help="Where to write the results ('-': stdout)."),
     lyapunov_png: Path = typer.Option(None, "--lyapunov-png", help="Also plot Fig. 13 (the CBF's Lyapunov "
                                       "function along each sample) to this PNG."),
 ) -> None:

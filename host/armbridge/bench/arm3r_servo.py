@@ -224,7 +224,7 @@ def _line(r: dict[str, Any]) -> str:
 
 def arm3r_servo_cmd(
     plants: int = typer.Option(20, "--plants", min=1, help="Random boards per rig (plant=random&seed=0..N-1)."),
-    json_out: Path = typer.Option(Path("runs/bench-arm3r-servo.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-arm3r-servo.json"), "--json", help="Where to write the results ('-': stdout)."),
     text: str = typer.Option(TEXT, "--text", help="The text drawn (Hershey, through the draw pipeline)."),
     servo_hz: int = typer.Option(None, "--servo-hz", min=24, max=1526,
                                  help="The pca9685 rig's PWM frequency (default: the config's SERVO_FREQ_HZ)."),

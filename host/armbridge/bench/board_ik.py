@@ -200,7 +200,7 @@ def board_ik_cmd(
                                "angle, and +- 0.25 rad around it)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the random targets."),
     json_out: Path = typer.Option(Path("runs/bench-board-ik.json"), "--out", "--json",
-                                  help="Where to write the results."),
+                                  help="Where to write the results ('-': stdout)."),
 ) -> None:
     """The ESP32's Cartesian IK (int8 net + FABRIK, firmware/esp32/ik3r.py) under the
     real MicroPython interpreter and CPython: net size, multiply-adds and time per

@@ -11,12 +11,13 @@ and one line here, as a demo is in `demos/__init__.py`.
 from __future__ import annotations
 
 import importlib
-import json
 from pathlib import Path
 from typing import Any
 
 import typer
 from typer.core import TyperGroup
+
+from armbridge.jsonfile import emit_json
 
 #: command name -> "module:function" of its command.
 COMMANDS: dict[str, str] = {
@@ -60,6 +61,6 @@ def _benches() -> None:
     """(a group even when invoked on its own, as the tests do: its commands come from COMMANDS)"""
 
 
-def write_json(result: dict, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=1) + "\n")
+def write_json(result: dict, path: Path | str) -> None:
+    """A bench's results to `--json` (a file, or '-': stdout, jsonfile.emit_json)."""
+    emit_json(result, path, "the results")

@@ -162,7 +162,7 @@ def firmware_cmd(
     quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 200 repetitions per item."),
     reps: int = typer.Option(None, "--reps", min=10, help="Repetitions per item (full run: 2000)."),
     device: str = typer.Option("esp32", "--device", help="A MicroPython board of the emulator."),
-    json_out: Path = typer.Option(Path("runs/bench-firmware.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-firmware.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """The firmware's cost per received line (each verb) and per control tick under
     the real MicroPython interpreter (WebAssembly, by Node) and under CPython."""

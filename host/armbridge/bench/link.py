@@ -420,7 +420,7 @@ def link_cmd(
     soak_s: float = typer.Option(None, "--soak", min=1.0, help="Soak length in seconds (full run: 600)."),
     damaged: int = typer.Option(None, "--damaged", min=1, help="Damaged lines per protocol version (full run: 10^7)."),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes for the damage model."),
-    json_out: Path = typer.Option(None, "--json", help="Where to write the results "
+    json_out: Path = typer.Option(None, "--json", help="Where to write the results ('-': stdout)."
                                   "[default: runs/bench-link.json, runs/bench-link-BOARD.json for another board]."),
     board: str = typer.Option("esp32", "--board", help="The emulated board: esp32 (the MicroPython firmware, paced "
                               "to the wall clock) or arduino_pump (the .elf in simavr in lockstep, on its clock; "

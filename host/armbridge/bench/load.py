@@ -330,7 +330,7 @@ def load_cmd(
                                                                "of --loads]."),
     realtime: bool = typer.Option(False, "--realtime", help="Run the pty boards with `armbridge emulate "
                                   "--realtime` (the board as a chip of its own, not slowed by the load)."),
-    json_out: Path = typer.Option(Path("runs/bench-load.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-load.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """Runs under load (docs/benchmarks.md, "Runs under load"): keep-alive lateness, timeouts,
     spurious timeouts and watchdog trips with N busy processes per core and the caller's thread

@@ -399,7 +399,7 @@ def masr_exec_cmd(
     calibrated: bool = typer.Option(False, "--calibrated", help="With --plants: also calibrate each board "
                                                                 "(armbridge calibrate masr_ma's procedure) and run "
                                                                 "the same plans on it, beside the uncalibrated runs."),
-    json_out: Path = typer.Option(Path("runs/bench-masr-exec.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-exec.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """MASR plans executed on the emulated MA (emu:masr_ma): planned tau against executed time, the true final
     pose errors, localisation errors, and what the ramps and loops add over eq. (8), beside the paper's Table II."""

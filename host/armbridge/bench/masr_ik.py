@@ -177,7 +177,7 @@ def masr_ik_cmd(
     card12: Path = typer.Option(None, "--card", help="IK-NN (12) model card [default: models/onnx/masr5-iknn-card.json]."),
     card11: Path = typer.Option(None, "--card11", help="IK-NN (11) model card [default: models/onnx/masr5-iknn-reg11-card.json]."),
     seed: int = typer.Option(2024, "--seed", help="Seed of the random trials."),
-    json_out: Path = typer.Option(Path("runs/bench-masr-ik.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-ik.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """Table I of the masr paper (section V-B): IK-NN (11), IK-NN (12), + refinement, + fallback,
     int8, and the numeric NR baseline; accuracy, action time and time per query. Success is the

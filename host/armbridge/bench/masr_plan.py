@@ -253,7 +253,7 @@ def masr_plan_cmd(
     ompl_runs: int = typer.Option(None, "--ompl-runs", help="OMPL RRT* runs per environment (0: skip)."),
     parts: str = typer.Option("timing,ompl,fig7,fig5", "--parts", help="Which parts to run (comma-separated)."),
     card: Path = typer.Option(None, "--card", help="Goal IK model card [default: models/onnx/masr5-iknn-card.json]."),
-    json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results ('-': stdout)."),
     png_dir: Path = typer.Option(None, "--png-dir", help="Also write Fig. 5 / Fig. 7 plots (PNG) here."),
     ray: Optional[str] = shard_options.ray_option(),
     workers: int = shard_options.workers_option(),

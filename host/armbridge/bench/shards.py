@@ -95,7 +95,7 @@ def shards_cmd(
     shard: int = typer.Option(256, "--shard", min=1, help="Locations per shard."),
     workers: str = typer.Option("1,2", "--workers", help="Worker counts to time, comma-separated (1: serial here; "
                                                          "N > 1: a local Ray of N CPUs)."),
-    json_out: Path = typer.Option(Path("runs/bench-shards.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-shards.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """Scaling of a fixed SMM data job (7R nullspace SMMs in shards) with the worker count: wall
     time, speed-up, efficiency; and the projected time of the paper's 7R grid on N workers."""

@@ -341,7 +341,7 @@ def smm_cmd(
     quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 40 locations, 2 for realtime-smm, 20 trials."),
     locations: int = typer.Option(None, "--locations", help="Table III locations for the 3R and 4R (full run: 10000)."),
     robots: str = typer.Option("planar3r,spatial4r,spatial7r", "--robots", help="Comma-separated SMM arms."),
-    json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-smm.json"), "--json", help="Where to write the results ('-': stdout)."),
     png: Path = typer.Option(None, "--png", help="Also plot Fig. 3 (error against K) to this PNG."),
     models: Path = typer.Option(None, "--models", help="Folder holding the learned models, smm-ROBOT each (default: models/onnx; the 7R's is not shipped, see docs/smm.md)."),
     ray: Optional[str] = shard_options.ray_option(),

@@ -222,7 +222,7 @@ def _line(r: dict[str, Any]) -> str:
 def soft_exec_cmd(
     plants: int = typer.Option(20, "--plants", min=0, help="Random plants (emu:arduino_pump?plant=random&seed="
                                                            "0..N-1) beside the nominal one."),
-    json_out: Path = typer.Option(Path("runs/bench-soft-exec.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-soft-exec.json"), "--json", help="Where to write the results ('-': stdout)."),
     calibrated: bool = typer.Option(True, "--calibrated/--uncalibrated-only",
                                     help="Also calibrate each board (calibrate/pump.py, CALID) and run the plan on it."),
 ) -> None:

@@ -238,7 +238,7 @@ def wjrrt_cmd(
     iterations: int = typer.Option(None, "--iterations", min=1,
                                    help="Our planners' iteration budget [default: each scene's, Table 1's Iter.]."),
     quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 2 seeds, T = 0.5 s."),
-    json_out: Path = typer.Option(Path("runs/bench-wjrrt.json"), "--json", help="Where to write the results."),
+    json_out: Path = typer.Option(Path("runs/bench-wjrrt.json"), "--json", help="Where to write the results ('-': stdout)."),
     png: Path = typer.Option(None, "--png", help="Also write the figures (wjrrt-success.png, wjrrt-time.png) "
                                                  "into this folder."),
     ray: Optional[str] = shard_options.ray_option(),

@@ -1,8 +1,6 @@
 """`armbridge calibrate BOARD --port URL`: the CLI of calibrate/base.py's flow."""
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Optional
 
@@ -12,12 +10,13 @@ from rich.table import Table
 
 from armbridge.calibrate.base import PROCEDURES, calibrate_board
 from armbridge.errors import ArmbridgeError
-from armbridge.jsonfile import write_json
+from armbridge.jsonfile import JSON_HELP, emit_json
+from armbridge.link.ports import auto_port
 
 
 def calibrate_cmd(
     board: str = typer.Argument(..., help=f"The board: {', '.join(sorted(PROCEDURES))}."),
-    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT",
+    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", callback=auto_port,
                              help="Serial device, pyserial URL or emu:BOARD (emu:BOARD?plant=random&seed=N: a board "
                                   "of hidden physical truth) (env ARMBRIDGE_PORT)."),
     only: Optional[list[str]] = typer.Option(None, "--only", metavar="STEP",
@@ -36,8 +35,8 @@ def calibrate_cmd(
                                             help="The firmware tree the board was flashed from (as flash's "
                                                  "--firmware), whose config the procedure reads [default: the "
                                                  "shipped firmware]."),
-    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
-                                           help="Also write what was found as JSON to FILE ('-': stdout)."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
+                                           help=JSON_HELP.format(what="what was found")),
 ) -> None:
     """Measure a board from its own sensors, set and persist what was found (on the board, CALID,
     and in a host file that later runs check the board against). docs/calibration.md.
@@ -59,10 +58,7 @@ def calibrate_cmd(
         with console.status(f"calibrating the {board} board on {port} ..."):
             report = calibrate_board(port, board, only=only, cal_dir=cal_dir, jig=jig, firmware=firmware)
     if json_out is not None:
-        if json_out == "-":
-            sys.stdout.write(json.dumps(report.to_json(), indent=2) + "\n")
-        else:
-            write_json(Path(json_out), report.to_json(), "the calibration report")
+        emit_json(report.to_json(), json_out, "the calibration report")
     t = Table(title=f"{board} {report.uid}: calibration {report.id}", show_header=False)
     t.add_column("", style="bold")
     t.add_column("")

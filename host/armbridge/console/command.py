@@ -27,7 +27,6 @@ Ctrl-C, its normal end.
 """
 from __future__ import annotations
 
-import json
 import statistics
 import sys
 import time
@@ -43,6 +42,8 @@ from rich.table import Table
 from armbridge.boards import calfile
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.signals import Stopped, stop_on_signals
+from armbridge.jsonfile import JSON_HELP, emit_json
+from armbridge.link.ports import auto_port
 from armbridge.link.protodef import COMMANDS, LATCHED_STATES
 
 RATE_MIN, RATE_MAX = COMMANDS["RATE"][0][1], COMMANDS["RATE"][0][2]
@@ -53,12 +54,12 @@ board_app = typer.Typer(
 )
 
 PORT_HELP = ("Serial device, pyserial URL (socket://, rfc2217://, loop://), emu:DEVICE, or modbus:PORT?addr=N "
-             "(Modbus RTU, docs/modbus.md) (env ARMBRIDGE_PORT).")
+             "(Modbus RTU, docs/modbus.md), or auto (the one board plugged in: armbridge ports) (env ARMBRIDGE_PORT).")
 SESSION_HELP = "Rejoin session N (the board keeps its queue) instead of opening a new one."
 
 
 def _port_opt():
-    return typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", help=PORT_HELP)
+    return typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", callback=auto_port, help=PORT_HELP)
 
 
 def _session_opt():
@@ -70,7 +71,8 @@ def _timeout_opt():
 
 
 def _json_opt():
-    return typer.Option(False, "--json", help="Print JSON on stdout instead of a table.")
+    return typer.Option(None, "--json", metavar="FILE|-", help=JSON_HELP.format(what="the answer") +
+                        " With '-' no table is printed.")
 
 
 @contextmanager
@@ -103,13 +105,16 @@ def _verb(ctrl_c_ok: bool = False) -> Iterator[None]:
         raise typer.Exit(0 if ctrl_c_ok and stop.name == "SIGINT" else stop.exit_code) from None
 
 
-def _out(as_json: bool) -> Console:
-    return Console(stderr=as_json)
+def _out(as_json: str | None) -> Console:
+    return Console(stderr=as_json == "-")
 
 
-def _print_json(obj: Any) -> None:
-    sys.stdout.write(json.dumps(obj, indent=2) + "\n")
-    sys.stdout.flush()
+def _print_json(obj: Any, target: str | None) -> bool:
+    """`--json TARGET`: the answer there; True when that was stdout (then no table)."""
+    if target is None:
+        return False
+    emit_json(obj, target, "the answer")
+    return target == "-"
 
 
 def _latch_hint(state: str, port: str) -> str:
@@ -147,12 +152,11 @@ def info_dict(info, cal=None) -> dict[str, Any]:
 
 @board_app.command("info")
 def info_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), timeout: float = _timeout_opt(),
-             as_json: bool = _json_opt()) -> None:
+             as_json: Optional[str] = _json_opt()) -> None:
     """Identity, protocol, joints and their limits, queue size, telemetry rate, watchdog."""
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         d = info_dict(client.info, client.calibration)
-    if as_json:
-        _print_json(d)
+    if _print_json(d, as_json):
         return
     t = Table(title=f"board on {port}", show_header=False)
     t.add_column("", style="bold")
@@ -176,7 +180,7 @@ def info_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), t
         lim.add_column(col, justify="right")
     for j in d["limits"]:
         lim.add_row(str(j["joint"]), f"{j['min_rad']:.3f}", f"{j['max_rad']:.3f}", f"{j['vmax_rad_s']:.3f}")
-    out = _out(False)
+    out = _out(None)
     out.print(t)
     out.print(lim)
 
@@ -184,17 +188,16 @@ def info_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), t
 # ---------------------------------------------------------------------- state
 @board_app.command("state")
 def state_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), timeout: float = _timeout_opt(),
-              as_json: bool = _json_opt()) -> None:
+              as_json: Optional[str] = _json_opt()) -> None:
     """The board's state and latch, the last done and last queued waypoint, board time."""
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         state, done, queued, t = client.stat()
         cause = client.fault_reason if state in LATCHED_STATES else None
     d = {"state": state, "latched": state in LATCHED_STATES, "cause": cause, "done": done, "queued": queued,
          "board_time_s": t}
-    if as_json:
-        _print_json(d)
+    if _print_json(d, as_json):
         return
-    out = _out(False)
+    out = _out(None)
     out.print(f"state {state}{f' ({cause})' if cause else ''}{_latch_hint(state, port)}")
     out.print(f"done {'-' if done is None else done}, queued {'-' if queued is None else queued}, "
               f"board time {t:.3f} s", highlight=False)
@@ -205,7 +208,7 @@ def state_cmd(port: str = _port_opt(), session: Optional[int] = _session_opt(), 
 def ping_cmd(port: str = _port_opt(), count: int = typer.Option(4, "--count", "-c", min=1, max=10000,
                                                                  help="How many PINGs."),
              session: Optional[int] = _session_opt(), timeout: float = _timeout_opt(),
-             as_json: bool = _json_opt()) -> None:
+             as_json: Optional[str] = _json_opt()) -> None:
     """Round-trip times of PING (wall clock, retransmissions included)."""
     out = _out(as_json)
     rtts: list[float] = []
@@ -214,13 +217,12 @@ def ping_cmd(port: str = _port_opt(), count: int = typer.Option(4, "--count", "-
             t0 = time.perf_counter()
             client.command("PING")
             rtts.append((time.perf_counter() - t0) * 1000.0)
-            if not as_json:
+            if as_json != "-":
                 out.print(f"PING {i + 1}: {rtts[-1]:.2f} ms", highlight=False)
         retrans = client.stats.retransmissions
     d = {"count": count, "rtt_ms": rtts, "min_ms": min(rtts), "mean_ms": statistics.fmean(rtts),
          "max_ms": max(rtts), "retransmissions": retrans}
-    if as_json:
-        _print_json(d)
+    if _print_json(d, as_json):
         return
     out.print(f"{count} answered, round trip min/mean/max {d['min_ms']:.2f}/{d['mean_ms']:.2f}/{d['max_ms']:.2f} ms"
               f", {retrans} retransmitted lines", highlight=False)
@@ -236,23 +238,24 @@ def clear_cmd(port: str = _port_opt(), yes: bool = typer.Option(False, "--yes", 
     After CLR the board is IDLE with an empty queue and holds the arm where it
     is; it accepts motion again. Check the arm first.
     """
-    if not yes and not sys.stdin.isatty():
-        raise ArmbridgeError("clear asks for confirmation and stdin is not a terminal: pass --yes to clear "
-                             "without asking")
-    out = _out(False)
+    out = _out(None)
+    after = None
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         state = client.stat()[0]
         if state not in LATCHED_STATES:
             out.print(f"nothing to clear: the board is {state}")
             return
-        if not yes:
+        if yes or sys.stdin.isatty():  # else refused below, outside the session: bad input (2), not a board failure
             reason = f" ({client.fault_reason})" if client.fault_reason else ""
-            if not typer.confirm(f"The board is latched in {state}{reason}. Clear it? The arm will accept "
-                                 "motion again", default=False):
+            if not yes and not typer.confirm(f"The board is latched in {state}{reason}. Clear it? The arm will "
+                                             "accept motion again", default=False):
                 out.print("not cleared")
                 raise typer.Exit(1)
-        client.command("CLR")
-        after = client.stat()[0]
+            client.command("CLR")
+            after = client.stat()[0]
+    if after is None:
+        raise ArmbridgeError(f"the board is latched in {state}: clear asks for confirmation and stdin is not a "
+                             "terminal; pass --yes to clear without asking")
     if after in LATCHED_STATES:
         raise BoardFailure(f"the board is still latched in {after} after CLR")
     out.print(f"cleared {state}: the board is {after}")
@@ -266,7 +269,7 @@ def rate_cmd(hz: int = typer.Argument(..., min=RATE_MIN, max=RATE_MAX, help=f"Te
     """Set the board's telemetry rate (kept until the board resets or someone sets another)."""
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         client.set_rate(hz)
-    _out(False).print(f"telemetry rate {hz} Hz" + (" (off)" if hz == 0 else ""))
+    _out(None).print(f"telemetry rate {hz} Hz" + (" (off)" if hz == 0 else ""))
 
 
 # ---------------------------------------------------------------------- monitor
@@ -280,7 +283,7 @@ def monitor_cmd(port: str = _port_opt(),
     """Live telemetry and events until Ctrl-C (plain lines when stdout is not a terminal)."""
     from armbridge.console.monitor import Monitor
 
-    out = _out(False)
+    out = _out(None)
     mon = Monitor(out, port)
     with _verb(ctrl_c_ok=True):
         try:

@@ -8,7 +8,6 @@ SIGTERM, 129 SIGHUP), after the e-stop byte. The summary (table, and the
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 from pathlib import Path
@@ -17,9 +16,10 @@ from typing import Optional
 import typer
 from rich.console import Console
 
-from armbridge.errors import ArmbridgeError
 from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, estop_note, run_plan
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
+from armbridge.jsonfile import JSON_HELP, emit_json
+from armbridge.link.ports import auto_port
 
 
 CARTESIAN_HELP = ("Send Cartesian waypoints (X x y theta, from the plan by FK) and let the board solve its own IK "
@@ -31,12 +31,13 @@ PEN_HELP = ("Plans with pen flags: 'auto' drives the board's pen-lift servo when
 def run_cmd(
     plan: Path = typer.Argument(..., help="Plan file: armbridge-plan JSON, or an armbridge-masr-plan (its actions "
                                           "run on the MASR actuator), see docs/formats.md."),
-    port: str = typer.Option(..., "--port", help="Serial device, pyserial URL (socket://, rfc2217://, loop://) or "
-                                               "emu:DEVICE."),
+    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", callback=auto_port,
+                             help="Serial device, pyserial URL (socket://, rfc2217://, loop://), emu:DEVICE or auto "
+                                  "(the one board plugged in: armbridge ports) (env ARMBRIDGE_PORT)."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Recording to write [default: runs/<time>-<plan>.rrd]."),
     rate: int = typer.Option(50, "--rate", help=f"Telemetry rate in Hz ({RATE_MIN}..{RATE_MAX})."),
-    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE",
-                                           help="Also write the summary as JSON to FILE ('-': stdout)."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
+                                           help=JSON_HELP.format(what="the summary")),
     clear: bool = typer.Option(False, "--clear", help="Clear a latched ESTOP/WDOG/FAULT on the board first."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     cartesian: bool = typer.Option(False, "--cartesian", help=CARTESIAN_HELP),
@@ -112,23 +113,7 @@ def goal_missed_text(summary: Summary) -> str:
 
 def write_summary(summary: Summary, target: str) -> None:
     """The JSON summary to a file ('-': stdout), written whole (a temporary file renamed)."""
-    text = json.dumps(summary.to_dict(), indent=2) + "\n"
-    if target == "-":
-        try:
-            sys.stdout.write(text)
-            sys.stdout.flush()
-        except OSError:
-            _detach_stdout()
-        return
-    path = Path(target)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise ArmbridgeError(f"{path}: cannot write the summary: {exc.strerror}") from None
+    emit_json(summary.to_dict(), target, "the summary")
 
 
 def _signum(name: str | None) -> int:

@@ -22,10 +22,12 @@ from rich.console import Console
 
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.signals import Stopped, stop_on_signals
+from armbridge.link.ports import auto_port
 
 BOARD_HELP = "The board: esp32 (the 3R arm), masr_ma (the MASR mobile actuator) or arduino_pump (avrdude)."
 PORT_HELP = ("The board's MicroPython REPL: a serial device (/dev/ttyUSB0), a pyserial URL, or emu:DEVICE "
-             "(emu:esp32?fs=DIR keeps the emulated filesystem in DIR) (env ARMBRIDGE_PORT).")
+             "(emu:esp32?fs=DIR keeps the emulated filesystem in DIR), or auto (the one board plugged in: "
+             "armbridge ports) (env ARMBRIDGE_PORT).")
 
 
 def _flasher(board: str) -> tuple[Any, Any]:
@@ -58,7 +60,7 @@ def _describe_plan(out: Console, res: Any, port: str) -> None:
 
 def flash_cmd(
     board: str = typer.Argument(..., metavar="BOARD", help=BOARD_HELP),
-    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", help=PORT_HELP),
+    port: str = typer.Option(..., "--port", "-p", envvar="ARMBRIDGE_PORT", callback=auto_port, help=PORT_HELP),
     dry_run: bool = typer.Option(False, "--dry-run", help="List what would change on the board; change nothing."),
     micropython: Optional[Path] = typer.Option(
         None, "--micropython", metavar="IMAGE",

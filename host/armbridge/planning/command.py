@@ -11,7 +11,7 @@ from rich.table import Table
 
 from armbridge import resources
 from armbridge.errors import ArmbridgeError
-from armbridge.jsonfile import write_json
+from armbridge.jsonfile import JSON_HELP, emit_json
 from armbridge.planning.soft.command import soft_cmd
 
 plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
@@ -91,7 +91,8 @@ def masr_cmd(
     step: float = typer.Option(16.0, "--step", help="Steer's maximum step delta, in s of eq. (8)."),
     ik: str = typer.Option("auto", "--ik", help="Goal IK: auto (shipped IK-NN, else dls), dls, or a model card."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also draw the environment and path to this PNG."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the run summary as JSON."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
+                                           help=JSON_HELP.format(what="the planning summary")),
 ) -> None:
     """Plan a MASR path (masr paper, Alg. 1-2), write it as a plan file with the MA's actions."""
     from armbridge.planning.masr import rrt_star
@@ -120,7 +121,7 @@ def masr_cmd(
         draw(environment, result.path, png, title=f"{environment.name} ({planner})")
         console.print(f"figure: {png}")
     if json_out is not None:
-        write_json(json_out, summary)
+        emit_json(summary, json_out, "the planning summary")
     if result.path is None:
         raise ArmbridgeError(f"{planner} found no path to the goal of {environment.name} in {iterations} iterations "
                              "(try more --iterations or another --seed); no plan written")

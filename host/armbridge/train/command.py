@@ -9,7 +9,6 @@ update a shipped model from a checkout, pass `--out models/onnx/... --force`.
 """
 from __future__ import annotations
 
-import json
 import shlex
 import sys
 from pathlib import Path
@@ -20,6 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 from armbridge import resources
+from armbridge.jsonfile import JSON_HELP, emit_json
 from armbridge.errors import ArmbridgeError
 from armbridge.extras import require
 from armbridge.shards import cli as shard_options
@@ -84,7 +84,8 @@ def masr_iknn_cmd(
     int8_epochs: int = typer.Option(2, "--int8-epochs", help="Quantisation-aware fine-tune epochs for int8 (0: none)."),
     int8_lr: float = typer.Option(3e-4, "--int8-lr", help="Learning rate of the int8 fine-tune."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the accuracy as JSON here."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
+                                           help=JSON_HELP.format(what="the accuracy")),
     ray: Optional[str] = shard_options.ray_option(),
     workers: int = shard_options.workers_option(),
     checkpoint: Optional[Path] = shard_options.checkpoint_option("WORK_DIR/shards, deleted once the data set is saved"),
@@ -133,8 +134,7 @@ def masr_iknn_cmd(
                       f"{m['mean_action_time_s']:.2f}", f"{m['batched_ms_per_query']:.4f}")
     Console().print(table)
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(acc, indent=2) + "\n")
+        emit_json(acc, json_out, "the accuracy")
 
 
 @train_app.command("arm3r-ik")
