@@ -18,7 +18,7 @@
 
 #define N_JOINTS 3
 #define QSIZE 32               /* waypoint queue slots */
-#define PERIOD_MS 10           /* control period: micros()-scheduled, not loop speed */
+#define PERIOD_MS 10           /* control period: a Timer5 interrupt (hal_avr.cpp), not loop speed */
 #define TELEMETRY_HZ 25        /* default telemetry rate (RATE changes it) */
 #define WDOG_MS 1000           /* default watchdog (WDOG changes it) */
 #define UART_BAUD 115200UL

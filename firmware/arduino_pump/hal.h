@@ -48,6 +48,28 @@ public:
      * bytes; written at once, so the link record there is never behind. */
     virtual void keep_read(void *dst, size_t n) = 0;
     virtual void keep_write(const void *src, size_t n) = 0;
+    /* ---- the control period (docs/pump.md "The control period on a timer")
+     * start_control: true when a hardware timer will call fn(arg) every PERIOD_MS from
+     * now on, in its interrupt with interrupts enabled (never nested: a period that
+     * comes while the last one still runs is counted as an overrun and skipped); false
+     * (the native tests' fake) when the link is to schedule the period itself from
+     * us(). control_lock/unlock: the main loop's side of the state it shares with the
+     * period (link.h lists it): while locked the period cannot start (it starts at
+     * unlock); other interrupts, the e-stop byte's among them, stay enabled. Nests.
+     * Called from the period itself it is harmless. Each is a compiler barrier. */
+    virtual bool start_control(void (*fn)(void *), void *arg) { (void)fn; (void)arg; return false; }
+    virtual void control_lock() {}
+    virtual void control_unlock() {}
+    virtual uint16_t control_overruns() { return 0; }
+};
+
+/* The main loop's critical section against the control period (a scope). */
+class CtlLock {
+public:
+    explicit CtlLock(Hal *h) : h_(h) { h_->control_lock(); }
+    ~CtlLock() { h_->control_unlock(); }
+private:
+    Hal *h_;
 };
 
 #endif

@@ -24,8 +24,6 @@ static volatile uint8_t rx_head, rx_tail;   /* head: ISR writes; tail: loop read
 static_assert(RX_RING <= 256, "rx_head/rx_tail are 8-bit");
 static volatile uint8_t tx_buf[TX_RING];
 static volatile uint16_t tx_head, tx_tail;
-/* Kept across a reset (not a power cycle): the C runtime leaves .noinit as it was. */
-static uint8_t keep_area[KEEP_SIZE] __attribute__((section(".noinit")));
 static volatile uint8_t estop_flag;         /* motors blocked: an e-stop byte came */
 static volatile uint8_t estop_lost;         /* ... and the ring had no room for it */
 static volatile uint8_t estop_on = 1;       /* 0 in Modbus mode: 0x98 is data */
@@ -38,10 +36,13 @@ static volatile uint16_t adc_val[N_JOINTS];
 static volatile uint8_t adc_k;
 static volatile uint8_t adc_rounds;
 
-static void adc_start(uint8_t k) {
-    uint8_t ch = kBend[k];
-    ADCSRB = (uint8_t)((ADCSRB & ~_BV(MUX5)) | ((ch >> 3) & 1 ? _BV(MUX5) : 0));
-    ADMUX = (uint8_t)(_BV(REFS0) | (ch & 7));   /* AVcc reference, as analogRead's DEFAULT */
+/* ADMUX and ADCSRB's MUX5 per channel, resolved in begin(): the interrupt stays short
+ * (it delays the control period's interrupt when they meet). */
+static uint8_t adc_mux[N_JOINTS], adc_mux5[N_JOINTS];
+
+static inline __attribute__((always_inline)) void adc_start(uint8_t k) {
+    ADCSRB = (uint8_t)((ADCSRB & ~_BV(MUX5)) | adc_mux5[k]);
+    ADMUX = adc_mux[k];
     ADCSRA |= _BV(ADSC);
 }
 
@@ -80,22 +81,35 @@ static void pwm_regs(uint8_t timer, MotorPins *m) {
     }
 }
 
-static uint8_t ee_shadow[EE_SIZE];
-static uint8_t ee_dirty[(EE_SIZE + 7) / 8];
 
 /* Every EN low (PWM disconnected) and every IN low: the L298 outputs float, the
  * motors stop. Called from the receive interrupt, so the callers outside it block
  * interrupts around their own pin writes (analogWrite's read-modify-write of TCCRnA
  * is not atomic). */
-static void motors_off() {
-    for (uint8_t k = 0; k < N_JOINTS; k++) {
-        digitalWrite(kEn[k], LOW);          /* also turns the pin's PWM off */
-        digitalWrite(kIn1[k], LOW);
-        digitalWrite(kIn2[k], LOW);
+static inline __attribute__((always_inline)) void motors_off() {
+    for (uint8_t k = 0; k < N_JOINTS; k++) {  /* as digitalWrite(LOW) (PWM off), on the registers */
+        const MotorPins &m = mp[k];
+        if (m.tccra) *m.tccra &= (uint8_t)~m.com_bit;
+        *m.en &= (uint8_t)~m.en_bit;
+        *m.in1 &= (uint8_t)~m.in1_bit;
+        *m.in2 &= (uint8_t)~m.in2_bit;
     }
 }
 
-ISR(USART0_RX_vect) {
+/* The low 16 bits of micros(), inline (interrupts are off in an interrupt): the core's
+ * micros() is a call of ~6 us, and the receive interrupt is the one that meets the
+ * control period's most often (a byte every 87 us while the host streams). */
+extern volatile unsigned long timer0_overflow_count;   /* wiring.c's */
+static inline uint16_t micros16() {
+    uint16_t m = (uint16_t)timer0_overflow_count;
+    uint8_t t = TCNT0;
+    if ((TIFR0 & _BV(TOV0)) && t < 255) m++;
+    return (uint16_t)((uint16_t)((m << 8) + t) << 2);   /* 64 / 16 MHz: 4 us a count */
+}
+
+/* One received byte: the e-stop at once, then the ring with its time. The receive
+ * interrupt's body, and the control period's alignment wait polls it (below). */
+static inline __attribute__((always_inline)) void rx_take() {
     uint8_t status = UCSR0A;
     uint8_t b = UDR0;
     (void)status;
@@ -109,9 +123,11 @@ ISR(USART0_RX_vect) {
         return;
     }
     rx_buf[rx_head] = b;
-    rx_time[rx_head] = (uint16_t)micros();  /* interrupts are off here: micros() reads TCNT0 as is */
+    rx_time[rx_head] = micros16();
     rx_head = next;
 }
+
+ISR(USART0_RX_vect) { rx_take(); }
 
 ISR(USART0_UDRE_vect) {
     if (tx_head == tx_tail) {
@@ -129,8 +145,10 @@ void AvrHal::begin() {
         pinMode(kIn2[k], OUTPUT);
         pinMode(kStopRet[k], INPUT_PULLUP);
         pinMode(kStopExt[k], INPUT_PULLUP);
+        digitalWrite(kEn[k], LOW);          /* also turns the pin's PWM off */
+        digitalWrite(kIn1[k], LOW);
+        digitalWrite(kIn2[k], LOW);
     }
-    motors_off();
     for (uint8_t k = 0; k < N_JOINTS; k++) {
         MotorPins &m = mp[k];
         m.in1 = portOutputRegister(digitalPinToPort(kIn1[k]));
@@ -143,12 +161,17 @@ void AvrHal::begin() {
     }
     /* the ADC on its own (init() enabled it with the /128 prescaler), then one full
        round so the first read_adc() is a real sample */
+    for (uint8_t k = 0; k < N_JOINTS; k++) {
+        uint8_t ch = kBend[k];
+        adc_mux[k] = (uint8_t)(_BV(REFS0) | (ch & 7));   /* AVcc reference, as analogRead's DEFAULT */
+        adc_mux5[k] = (ch >> 3) & 1 ? _BV(MUX5) : 0;
+    }
     ADCSRA |= _BV(ADIE);
     adc_k = 0;
     adc_start(0);
     while (adc_rounds < 1) {
     }
-    eeprom_read_block(ee_shadow, (const void *)0, EE_SIZE);
+    ee_begin();
     /* 115200 baud, 8N1, double speed (as the core: UBRR 16, 2.1 % fast) */
     UCSR0A = _BV(U2X0);
     uint16_t ubrr = (uint16_t)((F_CPU / 8 / UART_BAUD) - 1);
@@ -156,18 +179,6 @@ void AvrHal::begin() {
     UBRR0L = (uint8_t)ubrr;
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
-}
-
-void AvrHal::service() {
-    if (EECR & _BV(EEPE)) return;           /* the last byte is still being programmed */
-    for (uint16_t i = 0; i < EE_SIZE; i++) {
-        if (ee_dirty[i >> 3] & (1u << (i & 7))) {
-            ee_dirty[i >> 3] &= (uint8_t)~(1u << (i & 7));
-            if (eeprom_read_byte((const uint8_t *)i) != ee_shadow[i])
-                eeprom_write_byte((uint8_t *)i, ee_shadow[i]);   /* starts it; does not wait */
-            return;
-        }
-    }
 }
 
 uint32_t AvrHal::ms() { return millis(); }
@@ -277,29 +288,105 @@ uint8_t AvrHal::endstops() {
     return bits;
 }
 
-void AvrHal::ee_read(uint16_t addr, void *dst, size_t n) {
-    uint8_t *d = (uint8_t *)dst;
-    for (size_t i = 0; i < n; i++) d[i] = addr + i < EE_SIZE ? ee_shadow[addr + i] : 0xFF;
+/* ------------------------------------------------------------------ the control period
+ * Timer5 (not used by the core's millis (Timer0) nor by the EN pins' PWM (Timer2: pins
+ * 9 and 10, Timer1: pin 11); its pins 44-46 are not wired) in CTC mode at F_CPU / 8:
+ * OCR5A + 1 = 20,000 counts = 10 ms exactly, so its compare-match interrupt comes at a
+ * fixed cycle every period whatever the main loop is doing. The interrupt re-enables
+ * interrupts at once (after its re-entry check), so the receive interrupt's e-stop cuts
+ * the outputs within its own latency while the period runs; a compare match that comes
+ * while the period is still running is counted (ctl_overruns) and skipped, never nested.
+ * The main loop's critical sections against the period (control_lock) mask only this
+ * interrupt (OCIE5A), never the others: a compare match inside one sets OCF5A and the
+ * period starts at the unlock. Only the main loop writes TIMSK5 outside the period;
+ * the period's own lock/unlock pairs restore it before the main loop runs again. */
+#define CTL_COUNTS ((uint16_t)(F_CPU / 8UL / 1000UL * PERIOD_MS))
+static_assert(F_CPU / 8UL / 1000UL * PERIOD_MS <= 65536UL, "the period fits Timer5 at /8");
+static void (*volatile ctl_fn)(void *);
+static void *volatile ctl_arg;
+static volatile uint8_t ctl_busy;           /* the period is running (its interrupt is on the stack) */
+volatile uint16_t ctl_overruns;             /* (a global: the simavr harness watches it) compare matches that found it running: skipped */
+static volatile uint8_t ctl_depth;          /* control_lock nesting */
+
+/* The period proper, entered with interrupts off and ctl_busy set; returns with them off.
+ * A function of its own so that the simavr harness times it ("period" probe). */
+extern "C" void __attribute__((noinline)) ctl_period(void) {
+    sei();                                  /* the e-stop (USART0 RX) and the rest stay live */
+    ctl_fn(ctl_arg);
+    cli();
 }
 
-void AvrHal::ee_write_now(uint16_t addr, uint8_t value) {
-    if (addr >= EE_SIZE) return;
-    ee_shadow[addr] = value;
-    ee_dirty[addr >> 3] &= (uint8_t)~(1u << (addr & 7));
-    if (eeprom_read_byte((const uint8_t *)addr) != value)
-        eeprom_write_byte((uint8_t *)addr, value);   /* waits for EEPE, starts it, returns */
+/* The period starts at a fixed cycle: the interrupt is entered up to ~20 us after the
+ * compare match (another interrupt running then: the receive, ADC, UDRE and Timer0
+ * ones, ~5-9 us each, or a short lock of the main loop's), so it waits, interrupts
+ * off, until CTL_ALIGN counts (0.5 us each) after the match before the period proper
+ * begins. While it waits it takes the received bytes itself (rx_take: the e-stop byte
+ * cuts the outputs within ~1 us of its arrival, as in its own interrupt); the ADC, UDRE
+ * and Timer0 interrupts wait at most CTL_ALIGN (their next event is 87 us or more away).
+ * An entry later than that (a long lock: SETLIM, HELLO, CLR) starts at once. */
+#define CTL_ALIGN 64                        /* 32 us */
+static inline __attribute__((always_inline)) void ctl_enter() {
+    while (TCNT5 < CTL_ALIGN) {
+        if (UCSR0A & _BV(RXC0)) rx_take();
+    }
+    ctl_busy = 1;
+    ctl_period();
+    ctl_busy = 0;
 }
 
-void AvrHal::ee_write(uint16_t addr, const void *src, size_t n) {
-    const uint8_t *s = (const uint8_t *)src;
-    for (size_t i = 0; i < n && addr + i < EE_SIZE; i++) {
-        uint16_t a = (uint16_t)(addr + i);
-        if (ee_shadow[a] != s[i]) {
-            ee_shadow[a] = s[i];
-            ee_dirty[a >> 3] |= (uint8_t)(1u << (a & 7));
+ISR(TIMER5_COMPA_vect) {
+    if (ctl_busy) {                         /* never nested: counted and skipped */
+        if (ctl_overruns != 0xFFFF) ctl_overruns++;
+        return;
+    }
+    ctl_enter();
+}
+
+bool AvrHal::start_control(void (*fn)(void *), void *arg) {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        ctl_fn = fn;
+        ctl_arg = arg;
+        TCCR5B = 0;                         /* stopped while it is set up */
+        TCCR5A = 0;                         /* OC5A..C disconnected, WGM 0100: CTC on OCR5A */
+        TCNT5 = 0;
+        OCR5A = (uint16_t)(CTL_COUNTS - 1);
+        TIFR5 = _BV(OCF5A);
+        TIMSK5 = ctl_depth ? 0 : _BV(OCIE5A);
+        TCCR5B = _BV(WGM52) | _BV(CS51);    /* clk / 8 */
+    }
+    return true;
+}
+
+void AvrHal::control_lock() {
+    asm volatile("" ::: "memory");
+    if (ctl_depth++ == 0) TIMSK5 = 0;
+    asm volatile("" ::: "memory");
+}
+
+/* On the chip a compare match that came while OCIE5A was clear left OCF5A set, and the
+ * interrupt runs as soon as OCIE5A is set again (hardware clears the flag on entry), so
+ * the test below finds it clear. simavr 1.6 does not raise an interrupt whose flag was
+ * set while it was disabled (measured: such a period was lost), so there the flag is
+ * still set and the period runs here, at once, as the interrupt would have. */
+void AvrHal::control_unlock() {
+    asm volatile("" ::: "memory");
+    if (--ctl_depth == 0 && ctl_fn) {
+        TIMSK5 = _BV(OCIE5A);
+        asm volatile("nop");                /* the pending interrupt is taken here on the chip */
+        if (TIFR5 & _BV(OCF5A)) {
+            cli();
+            if (!ctl_busy && (TIFR5 & _BV(OCF5A))) {
+                TIFR5 = _BV(OCF5A);
+                ctl_enter();
+            }
+            sei();
         }
     }
+    asm volatile("" ::: "memory");
 }
 
-void AvrHal::keep_read(void *dst, size_t n) { memcpy(dst, keep_area, n < KEEP_SIZE ? n : KEEP_SIZE); }
-void AvrHal::keep_write(const void *src, size_t n) { memcpy(keep_area, src, n < KEEP_SIZE ? n : KEEP_SIZE); }
+uint16_t AvrHal::control_overruns() {
+    uint16_t n;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { n = ctl_overruns; }
+    return n;
+}

@@ -16,6 +16,8 @@
 #define RX_RING 256
 #define TX_RING 512          /* a telemetry line and the replies around it */
 
+void ee_begin();             /* hal_avr_ee.cpp: the EEPROM's shadow, at boot */
+
 class AvrHal : public Hal {
 public:
     void begin();
@@ -39,6 +41,10 @@ public:
     void ee_write_now(uint16_t addr, uint8_t value);
     void keep_read(void *dst, size_t n);
     void keep_write(const void *src, size_t n);
+    bool start_control(void (*fn)(void *), void *arg);
+    void control_lock();
+    void control_unlock();
+    uint16_t control_overruns();
 };
 
 #endif

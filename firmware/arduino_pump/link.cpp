@@ -8,6 +8,10 @@
 
 const char *const STATE_NAMES[6] = {"IDLE", "RUN", "HOLD", "ESTOP", "WDOG", "FAULT"};
 
+/* The ring's own kinds (compared by address): a completed waypoint, a latch. */
+const char K_DONE[] = "DONE";
+const char K_LATCH[] = "LATCH";
+
 static bool latched(uint8_t st) { return st == ST_ESTOP || st == ST_WDOG || st == ST_FAULT; }
 
 #define TICKS_MASK (AB_TICKS_PERIOD - 1)
@@ -151,11 +155,17 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     outputs_allowed = false;
     in_command_ = false;
     in_tick_ = false;
-    save_due_ = false;
     n_events_ = 0;
+    ring_head_ = ring_tail_ = ring_lost_ = 0;
+    periods_ = periods_seen_ = 0;
+    period_ms_ = 0;
+    hgen_ = 0;
+    pend_latch_ = 0;
+    done_ovf_ = 0;
     telem_acc_ = 0;
     pending_mode_ = -1;
     modbus_ = modbus_addr != 0;
+    timer_ = false;
     mb_frames_ = mb_exceptions_ = 0;
     last_ok_ = hal->ms();
     next_tick_us_ = hal->us();
@@ -164,6 +174,8 @@ void Link::begin(Hal *hal, BoardIf *board, uint8_t modbus_addr) {
     hal->outputs_off();
     hal->set_estop_byte(!modbus_);
     board->hold_here();
+    /* last: from here on the period runs on the HAL's timer (or poll() schedules it) */
+    timer_ = hal->start_control(&Link::period_cb, this);
     if (modbus_) {
         mb_init(modbus_addr, UART_BAUD);
         return;   /* a Modbus master would read a text banner as a bad frame */
@@ -199,6 +211,7 @@ int Link::next_byte() {
 }
 
 void Link::poll() {
+    sync();
     if (modbus_) {
         modbus_pass();
     } else {
@@ -210,54 +223,32 @@ void Link::poll() {
             switch (item) {
                 case AB_ITEM_ESTOP: estop(); break;
                 case AB_ITEM_ERROR: if (!tail) send_er(-1, reader_.error(), ""); break;
-                case AB_ITEM_LINE: on_line(reader_.line(), reader_.length(), tail); break;
+                case AB_ITEM_LINE:
+                    sync();                   /* the periods before this line first */
+                    on_line(reader_.line(), reader_.length(), tail);
+                    break;
                 default: break;
             }
             if (modbus_) return;   /* MODBUS answered: the rest is Modbus */
         }
         if (hal_->estop_dropped()) estop();
     }
-    uint32_t now = hal_->us();
-    int32_t late = (int32_t)(now - next_tick_us_);
-    if (late >= 0) {
-        if ((uint32_t)late >= PERIOD_US) next_tick_us_ = now + PERIOD_US;   /* too late: no burst */
-        else next_tick_us_ += PERIOD_US;
-        tick();
+    if (!timer_) {   /* no timer (the fake HAL): the period is due by us() */
+        uint32_t now = hal_->us();
+        int32_t late = (int32_t)(now - next_tick_us_);
+        if (late >= 0) {
+            if ((uint32_t)late >= PERIOD_US) next_tick_us_ = now + PERIOD_US;   /* too late: no burst */
+            else next_tick_us_ += PERIOD_US;
+            period();
+        }
     }
-}
-
-void Link::tick() {
-    uint32_t now = hal_->ms();
-    uint8_t st = state;
-    if ((st == ST_RUN || st == ST_HOLD) && (uint32_t)(now - last_ok_) >= (uint32_t)wdog_ms) {
-        board_->halt();
-        latch(ST_WDOG, "-");
-        event("WDOG", 0);
-        st = ST_WDOG;
-    }
-    /* The control function itself is the timed part: the events it raises and the
-       record of a completed waypoint are formatted and sent after it. */
-    in_tick_ = true;
-    if (!outputs_allowed || st == ST_ESTOP || st == ST_FAULT) {
-        board_->control(CTL_OFF);
-    } else if (st == ST_WDOG) {
-        board_->control(CTL_ZERO);
-    } else {
-        board_->control(CTL_DRIVE);
-        if (state == ST_RUN && !board_->busy()) state = ST_IDLE;
-    }
-    in_tick_ = false;
-    if (save_due_) {
-        save_due_ = false;
-        save();
-    }
-    flush_events();
-    telemetry(now);
+    sync();
 }
 
 /* Over a latch the e-stop keeps the first cause as the reason (docs/protocol.md §9):
  * FAULT's reason, or WDOG; ESTOP is the state (outputs off, where WDOG writes zero). */
 void Link::estop() {
+    sync();                  /* a latch a period raised first: its cause is the first */
     hal_->outputs_off();
     board_->halt();
     char why[LINK_REASON_MAX] = "-";
@@ -272,7 +263,11 @@ void Link::estop() {
 uint32_t Link::board_ms() { return hal_->ms() & TICKS_MASK; }
 
 void Link::event(const char *kind, uint8_t nargs, int32_t a, int32_t b, int32_t c) {
-    if (in_command_ || in_tick_) {
+    if (in_tick_) {          /* the period's: through the ring */
+        push(kind, nargs, a, b, c);
+        return;
+    }
+    if (in_command_) {
         if (n_events_ < LINK_MAX_EVENTS) {
             events_[n_events_].kind = kind;
             events_[n_events_].nargs = nargs;
@@ -300,15 +295,29 @@ void Link::flush_events() {
 }
 
 void Link::completed(int32_t wid) {
+    if (in_tick_) {
+        push(K_DONE, 2, wid, board_->free_slots(), 0);
+        return;
+    }
     done = wid;
-    if (in_tick_) save_due_ = true;
-    else save();
+    save();
     event("DONE", 2, wid, board_->free_slots());
 }
 
 void Link::fault(int32_t j, int32_t detail, const char *why) {
     hal_->outputs_off();
     board_->halt();
+    if (in_tick_) {          /* the period's: latched by the main loop (take_latch) */
+        if (!pend_latch_) {
+            pend_j_ = j;
+            pend_detail_ = detail;
+            strncpy(pend_why_, why, LINK_REASON_MAX - 1);
+            pend_why_[LINK_REASON_MAX - 1] = 0;
+            pend_latch_ = ST_FAULT;
+            push(K_LATCH, 0, 0, 0, 0);
+        }
+        return;
+    }
     latch(ST_FAULT, why);
     event("FAULT", 2, j, detail);
 }
@@ -434,7 +443,7 @@ void Link::on_line(const uint8_t *raw, size_t n, bool tail) {
         }
     }
     in_command_ = false;
-    if (code == 0) last_ok_ = hal_->ms();   /* only a line answered OK feeds the watchdog */
+    if (code == 0) feed();   /* only a line answered OK feeds the watchdog */
     reply(l.seq, code, free, detail, &p);
     flush_events();
     if (pending_mode_ > 0) {   /* MODBUS addr: its OK is out, the UART speaks Modbus now */
@@ -467,7 +476,7 @@ uint8_t Link::execute(uint16_t seq, int vi, const AbLine &l, Payload *p, AbError
             return 0;
         case AB_VERB_PING: p->num((int32_t)board_ms()); return 0;
         case AB_VERB_RATE: rate = v[0]; telem_acc_ = 0; return 0;
-        case AB_VERB_WDOG: wdog_ms = v[0]; return 0;
+        case AB_VERB_WDOG: set_wdog(v[0]); return 0;
         case AB_VERB_CLR: clear_cmd(); return 0;
         case AB_VERB_HOLD:
         case AB_VERB_RESUME:
@@ -476,7 +485,7 @@ uint8_t Link::execute(uint16_t seq, int vi, const AbLine &l, Payload *p, AbError
             return 0;
         default: break;
     }
-    if (board_->motion_verb(vi) && latched(state)) return err->code = AB_ERR_LATCHED;
+    if (board_->motion_verb(vi) && (latched(state) || pend_latch_)) return err->code = AB_ERR_LATCHED;
     code = board_->command(vi, v, p, err);
     if (code) return err->code = (uint8_t)code;
     if (state == ST_IDLE && board_->busy()) state = ST_RUN;
@@ -535,9 +544,9 @@ uint8_t Link::hello(uint16_t seq, const AbLine &l, Payload *p, AbError *err) {
 
 /* ------------------------------------------------------------------ telemetry */
 
-void Link::telemetry(uint32_t now) {
+void Link::telemetry(uint32_t now, uint8_t periods) {
     if (rate <= 0 || modbus_) return;
-    telem_acc_ += rate * PERIOD_MS;
+    telem_acc_ += rate * PERIOD_MS * periods;
     if (telem_acc_ < 1000) return;
     telem_acc_ -= 1000;
     if (telem_acc_ >= 1000) telem_acc_ = 0;
@@ -568,7 +577,7 @@ void Link::modbus_pass() {
     int n = mb_poll(hal_->us(), out, sizeof out);
     const mb_counters *st = mb_stats();
     if (st->frames != mb_frames_) {   /* a valid frame answered without exception feeds the watchdog */
-        if (st->exceptions == mb_exceptions_) last_ok_ = hal_->ms();
+        if (st->exceptions == mb_exceptions_) feed();
         mb_frames_ = st->frames;
         mb_exceptions_ = st->exceptions;
     }

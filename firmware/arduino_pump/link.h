@@ -5,8 +5,30 @@
  * common verbs (HELLO LIM HOLD RESUME CLR RATE WDOG STAT PING), the states and
  * their latches persisted in EEPROM (two slots with a CRC), the watchdog fed only
  * by lines answered OK, telemetry pacing, events sent after the reply of the command
- * that caused them, the control period's schedule (micros(), 10 ms), and the switch
- * to Modbus RTU (after the OK of MODBUS, and back on the Modbus command register).
+ * that caused them, the control period (period(): a Timer5 interrupt on the Mega,
+ * scheduled from us() in poll() over the native tests' fake HAL), and the switch to
+ * Modbus RTU (after the OK of MODBUS, and back on the Modbus command register).
+ *
+ * The period and the main loop (docs/pump.md, "The control period on a timer"). The
+ * period preempts the main loop at any instruction (never the reverse: the main loop
+ * runs only when no period is on the stack), so:
+ *   - what the period writes and the main loop reads as more than one byte is read
+ *     under CtlLock (hal.h: masks the period's interrupt only): PumpBoard q u syr_
+ *     stops traj.sp/vel/active_id (busy(), telemetry, Modbus inputs, RELAY), period_ms_;
+ *   - what the main loop writes and the period reads as more than one byte is written
+ *     under CtlLock: last_ok_, wdog_ms, PumpBoard gain cal (GAIN DBAND BEND, Modbus),
+ *     traj ranges (SETLIM), relay[] (RELAY), and everything halt()/hold_here() reset;
+ *   - single bytes the main loop alone writes: state, outputs_allowed, traj.hold;
+ *   - the waypoint queue is a single-producer (the main loop: push, tail) single-
+ *     consumer (the period: step, head) ring; flush() and set_point() under CtlLock;
+ *   - what the period raises (events, DONE, a WDOG or FAULT latch) goes through the
+ *     event ring below (producer: the period, head; consumer: sync() in the main
+ *     loop, tail), in order; a latch the period raises is also held in pend_latch_
+ *     (the period drives nothing while it is set) until sync() latches it in the
+ *     main loop (EEPROM, record, EV), under CtlLock with the state;
+ *   - events of a period that ran before the main loop's halt() (a latch, CLR, a new
+ *     session) are dropped (their generation is older), latches never.
+ * The period never touches the UART, the line writer, the session or the EEPROM.
  *
  * Rules kept here:
  *   after any boot the outputs stay off until a HELLO is accepted, and while a
@@ -27,6 +49,7 @@ enum { ST_IDLE = 0, ST_RUN, ST_HOLD, ST_ESTOP, ST_WDOG, ST_FAULT };
 enum { CTL_OFF = 0, CTL_ZERO, CTL_DRIVE };   /* BoardIf::control(mode) */
 
 extern const char *const STATE_NAMES[6];
+extern const char K_DONE[], K_LATCH[];   /* the event ring's own kinds (link_period.cpp) */
 
 /* A short text the board's verbs answer after `OK seq free` (LIM's payload). */
 class Payload {
@@ -59,13 +82,17 @@ public:
 
 #define LINK_MAX_EVENTS 12   /* a command's or a control period's: START SLOW DONE, LIMIT and ENDSTOP per joint */
 #define LINK_REASON_MAX 9
+#define LINK_RING 16         /* events raised by the control periods not yet sent (power of 2) */
 
 class Link {
 public:
     void begin(Hal *hal, BoardIf *board, uint8_t modbus_addr);   /* 0: line protocol */
     void poll();                             /* one pass of the main loop */
-    void tick();                             /* one control period */
+    void period();                           /* one control period (the timer's interrupt) */
+    void sync();                             /* main loop: what the periods raised */
     void estop();
+    bool in_period() const { return in_tick_; }
+    void halted() { hgen_++; }               /* main loop, under CtlLock: older events are stale */
 
     /* ---- board callbacks */
     uint32_t board_ms();
@@ -78,7 +105,7 @@ public:
     void switch_to_line();                  /* after the current Modbus reply */
     bool modbus() const { return modbus_; }
     void latch_estop_cmd() { estop(); }
-    void set_wdog(int32_t ms) { wdog_ms = ms; }
+    void set_wdog(int32_t ms);
     void hold_cmd(bool on);
     void clear_cmd();
 
@@ -99,7 +126,13 @@ private:
     void reply(uint16_t seq, uint8_t code, uint8_t free, const char *detail, const Payload *p);
     void send_er(int32_t seq, uint8_t code, const char *detail);
     void latch(uint8_t st, const char *why);
-    void telemetry(uint32_t now);
+    void telemetry(uint32_t now, uint8_t periods);
+    void feed();                             /* a line or frame answered OK: the watchdog */
+    struct CtlEvent { const char *kind; uint8_t nargs, gen; int32_t a, b, c; };
+    void push(const char *kind, uint8_t nargs, int32_t a, int32_t b, int32_t c);
+    void take(const CtlEvent &e);
+    void take_latch();
+    static void period_cb(void *self);
     void send(LineWriter *w);
     void flush_events();
     void load();
@@ -111,11 +144,23 @@ private:
     LineReader reader_;
     LineWriter w_;
     uint32_t last_ok_;
-    uint32_t next_tick_us_;
+    uint32_t next_tick_us_;  /* without a timer (the fake HAL): the next period's us() */
     int32_t telem_acc_;
     bool in_command_;
-    bool in_tick_;           /* inside the control function: events and the save wait for its end */
-    bool save_due_;
+    volatile bool in_tick_;  /* inside period(): events go to the ring */
+    bool timer_;             /* the HAL's timer runs period() */
+    /* period -> main loop (see the top of this file) */
+    CtlEvent ring_[LINK_RING];
+    volatile uint8_t ring_head_, ring_tail_, ring_lost_;
+    volatile uint8_t periods_;              /* periods run (wraps; a byte: read without a lock) */
+    uint8_t periods_seen_;
+    uint32_t period_ms_;     /* ms() at the newest period (under CtlLock) */
+    volatile uint8_t hgen_;
+    volatile uint8_t pend_latch_;            /* ST_WDOG / ST_FAULT raised by the period, 0 none */
+    int32_t pend_j_, pend_detail_;
+    char pend_why_[LINK_REASON_MAX];
+    volatile uint8_t done_ovf_;              /* a DONE the full ring could not take */
+    int32_t done_ovf_id_, done_ovf_free_;
     uint8_t n_events_;
     struct { const char *kind; uint8_t nargs; int32_t a, b, c; } events_[LINK_MAX_EVENTS];
     uint8_t gen_;            /* persist slot generation */

@@ -1,7 +1,9 @@
 /* The sketch: the Arduino core's init() (timers, millis/micros, ADC, PWM), the HAL,
  * the board; then the main loop: one pass drains the receive ring, handles its lines,
- * runs the control period when it is due (micros(), 10 ms) and programs one EEPROM
- * byte if one is waiting. Our own main(): the core's would also poll its Serial. */
+ * sends what the control periods raised (events, telemetry) and programs one EEPROM
+ * byte if one is waiting. The control period itself runs in the Timer5 interrupt
+ * (hal_avr.cpp), started by the link at the end of board.begin(). Our own main(): the
+ * core's would also poll its Serial. */
 #include <Arduino.h>
 
 #include "hal_avr.h"
@@ -10,12 +12,16 @@
 static AvrHal hal;
 static PumpBoard board;
 
+/* One pass of the main loop, a function of its own (not inlined) so that the simavr
+ * harness can time each pass (pump_hal.pump_timing's "pass" probe). */
+extern "C" void __attribute__((noinline)) main_loop_pass(void) {
+    board.poll();
+    hal.service();
+}
+
 int main(void) {
     init();
     hal.begin();
     board.begin(&hal);
-    for (;;) {
-        board.poll();
-        hal.service();
-    }
+    for (;;) main_loop_pass();
 }

@@ -7,6 +7,8 @@ PumpBoard *g_pump = 0;
 
 static int32_t round_mrad(float x) { return (int32_t)(x < 0 ? x - 0.5f : x + 0.5f); }
 
+static int32_t bend_mrad(const BendCal &c, int32_t adc);
+
 static void detail_joint(AbError *err, uint8_t j) {
     err->detail[0] = (char)('0' + j);
     err->detail[1] = 0;
@@ -171,7 +173,24 @@ void PumpBoard::begin(Hal *hal) {
 
 /* ------------------------------------------------------------------ BoardIf */
 
+/* From the main loop with the period locked out (and the events of periods before it
+ * made stale: link.h); from the period itself (a watchdog, a fault) as it is. */
 void PumpBoard::halt() {
+    if (link.in_period()) {
+        halt_();
+        return;
+    }
+    CtlLock l(hal_);
+    halt_();
+    link.halted();
+}
+
+bool PumpBoard::busy() {
+    CtlLock l(hal_);
+    return traj.busy();
+}
+
+void PumpBoard::halt_() {
     traj.flush();
     traj.hold = false;
     for (uint8_t j = 0; j < N_JOINTS; j++) {
@@ -188,16 +207,24 @@ void PumpBoard::halt() {
  * (the controller would not move the joint for that error anyway). Farther out (a
  * SETLIM narrowed below where the joint is) the set point ramps in, with EV LIMIT. */
 void PumpBoard::hold_here() {
-    halt();
-    read_sensors();
+    int32_t m[N_JOINTS];      /* the sensors read outside the lock (the divisions) */
     float f[N_JOINTS];
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        int32_t x = q[j], lo = lim[j][0], hi = lim[j][1], band = gain[j].dband;
+        m[j] = bend_mrad(cal[j], hal_->read_adc(j));
+        int32_t x = m[j], lo = lim[j][0], hi = lim[j][1], band = gain[j].dband;
         if (x < lo && lo - x <= band) x = lo;
         if (x > hi && x - hi <= band) x = hi;
         f[j] = (float)x;
+    }
+    uint8_t st = hal_->endstops();
+    CtlLock l(hal_);
+    halt_();
+    link.halted();
+    for (uint8_t j = 0; j < N_JOINTS; j++) {
+        q[j] = m[j];
         fe_ms_[j] = 0;
     }
+    stops = st;
     traj.set_point(f);
 }
 
@@ -224,6 +251,7 @@ int PumpBoard::queue(uint16_t id, uint16_t dur, const int32_t *t, AbError *err) 
 
 int PumpBoard::setlim(uint8_t j, int32_t lo, int32_t hi, int32_t vmax) {
     const int32_t *h = hard[j - 1];
+    CtlLock l(hal_);          /* excludes() reads the queue, set_range() may re-plan */
     if (lo > hi || lo < h[0] || hi > h[1] || vmax < 1 || vmax > h[2] || traj.excludes((uint8_t)(j - 1), lo, hi))
         return AB_ERR_RANGE;
     lim[j - 1][0] = lo;
@@ -235,7 +263,10 @@ int PumpBoard::setlim(uint8_t j, int32_t lo, int32_t hi, int32_t vmax) {
 
 int PumpBoard::set_bend(uint8_t j, const BendCal &c) {
     if (c.adc_a >= c.adc_b || c.adc_b > 1023 || c.a == c.b) return AB_ERR_RANGE;
-    cal[j - 1] = c;
+    {
+        CtlLock l(hal_);
+        cal[j - 1] = c;
+    }
     save_settings();
     return 0;
 }
@@ -245,20 +276,24 @@ int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
     switch (verb) {
         case AB_VERB_W:
             return queue((uint16_t)v[0], (uint16_t)v[1], v + 2, err);
-        case AB_VERB_GAIN:
+        case AB_VERB_GAIN: {
+            CtlLock l(hal_);
             gain[j - 1].kp = v[1];
             ki[j - 1] = v[2];
             kd[j - 1] = v[3];
             return 0;
+        }
         case AB_VERB_SETLIM:
             if (setlim(j, v[1], v[2], v[3])) {
                 detail_joint(err, j);
                 return AB_ERR_RANGE;
             }
             return 0;
-        case AB_VERB_DBAND:
+        case AB_VERB_DBAND: {
+            CtlLock l(hal_);
             gain[j - 1].dband = v[1];
             return 0;
+        }
         case AB_VERB_BEND: {
             BendCal c;
             c.adc_a = (uint16_t)v[1];
@@ -284,6 +319,7 @@ int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
             save_calibration((uint32_t)v[0]);
             return 0;
         case AB_VERB_RELAY: {
+            CtlLock l(hal_);
             if (traj.busy()) return AB_ERR_RANGE;
             RelayRun &r = relay[j - 1];
             memset(&r, 0, sizeof r);
@@ -307,12 +343,27 @@ int PumpBoard::command(int verb, const int32_t *v, Payload *out, AbError *err) {
     }
 }
 
+/* A snapshot of the period's values under the lock (a copy: a few us), formatted after. */
 void PumpBoard::telemetry(LineWriter *w) {
-    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(q[j]);
-    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(round_mrad(traj.sp[j]));
-    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(u[j]);
-    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(syringe_permille(j));
-    w->num(stops);
+    int32_t qq[N_JOINTS], syr[N_JOINTS];
+    float sp[N_JOINTS];
+    int16_t uu[N_JOINTS];
+    uint8_t st;
+    {
+        CtlLock l(hal_);
+        for (uint8_t j = 0; j < N_JOINTS; j++) {
+            qq[j] = q[j];
+            sp[j] = traj.sp[j];
+            uu[j] = u[j];
+            syr[j] = syr_[j];
+        }
+        st = stops;
+    }
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(qq[j]);
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(round_mrad(sp[j]));
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(uu[j]);
+    for (uint8_t j = 0; j < N_JOINTS; j++) w->num(syr[j] / 1000);
+    w->num(st);
 }
 
 /* ------------------------------------------------------------------ control */

@@ -8,6 +8,13 @@
  * Telemetry after `ms state done free`: q1..q3 (mrad), set points (mrad), duties
  * (per-mille, + inflates), syringe positions (per-mille of travel), end-stop bits
  * (bit 2k: pump k retracted, 2k+1: extended).
+ *
+ * The control period (control(), advance(), relay_step(), check_following()) runs in
+ * the timer's interrupt on the Mega: the discipline of what it shares with the main
+ * loop is listed in link.h. In short: q u syr_ stops seek fe_ms_ blocked_ and the
+ * trajectory's consumer side are the period's (the main loop reads them under CtlLock
+ * and resets them only in halt()/hold_here() under it); gain cal lim relay[] (its
+ * start) and the trajectory's ranges are the main loop's (written under CtlLock).
  */
 #ifndef PUMP_PUMP_H
 #define PUMP_PUMP_H
@@ -46,7 +53,7 @@ public:
     uint8_t n_joints() { return N_JOINTS; }
     uint8_t qsize() { return QSIZE; }
     uint8_t free_slots() { return traj.free(); }
-    bool busy() { return traj.busy(); }
+    bool busy();
     void halt();
     void hold_here();
     void set_hold(bool on) { traj.hold = on; }
@@ -63,6 +70,7 @@ public:
     void save_settings();
     void save_calibration(uint32_t id);   /* CALID: gains, bands and bends under id */
     int32_t syringe_permille(uint8_t j) const { return syr_[j] / 1000; }
+    Hal *hal() { return hal_; }
 
     Link link;
     Traj traj;
@@ -85,6 +93,7 @@ public:
 
 private:
     void read_sensors();
+    void halt_();
     void advance();
     void check_following();
     int16_t relay_step(uint8_t j, uint32_t now);

@@ -46,7 +46,10 @@ static int queue_move(uint16_t id, uint16_t dur, int32_t *t, int8_t only, uint16
     opened();
     if (only >= 0) {
         float last[N_JOINTS];
-        b.traj.last_target(last);
+        {
+            CtlLock l(b.hal());
+            b.traj.last_target(last);
+        }
         for (uint8_t j = 0; j < N_JOINTS; j++) t[j] = (int32_t)(last[j] < 0 ? last[j] - 0.5f : last[j] + 0.5f);
         t[only] = s16(val);
     }
@@ -63,7 +66,11 @@ static int queue_move(uint16_t id, uint16_t dur, int32_t *t, int8_t only, uint16
 int mb_read_holding(uint16_t addr, uint16_t *val) {
     PumpBoard &b = *g_pump;
     if (addr < MB_HR_KP) {
-        float x = b.traj.sp[addr];
+        float x;
+        {
+            CtlLock l(b.hal());
+            x = b.traj.sp[addr];
+        }
         *val = (uint16_t)(int16_t)(x < 0 ? x - 0.5f : x + 0.5f);
     } else if (addr < MB_HR_KI) {
         int32_t kp = b.gain[addr - MB_HR_KP].kp;
@@ -110,6 +117,7 @@ static int write_holding(uint16_t addr, uint16_t val) {
         int32_t t[N_JOINTS];
         return queue_move(SETPOINT_ID, 1, t, (int8_t)addr, val);
     } else if (addr < MB_HR_KI) {
+        CtlLock l(b.hal());
         b.gain[addr - MB_HR_KP].kp = val;
     } else if (addr < MB_HR_KD) {
         b.ki[addr - MB_HR_KI] = val;
@@ -117,6 +125,7 @@ static int write_holding(uint16_t addr, uint16_t val) {
         b.kd[addr - MB_HR_KD] = val;
     } else if (addr < MB_HR_LIM_MIN) {
         if (val > 1000) return MB_EX_ILLEGAL_VALUE;
+        CtlLock l(b.hal());
         b.gain[addr - MB_HR_DBAND].dband = val;
     } else if (addr < MB_HR_BEND) {
         uint8_t k = (uint8_t)((addr - MB_HR_LIM_MIN) / MB_N_JOINTS);
@@ -194,6 +203,7 @@ static uint16_t latch_code() {
 int mb_read_input(uint16_t addr, uint16_t *val) {
     static uint16_t ms_lo;   /* latched by reading MB_IR_MS_HI */
     PumpBoard &b = *g_pump;
+    CtlLock l(b.hal());       /* the period's values (link.h): a few us */
     if (addr < MB_IR_TARGET) {
         *val = (uint16_t)(int16_t)b.q[addr];
     } else if (addr < MB_IR_DUTY) {

@@ -1,6 +1,8 @@
 /* Trajectory (traj.h): firmware/common/traj.py step for step. */
 #include "traj.h"
 
+static_assert(QSIZE <= 128 && (256 % QSIZE) == 0, "free-running byte indices");
+
 static void add(TrajEvent *ev, uint8_t *ne, uint8_t kind, int32_t a, int32_t b) {
     if (*ne < TRAJ_MAX_EVENTS) {
         ev[*ne].kind = kind;
@@ -24,19 +26,20 @@ void Traj::init(const int32_t *vmax_) {
         vel[j] = 0.0f;
     }
     hold = false;
-    head_ = count_ = 0;
+    head_ = tail_ = 0;
     active_id = -1;
     dur_ = t_ = 0;
     scale_ = 1.0f;
 }
 
 bool Traj::push(uint16_t id, uint16_t dur, const int32_t *q) {
-    if (count_ >= QSIZE) return false;
-    Waypoint &w = queue_[(head_ + count_) % QSIZE];
+    uint8_t t = tail_;
+    if ((uint8_t)(t - head_) >= QSIZE) return false;
+    Waypoint &w = queue_[t % QSIZE];
     w.id = id;
     w.dur = dur;
     for (uint8_t j = 0; j < N_JOINTS; j++) w.q[j] = q[j];
-    count_++;
+    tail_ = (uint8_t)(t + 1);   /* volatile, after the entry: the period takes it whole */
     return true;
 }
 
@@ -53,15 +56,15 @@ void Traj::set_range(uint8_t j, int32_t lo_, int32_t hi_, int32_t vmax_) {
 }
 
 bool Traj::excludes(uint8_t j, int32_t lo_, int32_t hi_) const {
-    for (uint8_t i = 0; i < count_; i++) {
-        int32_t x = queue_[(head_ + i) % QSIZE].q[j];
+    for (uint8_t i = 0, n = count(); i < n; i++) {
+        int32_t x = queue_[(uint8_t)(head_ + i) % QSIZE].q[j];
         if (x < lo_ || x > hi_) return true;
     }
     return active_id >= 0 && (targets_[j] < lo_ || targets_[j] > hi_);
 }
 
 void Traj::flush() {
-    count_ = 0;
+    head_ = tail_;
     active_id = -1;
     for (uint8_t j = 0; j < N_JOINTS; j++) vel[j] = 0.0f;
 }
@@ -73,7 +76,7 @@ void Traj::set_point(const float *q) {
 
 void Traj::last_target(float *q) const {
     for (uint8_t j = 0; j < N_JOINTS; j++) {
-        if (count_) q[j] = (float)queue_[(head_ + count_ - 1) % QSIZE].q[j];
+        if (count()) q[j] = (float)queue_[(uint8_t)(tail_ - 1) % QSIZE].q[j];
         else if (active_id >= 0) q[j] = end_[j];
         else q[j] = sp[j];
     }
@@ -85,14 +88,14 @@ uint8_t Traj::step(uint16_t dt_ms, TrajEvent *ev) {
         for (uint8_t j = 0; j < N_JOINTS; j++) vel[j] = 0.0f;
         return 0;
     }
-    if (active_id < 0 && count_ == 0) {
+    if (active_id < 0 && count() == 0) {
         ramp(dt_ms, ev, &ne);
         return ne;
     }
     uint32_t left = active_id < 0 ? 0 : dt_ms;
     for (;;) {
         if (active_id < 0) {
-            if (count_ == 0) {
+            if (count() == 0) {
                 for (uint8_t j = 0; j < N_JOINTS; j++) vel[j] = 0.0f;
                 break;
             }
@@ -110,7 +113,7 @@ uint8_t Traj::step(uint16_t dt_ms, TrajEvent *ev) {
         }
         add(ev, &ne, TE_DONE, active_id, 0);
         active_id = -1;
-        if (left == 0 && count_ == 0) break;
+        if (left == 0 && count() == 0) break;
     }
     return ne;
 }
@@ -138,9 +141,7 @@ void Traj::ramp(uint16_t dt_ms, TrajEvent *ev, uint8_t *ne) {
 }
 
 void Traj::begin(TrajEvent *ev, uint8_t *ne) {
-    const Waypoint &w = queue_[head_];
-    head_ = (uint8_t)((head_ + 1) % QSIZE);
-    count_--;
+    const Waypoint &w = queue_[head_ % QSIZE];
     for (uint8_t j = 0; j < N_JOINTS; j++) {
         ramping_[j] = false;
         start_[j] = sp[j];
@@ -148,8 +149,10 @@ void Traj::begin(TrajEvent *ev, uint8_t *ne) {
         targets_[j] = w.q[j];
     }
     active_id = w.id;
-    add(ev, ne, TE_START, w.id, 0);
-    int worst = plan(w.dur);
+    uint16_t dur = w.dur;
+    head_ = (uint8_t)(head_ + 1);   /* after the entry is read: the slot is the producer's again */
+    add(ev, ne, TE_START, active_id, 0);
+    int worst = plan(dur);
     if (worst >= 0) add(ev, ne, TE_SLOW, w.id, worst + 1);
 }
 

@@ -34,9 +34,12 @@ struct Waypoint {
 class Traj {
 public:
     void init(const int32_t *vmax);
-    uint8_t free() const { return (uint8_t)(QSIZE - count_); }
-    uint8_t queued() const { return count_; }
-    bool busy() const { return active_id >= 0 || count_ > 0; }
+    /* The queue is a single-producer single-consumer ring (pump.h): push() (the main
+     * loop) alone moves tail_, step() (the control period) alone moves head_, each a
+     * free-running byte; flush() and set_point() are called with the period locked out. */
+    uint8_t free() const { return (uint8_t)(QSIZE - count()); }
+    uint8_t queued() const { return count(); }
+    bool busy() const { return active_id >= 0 || count() > 0; }
     bool push(uint16_t id, uint16_t dur, const int32_t *q);
     void set_range(uint8_t j, int32_t lo, int32_t hi, int32_t vmax);
     bool excludes(uint8_t j, int32_t lo, int32_t hi) const;
@@ -59,8 +62,9 @@ private:
     int plan(uint32_t dur);
     void interpolate();
     void ramp(uint16_t dt_ms, TrajEvent *ev, uint8_t *ne);
+    uint8_t count() const { return (uint8_t)(tail_ - head_); }
     Waypoint queue_[QSIZE];
-    uint8_t head_, count_;
+    volatile uint8_t head_, tail_;
     bool ramping_[N_JOINTS];
     int32_t targets_[N_JOINTS];
     float start_[N_JOINTS], end_[N_JOINTS];

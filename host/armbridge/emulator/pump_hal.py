@@ -215,11 +215,19 @@ def pump_timing(emu: Any, window: tuple[float, float] | None = None) -> dict[str
     control_period_us: between successive entries of the control period's work
       (PumpBoard::control); jitter = max - min. sample_period_us: the same between
       conversions of joint 1's bend sensor (the control period samples it first).
+    isr_period_cycles / isr_jitter_us: the same between starts of the period proper
+      (ctl_period, entered from the timer interrupt TIMER5_COMPA after its alignment
+      wait), where the image has them; isr_cycles: the interrupt's length, entry to
+      reti, the interrupts nested in it (the receive, ADC, millis ones) included;
+      period_cycles: the period proper's; overruns: starts while the last one still
+      ran (the firmware counts and skips them).
+    pass_cycles: each main-loop pass (main_loop_pass), less the periods' interrupts inside
+      it: the main loop's own work; worst case = max.
     control_cycles: the control period's work, per call.
     line_check_cycles: per host line, the CRC check (ab_crc32) just before the grammar and
       range checks (ab_parse_command) plus those; worst case = max.
     estop_latency_us: from each e-stop byte's delivery (its receive flag) to every motor
-      pin off, and the cycles of the same.
+      pin off; estop_in_isr_us: those whose byte came while the period's interrupt ran.
     free_ram_bytes: lowest stack pointer seen minus the end of .data/.bss/.noinit."""
     runner, hal, cfg = emu.runner, emu.hal, emu.cfg
     lo, hi = window if window is not None else (-math.inf, math.inf)
@@ -236,20 +244,46 @@ def pump_timing(emu: Any, window: tuple[float, float] | None = None) -> dict[str
     for t, d in probes.get("parse", []):
         before = [c for c in crcs if c[0] <= t]
         lines.append(d + (before[-1][1] if before else 0))
-    latency = []
+    isr = sorted(probes.get("isr", []))
+    starts_p = sorted(probes.get("period", [])) or isr
+    isr_spans = [(t, t + d / hz) for t, d in isr]
+    per_spans = [(t, t + d / hz) for t, d in starts_p]
+    overruns = sum(1 for i in range(1, len(isr_spans)) if isr_spans[i][0] < isr_spans[i - 1][1])
+    isr_period = [round((b[0] - a[0]) * hz) for a, b in zip(per_spans, per_spans[1:])]
+    # the periods' time inside a pass: each interrupt, and a period run at an unlock (simavr)
+    spans = sorted(isr_spans + [p for p in per_spans if not any(s <= p[0] <= e for s, e in isr_spans)])
+    passes = []
+    k = 0
+    for t, d in sorted(probes.get("pass", [])):
+        end = t + d / hz
+        while k < len(spans) and spans[k][1] <= t:
+            k += 1
+        inside = sum(min(e, end) - max(s, t) for s, e in spans[k:] if s < end and e > t)
+        passes.append(d - inside * hz)
+    latency, in_isr = [], []
     for t in (t for t in hal.estop_byte_at if lo <= t <= hi):
         off = [x for x in hal.outputs_off_at if x >= t - 1e-6]
         if off:
             latency.append((off[0] - t) * 1e6)
+            if any(s <= t <= e for s, e in spans):
+                in_isr.append(latency[-1])
     spread = _spread(period)
+    ip = _spread(isr_period)
     return {
         "hz": hz,
         "control_period_us": spread,
         "control_jitter_us": (spread["max"] - spread["min"]) if period else None,
+        "isr_period_cycles": ip,
+        "isr_jitter_us": (ip["max"] - ip["min"]) * 1e6 / hz if isr_period else None,
+        "isr_cycles": _spread([d for _, d in isr]),
+        "period_cycles": _spread([d for _, d in starts_p]),
+        "overruns": overruns,
+        "pass_cycles": _spread(passes),
         "sample_period_us": _spread(sample),
         "control_cycles": _spread(control),
         "line_check_cycles": _spread(lines),
         "estop_latency_us": _spread(latency),
+        "estop_in_isr_us": _spread(in_isr),
         "min_sp": runner.stats["min_sp"],
         "free_ram_bytes": (runner.stats["min_sp"] or 0) - runner.elf.ram_end_of_statics,
         "flash_bytes": runner.elf.flash_bytes,

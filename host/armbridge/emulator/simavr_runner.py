@@ -69,7 +69,11 @@ ANSWER_TIMEOUT_S = 30.0
 STATES = {7: "done (slept with interrupts off)", 8: "crashed"}
 # Timed whenever the image has them (docs/emulator.md, "Syringe-pump board in simavr"):
 # the control period's work, and the checks of a host line (CRC, then grammar and ranges).
-DEFAULT_PROBES = {"control": "PumpBoard::control", "crc": "ab_crc32", "parse": "ab_parse_command"}
+# The control period's interrupt (TIMER5_COMPA, vector 47 on the Mega 2560) and one main-
+# loop pass (main_loop_pass) where the image has them: the period's start and length, the
+# main loop's longest pass (pump_hal.pump_timing).
+DEFAULT_PROBES = {"control": "PumpBoard::control", "crc": "ab_crc32", "parse": "ab_parse_command",
+                  "isr": "__vector_47", "period": "ctl_period", "pass": "main_loop_pass"}
 
 
 class FirmwareCrashed(RuntimeError):
