@@ -173,9 +173,9 @@ def test_a_board_fault_names_the_joint_in_the_summary(tmp_path):
         emu.stop()
 
 
-def test_a_board_that_never_answers_fails_with_a_summary(tmp_path):
-    """A pty with nobody behind it: the handshake times out (exit 1), the JSON
-    and the recording are written all the same."""
+def test_a_board_that_never_answers_fails_with_its_error_line_alone(tmp_path):
+    """A pty with nobody behind it: the handshake times out (exit 1) with one error line;
+    the JSON asked for says so, and there is neither a table of dashes nor an empty recording."""
     master, slave = os.openpty()
     try:
         proc, js, rrd = run(tmp_path, plan_file(tmp_path, 3, 0.2), os.ttyname(slave), "silent")
@@ -186,7 +186,8 @@ def test_a_board_that_never_answers_fails_with_a_summary(tmp_path):
     assert rc == 1, err
     s = json.loads(js.read_text())
     assert "no answer to HELLO" in s["error"] and s["final_state"] is None and s["waypoints_sent"] == 0
-    verify(rrd)
+    assert s["rrd"] is None and not rrd.exists()
+    assert [ln for ln in err.splitlines() if ln.strip()] == [f"error: {s['error']}"], err
 
 
 def test_a_stop_while_connecting_still_sends_the_estop_byte(tmp_path):

@@ -87,7 +87,8 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
     with holding():
         if json_out is not None:
             write_summary(summary, json_out)
-        _print(console, summary.table())
+        if failed is None or summary.reached_board:  # a run that never reached a board: its error line alone
+            _print(console, summary.table())
         if failed is not None:
             _say(f"error: {failed}", "red")
             raise typer.Exit(1)

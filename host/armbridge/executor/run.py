@@ -225,6 +225,9 @@ def run_plan(
                 raise
             failure = exc
             summary.error = str(exc)
+            if client is None:  # the board was never reached: no recording of nothing
+                _discard(rec, rrd)
+                rec, summary.rrd = None, None
         except KeyboardInterrupt as stop:  # outside streaming: connecting (e-stop sent by on_stop), or opening
             if not summary.stopped_by_user:
                 summary.stopped_by_user = True
@@ -237,7 +240,10 @@ def run_plan(
                 summary.error = str(exc)
                 # The state the board showed while connecting (HELLO's telemetry), if any.
                 summary.final_state = client.state if client is not None else last_state[0]
-                if rec is not None:
+                if client is None and summary.final_state is None:  # no answer at all: no recording of nothing
+                    _discard(rec, rrd)
+                    rec, summary.rrd = None, None
+                elif rec is not None:
                     rec.error(None, f"run failed: {exc}", "error")
         finally:
             with holding():

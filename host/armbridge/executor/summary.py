@@ -112,6 +112,12 @@ class Summary:
 
         return clean(d)
 
+    @property
+    def reached_board(self) -> bool:
+        """Whether a board answered (HELLO, or a state while connecting): else the summary holds nothing
+        but the error, and the run writes neither a table nor a recording."""
+        return self.fw is not None or self.final_state is not None
+
     def table(self):
         """The summary as a rich Table."""
         from rich.table import Table
