@@ -3,8 +3,10 @@ the executor streams 2 ms waypoints at line rate (bench link's throughput case),
 e-stop bytes come at drifting phases of the period (some while its interrupt runs); or
 (MODE=modbus) the same stream over Modbus RTU, one FC16 a waypoint, with FC4 reads
 between. Only the probes' records inside the load count. Prints JSON (microseconds;
-`*_cycles` at 16 MHz). The period's start is its timer interrupt's entry where the image
-has one (TIMER5_COMPA), else the entry of PumpBoard::control (the micros() schedule).
+`*_cycles` at 16 MHz). The period's start (isr_period_us) is the entry of the period proper
+(ctl_period: from the Timer5 interrupt after its alignment wait) where the image has one;
+period_us is between entries of PumpBoard::control (before the timer: the micros()
+schedule of the main loop). pass_us: each main-loop pass less the periods inside it.
 
 usage: .venv/bin/python firmware/arduino_pump/tests/stream_timing.py ELF [WAYPOINTS [ESTOPS]]
   MODE=modbus  over Modbus RTU (no e-stop byte there: ESTOPS is ignored)
@@ -19,27 +21,33 @@ import armbridge.emulator.simavr_runner as SR
 from armbridge.bench import link as L
 from armbridge.emulator.pump_hal import _spread, pump_timing
 
-ELF = Path(sys.argv[1]).resolve()
-n = int(sys.argv[2]) if len(sys.argv) > 2 else 1500
-estops = int(sys.argv[3]) if len(sys.argv) > 3 else 20
-MODE = os.environ.get("MODE", "line")
-RATE = int(os.environ.get("RATE", "0"))
 EXTRA = dict(kv.split("=") for kv in os.environ.get("EXTRA", "").split(",") if kv)
-SR.DEFAULT_PROBES = dict(SR.DEFAULT_PROBES, plan="Traj::plan", **EXTRA)
 
 
-def _this_elf(folder: Path, elf: str) -> Path:   # run ELF, do not rebuild the checkout's
-    return ELF
+def run(elf: Path, n: int = 1500, estops: int = 20, mode: str = "line", rate: int = 0) -> dict:
+    """The measurement of ELF (tests/test_pump_timer.py calls it with a shorter load)."""
+    saved = SR.DEFAULT_PROBES, SR.firmware_elf
+    SR.DEFAULT_PROBES = dict(SR.DEFAULT_PROBES, plan="Traj::plan", **EXTRA)
+    SR.firmware_elf = lambda folder, name: Path(elf).resolve()   # run ELF, do not rebuild the checkout's
+    try:
+        return _run(Path(elf).resolve(), n, estops, mode, rate)
+    finally:
+        SR.DEFAULT_PROBES, SR.firmware_elf = saved
 
 
-def run(elf: Path = ELF, n: int = n, estops: int = estops, mode: str = MODE, rate: int = RATE) -> dict:
-    """The measurement (tests/test_pump_timer.py calls it with a shorter load)."""
-    global ELF
-    ELF = Path(elf).resolve()
-    SR.firmware_elf = _this_elf
+def _run(ELF: Path, n: int, estops: int, mode: str, rate: int) -> dict:
     b = L.BOARDS["arduino_pump"]
     url = L.MODBUS_URL if mode == "modbus" else b.url
-    port, client = L._session(url, b.robot)
+    if mode == "modbus":   # the board in Modbus mode (the url switches it), the executor's Modbus client
+        from armbridge.executor.modbus_client import ModbusClient
+        from armbridge.link.transport import open_port
+        from armbridge.robots.catalog import get_robot
+
+        port = open_port(url)
+        client = ModbusClient(port, get_robot(b.robot))
+        client.connect()
+    else:
+        port, client = L._session(url, b.robot)
     try:
         if mode != "modbus":
             client.set_rate(rate)
@@ -100,4 +108,6 @@ def run(elf: Path = ELF, n: int = n, estops: int = estops, mode: str = MODE, rat
 
 
 if __name__ == "__main__":
-    print(json.dumps(run(), indent=1, default=float))
+    print(json.dumps(run(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 1500,
+                         int(sys.argv[3]) if len(sys.argv) > 3 else 20, os.environ.get("MODE", "line"),
+                         int(os.environ.get("RATE", "0"))), indent=1, default=float))
