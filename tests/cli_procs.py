@@ -85,7 +85,7 @@ def emulated_board(tmp_path: Path, *extra: str):
     """`armbridge emulate esp32` on a pty, reachable as tmp_path/arm (a fixture's
     body: yields (Proc, link)); its stdout echoes BOOT and EV lines."""
     link = str(tmp_path / "arm")
-    emu = Proc("emulate", "esp32", "--link", link, "--seed", "1", *extra)
+    emu = Proc("emulate", "esp32", "--link", link, "--seed", "1", "-v", *extra)
     try:
         emu.wait_for("esp32 emulator on /dev/pts/")
         yield emu, link

@@ -155,7 +155,7 @@ def test_a_latched_board_refuses_the_next_run_until_clear(tmp_path, board):
 
 def test_a_board_fault_names_the_joint_in_the_summary(tmp_path):
     link = str(tmp_path / "arm")
-    emu = Proc("emulate", "esp32", "--link", link, "--stall", "1@0")
+    emu = Proc("emulate", "esp32", "--link", link, "--stall", "1@0", "-v")
     try:
         emu.wait_for("esp32 emulator on /dev/pts/")
         # The shoulder is seized where it starts (pi/2); the plan holds it 0.5 rad or more away.

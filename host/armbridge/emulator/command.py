@@ -69,7 +69,11 @@ def emulate_cmd(
                                       help="Keep the board's non-volatile memory in DIR, as the chip keeps it across "
                                            "power cycles: a MicroPython board's filesystem (what a flash wrote, its "
                                            "calibration), the pump board's EEPROM (docs/emulator.md)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the port and, at exit, the fault counters."),
+    verbose: int = typer.Option(0, "--verbose", "-v", count=True,
+                                help="-v: also the board's BOOT and EV lines with their sim time; -vv: every line "
+                                     "the board sends (answers, telemetry). Default: the port line, warnings and, "
+                                     "at exit, the fault counters."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", hidden=True, help="The default (kept for old scripts)."),
     run_for: Optional[float] = typer.Option(None, "--for", metavar="SECONDS", help="Stop after this many wall seconds."),
     realtime: bool = typer.Option(False, "--realtime", help="Run the board at real-time priority (SCHED_FIFO, as "
                                   "Klipper's Linux MCU with -r), so a busy machine does not slow it; needs root or "
@@ -103,9 +107,11 @@ def emulate_cmd(
 
     held: list[str] | None = []  # lines from before the first line of output
 
+    quiet = quiet or verbose == 0
+
     def echo(t: float, line: bytes) -> None:
         parts = line.split(b" ", 2)
-        if len(parts) >= 2 and parts[1] in (b"BOOT", b"EV"):
+        if verbose >= 2 or (len(parts) >= 2 and parts[1] in (b"BOOT", b"EV")):
             text = f"{t:10.3f}  {line.decode('latin-1')}"
             if held is not None:
                 held.append(text)
@@ -129,13 +135,12 @@ def emulate_cmd(
     _say(first)
     if emu.link_note:
         _say(f"note: {emu.link_note}")
-    if not quiet:
-        rig = f"rig {spec.rig}, " if spec.rigs else ""
-        _say(f"speed {speed:g}, seed {seed}, {plant} plant, {rig}firmware under {emu.interpreter}, "
-             f"faults: {faults.describe()}; "
-             "Ctrl-C stops")
-        for text in held or []:
-            _say(text)
+    rig = f"rig {spec.rig}, " if spec.rigs else ""
+    _say(f"speed {speed:g}, seed {seed}, {plant} plant, {rig}firmware under {emu.interpreter}, "
+         f"faults: {faults.describe()}; "
+         "Ctrl-C stops")
+    for text in held or []:
+        _say(text)
     held = None
 
     stop = threading.Event()
