@@ -108,7 +108,9 @@ def drawing_bounds(plan) -> tuple[float, float]:
 def test_draw_robotics_on_the_emulated_arm(tmp_path):
     """The paper's sample 9, "ROBOTICS", drawn end to end (issue 10 §6)."""
     out, rrd, js = tmp_path / "robotics.json", tmp_path / "robotics.rrd", tmp_path / "sum.json"
-    r = CliRunner().invoke(build_app(), ["draw", "--sample", "text-robotics", "--speed", "0.03", "--out", str(out),
+    # --travel-speed as --speed: drawing_bounds takes its peak joint speed over the whole plan
+    r = CliRunner().invoke(build_app(), ["draw", "--sample", "text-robotics", "--speed", "0.03", "--travel-speed", "0.03",
+                                         "--out", str(out),
                                          "--port", "emu:esp32?speed=0", "--rrd", str(rrd), "--json", str(js),
                                          "--rate", str(RATE_HZ), "--no-progress"])
     assert r.exit_code == 0, r.output

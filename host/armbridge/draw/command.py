@@ -11,6 +11,9 @@ from armbridge.errors import ArmbridgeError
 from armbridge.executor.command import CARTESIAN_HELP, PEN_HELP
 
 DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
+DEFAULT_TRAVEL_SPEED = 0.1  # m/s: pen-up moves (the fastest the 3 mm safety margin was measured at)
+MERGE_MM = (0.0, 5.0)  # --merge-tolerance accepted, mm
+MIN_STROKE_MM = (0.0, 50.0)  # --min-stroke accepted, mm
 
 
 def _parse_at(at: str) -> tuple[float, float]:
@@ -20,6 +23,14 @@ def _parse_at(at: str) -> tuple[float, float]:
     except ValueError:
         raise ArmbridgeError(f"--at {at!r}: expected X,Y in metres, e.g. --at 0.08,0.19") from None
     return x, y
+
+
+def _check_mm(value: float, option: str, bounds: tuple[float, float]) -> float:
+    """An option in mm checked against bounds -> m; one clear line naming the range."""
+    lo, hi = bounds
+    if not lo <= value <= hi:
+        raise ArmbridgeError(f"{option} {value:g} mm is outside [{lo:g}, {hi:g}] mm")
+    return value / 1000.0
 
 
 def _list_samples() -> None:
@@ -68,21 +79,47 @@ def draw_cmd(
     svg: Optional[Path] = typer.Option(None, "--svg", help="SVG file to draw (its paths and shapes)."),
     csv: Optional[Path] = typer.Option(None, "--csv", help="CSV file of points: x,y a line, blank line or pen column "
                                                            "between strokes (docs/drawing.md)."),
-    image: Optional[Path] = typer.Option(None, "--image", help="Image file: the outlines of its dark shapes."),
+    image: Optional[Path] = typer.Option(None, "--image", help="Image file: the outlines of its dark shapes (a "
+                                                               "transparent PNG: of its opaque ones)."),
     shape: Optional[str] = typer.Option(None, "--shape", help="circle, triangle, square, pentagon, hexagon or star."),
     sample: Optional[str] = typer.Option(None, "--sample", help="One of the paper's samples (see --list-samples)."),
     list_samples: bool = typer.Option(False, "--list-samples", help="List the built-in samples and exit."),
     out: Optional[Path] = typer.Option(None, "--out", help="Plan file to write (armbridge-plan JSON)."),
-    png: Optional[Path] = typer.Option(None, "--png", help="Also write a figure of the drawing and the arm."),
+    png: Optional[Path] = typer.Option(None, "--png", help="Also write a figure of the drawing (framed on it; with "
+                                                           "--port, with the executed trace)."),
+    svg_out: Optional[Path] = typer.Option(None, "--svg-out", help="Also write the pen-down strokes as SVG at the "
+                                                                   "page's scale (with --port: those drawn, from the "
+                                                                   "measured angles)."),
     size: Optional[float] = typer.Option(None, "--size", help="The drawing's longer side in m [default: --fit]. It "
                                                                 "must fit the safe region; what lies within the "
                                                                 "safety margin of its edge is pressed inside by the "
                                                                 "CBF filter."),
     fit: bool = typer.Option(False, "--fit", help="As large as fits the safe region less its safety margin (3 mm "
-                                                  "up to 0.1 m/s, wider faster: docs/drawing.md) (the default)."),
+                                                  "up to 0.1 m/s, wider faster: docs/drawing.md) and the page "
+                                                  "less its margin (the default)."),
     at: Optional[str] = typer.Option(None, "--at", metavar="X,Y",
-                                     help="Where the drawing's centre goes, m [default: the safe region's centre]."),
-    speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen speed in m/s, drawing and travelling."),
+                                     help="Where the drawing's (and the page's) centre goes, m [default: the safe "
+                                          "region's centre]."),
+    page: Optional[str] = typer.Option(None, "--page", metavar="A4|A5|letter|WxH",
+                                       help="The sheet it is drawn on (WxH in mm unless a unit is given): the "
+                                            "drawing fits it less --margin, and the SVG is in its frame."),
+    margin: float = typer.Option(10.0, "--margin", metavar="MM", help="With --page: the margin on every side, mm."),
+    landscape: bool = typer.Option(False, "--landscape", help="With --page: the page's longer side along x."),
+    rotate: float = typer.Option(0.0, "--rotate", metavar="DEG", help="Turn the drawing counter-clockwise, degrees "
+                                                                      "(-360..360)."),
+    speed: float = typer.Option(DEFAULT_SPEED, "--speed", help="Pen-down speed in m/s."),
+    travel_speed: float = typer.Option(DEFAULT_TRAVEL_SPEED, "--travel-speed",
+                                       help="Pen-up speed in m/s: one direct move between strokes (joint speed "
+                                            "limits and the safe region still hold)."),
+    sort: str = typer.Option("2opt", "--sort", metavar="2opt|greedy|none",
+                             help="Stroke order (vpype linesort: greedy, then 2-opt passes)."),
+    merge_tolerance: float = typer.Option(0.1, "--merge-tolerance", metavar="MM",
+                                          help="Join strokes whose ends are this close (vpype linemerge), mm."),
+    min_stroke: float = typer.Option(0.0, "--min-stroke", metavar="MM",
+                                     help="Drop strokes shorter than this (vpype filter), mm; 0 keeps all."),
+    pen_settle: str = typer.Option("0", "--pen-settle", metavar="MS|DOWN,UP",
+                                   help="Extra wait after the pen goes down (and up), ms, beyond the board's own "
+                                        "settle (PEN_SETTLE_MS, 150 ms on the ESP32 arm)."),
     font: str = typer.Option("futural", "--font", help="Hershey font for TEXT (vpype's fonts)."),
     robot_name: str = typer.Option("arm3r", "--robot", help="The drawing arm (a planar 3R robot)."),
     ik: str = typer.Option("closed", "--ik", metavar="closed|paper",
@@ -103,14 +140,17 @@ def draw_cmd(
 
     The drawing is fitted into the arm's safe region less a safety margin
     (what the executed pen strays from the commanded one, measured: 3 mm up
-    to 0.1 m/s), its strokes merged and sorted (vpype) to cut pen-up travel,
-    and planned in joint space; a discrete control-barrier-function filter then
-    keeps every waypoint's pen inside the margin (a point placed beyond it is
-    pressed onto it) before the plan is written and streamed. Each waypoint
-    carries a pen flag (1 draws, 0 pen up). Nothing is written when
-    an input is bad or the drawing does not fit. With --port the plan is then
-    run on the board as `armbridge run` does (same exit codes: 0 completed, 1
-    failed, 2 bad input, 128+signal), and the summary adds the drawing error.
+    to 0.1 m/s) and into --page less its margin, its strokes merged, filtered
+    and sorted (vpype, 2-opt by default) to cut pen-up travel, and planned in
+    joint space; a discrete control-barrier-function filter then keeps every
+    waypoint's pen inside the margin (a point placed beyond it is pressed onto
+    it) before the plan is written and streamed. Pen-up moves are one direct
+    move each at --travel-speed, cut only where the arm's swept path would
+    leave the safe region. Each waypoint carries a pen flag (1 draws, 0 pen
+    up). Nothing is written when an input is bad or the drawing does not fit.
+    With --port the plan is then run on the board as `armbridge run` does
+    (same exit codes: 0 completed, 1 failed, 2 bad input, 128+signal), and
+    the summary adds the drawing error.
     """
     if list_samples:
         _list_samples()
@@ -122,35 +162,79 @@ def draw_cmd(
                              "the plan)")
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
+    if page is None and landscape:
+        raise ArmbridgeError("--landscape needs --page (it turns the page)")
+    from armbridge.draw import layout
     from armbridge.draw.build import build
-    from armbridge.draw.path import check_ik
+    from armbridge.draw.page import check_rotate, parse_page
+    from armbridge.draw.path import check_ik, check_settle, check_speed
     from armbridge.plans.format import save_plan
 
     ik = check_ik(ik)
+    options = dict(speed=check_speed(speed), travel_speed=check_speed(travel_speed, "--travel-speed"),
+                   sort=layout.check_sort(sort), rotate=check_rotate(rotate), pen_settle=check_settle(pen_settle),
+                   merge_tolerance=_check_mm(merge_tolerance, "--merge-tolerance", MERGE_MM),
+                   min_length=_check_mm(min_stroke, "--min-stroke", MIN_STROKE_MM),
+                   page=parse_page(page, landscape=landscape, margin_mm=margin) if page is not None else None)
     from armbridge.robots import get_robot
 
     lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
     d = build(lines, get_robot(robot_name), name=name, source=source, size=size,
-              at=None if at is None else _parse_at(at), speed=speed, ik=ik)
+              at=None if at is None else _parse_at(at), ik=ik, **options)  # type: ignore[arg-type]
     written = text.replace("\\n", "\n") if text is not None else _sample_text(sample)
     if written is not None:
         from armbridge.draw.sources import characters
 
         d.plan.provenance["drawing"]["characters"] = characters(written)
     try:
-        if png is not None:
-            from armbridge.draw.figure import draw_png
-
-            draw_png(d, png, title=f"armbridge draw: {source}")
+        _outputs(d, png, svg_out, source, None)
         save_plan(d.plan, out)
     except OSError as exc:
         raise ArmbridgeError(f"{exc.filename}: cannot write ({exc.strerror})") from None
+    _report(d, source, out, png, svg_out)
+    if port is not None:  # as `armbridge run` (exit codes, signals, summary)
+        from armbridge.executor.command import run_command
+        from armbridge.telemetry.recording import default_rrd_path
+
+        rrd = rrd if rrd is not None else default_rrd_path(d.plan.name)
+        try:
+            run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
+        finally:  # completed or not: the figure and the SVG show what was drawn
+            if (png is not None or svg_out is not None) and rrd.exists():
+                from armbridge.draw.export import drawn_strokes
+
+                _outputs(d, png, svg_out, source, drawn_strokes(rrd))
+
+
+def _outputs(d, png: Path | None, svg_out: Path | None, source: str, trace) -> None:
+    """The figure (with the executed trace when there is one) and the SVG (the trace, else the
+    plan's pen-down strokes)."""
+    if png is not None:
+        from armbridge.draw.figure import draw_png
+
+        draw_png(d, png, title=f"armbridge draw: {source}", trace=trace)
+    if svg_out is not None:
+        from armbridge.draw.export import planned_strokes, write_svg
+
+        strokes = trace if trace is not None else planned_strokes(d.plan)
+        write_svg(svg_out, strokes, d.page, d.placement.at, label="drawn" if trace is not None else "planned",
+                  source=source)
+
+
+def _report(d, source: str, out: Path, png: Path | None, svg_out: Path | None) -> None:
+    """What was made, a few lines."""
     t = d.tidy
     p = d.placement
-    typer.echo(f"{source}: {t.strokes_out} stroke{'s' * (t.strokes_out != 1)} ({t.strokes_in} before merging), "
-               f"{d.drawn_length * 1000:.0f} mm drawn, size {p.size * 1000:.1f} mm at "
-               f"({p.at[0]:.4f}, {p.at[1]:.4f}) m")
-    typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after")
+    on = f" on {d.page.name} ({d.page.width * 1000:.0f} x {d.page.height * 1000:.0f} mm)" if d.page else ""
+    limit = {"reach": ", as large as the arm's safe region allows", "page": ", as large as the page allows"}
+    typer.echo(f"{source}: {t.strokes_out} stroke{'s' * (t.strokes_out != 1)} ({t.strokes_in} before merging"
+               + (f", {t.dropped} too short dropped" if t.dropped else "") + f"), {d.drawn_length * 1000:.0f} mm "
+               f"drawn, size {p.size * 1000:.1f} mm at ({p.at[0]:.4f}, {p.at[1]:.4f}) m{on}"
+               + limit.get(p.limited_by, ""))
+    typer.echo(f"pen-up travel: {t.travel_before * 1000:.0f} mm before sorting, {t.travel_after * 1000:.0f} mm after"
+               + (f" ({t.sort}; greedy alone {t.travel_greedy * 1000:.0f} mm)" if t.sort == "2opt" else f" ({t.sort})")
+               + (f"; {d.travel_cuts} pen-up move{'s' * (d.travel_cuts != 1)} cut to stay in the safe region"
+                  if d.travel_cuts else ""))
     if d.ik["method"] == "paper":
         k = d.ik
         typer.echo(f"joints: the paper's ANN + FABRIK + CBF ({k['model']}): {k['oriented']} of {k['waypoints']} "
@@ -162,9 +246,7 @@ def draw_cmd(
     typer.echo(f"safety: every waypoint {p.margin * 1000:.1f} mm inside the safe region (radius "
                f"{d.region.radius * 1000:.1f} mm); the CBF filter moved {f.moved} waypoint{'s' * (f.moved != 1)}"
                + (f" (up to {f.max_shift * 1000:.2g} mm)" if f.moved else ""))
-    typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {speed:g} m/s"
-               + (f"; figure {png}" if png is not None else ""))
-    if port is not None:  # as `armbridge run` (exit codes, signals, summary)
-        from armbridge.executor.command import run_command
-
-        run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
+    info = d.plan.provenance["drawing"]
+    extra = [str(x) for x in (png, svg_out) if x is not None]
+    typer.echo(f"wrote {out}: {d.plan.k} waypoints, {d.plan.total_duration:.1f} s at {info['speed']:g} m/s "
+               f"(pen up {info['travel_speed']:g} m/s)" + (f"; {', '.join(extra)}" if extra else ""))

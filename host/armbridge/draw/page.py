@@ -7,7 +7,8 @@ fitted into the page less its margin on every side *and* into the arm's safe
 disc less its safety margin (`layout.place`): whichever is tighter sets its
 size, and the command says which. Sizes come from vpype's own table
 (`vpype.PAGE_SIZES`, `vpype.convert_page_size`), portrait unless `--landscape`;
-`WxH` is in mm unless it names a unit (`210x297mm`, `15x10cm`, `8.5x11in`).
+`WxH` (W along x) is in mm unless it names a unit (`210x297mm`, `15x10cm`,
+`8.5x11in`), turned only by `--landscape` when it is portrait.
 
 The page also fixes the frame of the SVG export (`draw.export`): page
 coordinates, origin at its top-left corner, y down, in mm, as a plotter's
@@ -75,7 +76,7 @@ def parse_page(spec: str, *, landscape: bool = False, margin_mm: float = 0.0) ->
     w, h = float(w_px) / PX_PER_M, float(h_px) / PX_PER_M
     if not (w > 0 and h > 0):
         raise ArmbridgeError(f"--page {spec!r}: both sides must be above 0")
-    if landscape != (w > h):
+    if (landscape and w < h) or (m is None and not landscape and w > h):  # WxH as given, unless --landscape
         w, h = h, w
     margin = check_margin(margin_mm, w, h)
     return Page(text if m is not None else text.upper() if text.lower()[0] == "a" else text.lower(), w, h, margin)
