@@ -16,5 +16,6 @@ extern int g_checks, g_failures;
 void run_codec(const char *vectors_path);
 void run_session();
 void run_board();
+void run_period();
 
 #endif

@@ -14,6 +14,7 @@ int main(int argc, char **argv) {
     run_codec(argv[1]);
     run_session();
     run_board();
+    run_period();
     printf("%d checks, %d failed\n", g_checks, g_failures);
     return g_failures ? 1 : 0;
 }
