@@ -264,7 +264,8 @@ def test_svg_of_a_run_holds_the_drawn_strokes_close_to_the_plan(tmp_path):
     (["--speed", "0"], r"--speed 0 m/s is outside \[0.001, 0.5\] m/s"),
     (["--page", "B9"], r"--page 'B9': expected A4, A5, letter"),
     (["--page", "A5", "--margin", "80"], r"--margin 80 mm: expected 0 <= MM < 74"),
-    (["--landscape"], r"--landscape needs --page"),
+    (["--landscape"], r"--landscape and --margin need --page"),
+    (["--margin", "5"], r"--landscape and --margin need --page"),
     (["--rotate", "720"], r"--rotate 720: expected degrees in \[-360, 360\]"),
     (["--sort", "fast"], r"--sort 'fast': expected one of 2opt, greedy, none"),
     (["--merge-tolerance", "9"], r"--merge-tolerance 9 mm is outside \[0, 5\] mm"),
@@ -285,3 +286,35 @@ def test_a_bad_option_exits_2_with_one_line_and_no_traceback(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr
     assert "--travel-speed 9 m/s is outside" in r.stderr
+
+
+# ---------------------------------------------------------------- the keyboard side of pause / resume
+
+def test_pause_keys_toggle_hold_on_a_terminal_and_do_nothing_elsewhere():
+    import os
+    import threading
+
+    from armbridge.draw.keys import PauseKeys, is_toggle
+
+    assert is_toggle(" ") and is_toggle("p") and is_toggle("P") and not is_toggle("x")
+    calls: list[bool] = []
+    got = threading.Event()
+
+    def on_hold(held: bool) -> None:
+        calls.append(held)
+        if len(calls) == 2:
+            got.set()
+
+    r, w = os.pipe()  # not a terminal: inactive
+    with os.fdopen(r) as pipe, PauseKeys(on_hold, pipe) as keys:
+        assert not keys.active
+    os.close(w)
+    master, slave = os.openpty()
+    with os.fdopen(slave) as term:
+        with PauseKeys(on_hold, term) as keys:
+            assert keys.active
+            os.write(master, b"x p")  # x ignored; space holds, p resumes
+            assert got.wait(10.0)
+        assert not keys.active
+    os.close(master)
+    assert calls == [True, False]

@@ -12,6 +12,7 @@ from armbridge.executor.command import CARTESIAN_HELP, PEN_HELP
 
 DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
 DEFAULT_TRAVEL_SPEED = 0.1  # m/s: pen-up moves (the fastest the 3 mm safety margin was measured at)
+PAGE_MARGIN_MM = 10.0  # --margin's default
 MERGE_MM = (0.0, 5.0)  # --merge-tolerance accepted, mm
 MIN_STROKE_MM = (0.0, 50.0)  # --min-stroke accepted, mm
 
@@ -103,7 +104,8 @@ def draw_cmd(
     page: Optional[str] = typer.Option(None, "--page", metavar="A4|A5|letter|WxH",
                                        help="The sheet it is drawn on (WxH in mm unless a unit is given): the "
                                             "drawing fits it less --margin, and the SVG is in its frame."),
-    margin: float = typer.Option(10.0, "--margin", metavar="MM", help="With --page: the margin on every side, mm."),
+    margin: Optional[float] = typer.Option(None, "--margin", metavar="MM",
+                                           help=f"With --page: the margin on every side, mm [default: {PAGE_MARGIN_MM:g}]."),
     landscape: bool = typer.Option(False, "--landscape", help="With --page: the page's longer side along x."),
     rotate: float = typer.Option(0.0, "--rotate", metavar="DEG", help="Turn the drawing counter-clockwise, degrees "
                                                                       "(-360..360)."),
@@ -162,8 +164,8 @@ def draw_cmd(
                              "the plan)")
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
-    if page is None and landscape:
-        raise ArmbridgeError("--landscape needs --page (it turns the page)")
+    if page is None and (landscape or margin is not None):
+        raise ArmbridgeError("--landscape and --margin need --page (they are about the page)")
     from armbridge.draw import layout
     from armbridge.draw.build import build
     from armbridge.draw.page import check_rotate, parse_page
@@ -175,7 +177,8 @@ def draw_cmd(
                    sort=layout.check_sort(sort), rotate=check_rotate(rotate), pen_settle=check_settle(pen_settle),
                    merge_tolerance=_check_mm(merge_tolerance, "--merge-tolerance", MERGE_MM),
                    min_length=_check_mm(min_stroke, "--min-stroke", MIN_STROKE_MM),
-                   page=parse_page(page, landscape=landscape, margin_mm=margin) if page is not None else None)
+                   page=None if page is None else parse_page(page, landscape=landscape,
+                                                             margin_mm=PAGE_MARGIN_MM if margin is None else margin))
     from armbridge.robots import get_robot
 
     lines, source, name = _lines(text, svg, csv, image, shape, sample, font)
