@@ -374,12 +374,13 @@ void AvrHal::control_unlock() {
         TIMSK5 = _BV(OCIE5A);
         asm volatile("nop");                /* the pending interrupt is taken here on the chip */
         if (TIFR5 & _BV(OCF5A)) {
+            uint8_t sreg = SREG;
             cli();
             if (!ctl_busy && (TIFR5 & _BV(OCF5A))) {
                 TIFR5 = _BV(OCF5A);
                 ctl_enter();
             }
-            sei();
+            SREG = sreg;
         }
     }
     asm volatile("" ::: "memory");

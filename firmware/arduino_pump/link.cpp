@@ -250,9 +250,10 @@ void Link::poll() {
 void Link::estop() {
     sync();                  /* a latch a period raised first: its cause is the first */
     hal_->outputs_off();
-    board_->halt();
     char why[LINK_REASON_MAX] = "-";
     if (latched(state)) strcpy(why, strcmp(reason, "-") || state == ST_ESTOP ? reason : STATE_NAMES[state]);
+    state = ST_ESTOP;        /* before the halt: no period drives in between (Modbus has no e-stop flag) */
+    board_->halt();
     latch(ST_ESTOP, why);
     hal_->clear_estop();   /* latched now: control(OFF) writes nothing until CLR */
     event("ESTOP", 0);
@@ -332,11 +333,13 @@ void Link::latch(uint8_t st, const char *why) {
 
 void Link::hold_cmd(bool on) {
     if (on && state != ST_HOLD) {
+        feed();              /* the watchdog counts from here: an idle board's last OK may be old */
         state = ST_HOLD;
         board_->set_hold(true);
         event("HOLD", 0);
     } else if (!on && state == ST_HOLD) {
         board_->set_hold(false);
+        feed();
         state = board_->busy() ? ST_RUN : ST_IDLE;
         event("RESUME", 0);
     }
@@ -488,7 +491,10 @@ uint8_t Link::execute(uint16_t seq, int vi, const AbLine &l, Payload *p, AbError
     if (board_->motion_verb(vi) && (latched(state) || pend_latch_)) return err->code = AB_ERR_LATCHED;
     code = board_->command(vi, v, p, err);
     if (code) return err->code = (uint8_t)code;
-    if (state == ST_IDLE && board_->busy()) state = ST_RUN;
+    if (state == ST_IDLE && board_->busy()) {
+        feed();              /* this line is answered OK: the period's watchdog counts from now */
+        state = ST_RUN;
+    }
     return 0;
 }
 
@@ -524,8 +530,8 @@ uint8_t Link::hello(uint16_t seq, const AbLine &l, Payload *p, AbError *err) {
         }
         sess.accept(seq, (uint16_t)v[1], (uint32_t)v[2]);
         if (!outputs_allowed && !latched(state)) {
+            board_->hold_here();   /* first: the next period drives from here */
             outputs_allowed = true;
-            board_->hold_here();
         }
         save();
     }

@@ -107,6 +107,7 @@ public:
     void latch_estop_cmd() { estop(); }
     void set_wdog(int32_t ms);
     void hold_cmd(bool on);
+    void feed();                             /* a line or frame answered OK: the watchdog */
     void clear_cmd();
 
     uint8_t state;
@@ -127,7 +128,6 @@ private:
     void send_er(int32_t seq, uint8_t code, const char *detail);
     void latch(uint8_t st, const char *why);
     void telemetry(uint32_t now, uint8_t periods);
-    void feed();                             /* a line or frame answered OK: the watchdog */
     struct CtlEvent { const char *kind; uint8_t nargs, gen; int32_t a, b, c; };
     void push(const char *kind, uint8_t nargs, int32_t a, int32_t b, int32_t c);
     void take(const CtlEvent &e);

@@ -30,8 +30,8 @@ static bool latched_now() {
 static void opened() {
     Link &l = g_pump->link;
     if (!l.outputs_allowed && !latched_now()) {
+        g_pump->hold_here();   /* first: the next period drives from here */
         l.outputs_allowed = true;
-        g_pump->hold_here();
     }
 }
 
@@ -59,7 +59,10 @@ static int queue_move(uint16_t id, uint16_t dur, int32_t *t, int8_t only, uint16
         b.link.outputs_allowed = was_open;   /* refused: nothing opened (the queue was empty) */
         return code == AB_ERR_FULL ? MB_EX_BUSY : MB_EX_ILLEGAL_VALUE;
     }
-    if (b.link.state == ST_IDLE) b.link.state = ST_RUN;
+    if (b.link.state == ST_IDLE) {
+        b.link.feed();        /* the period's watchdog counts from this frame */
+        b.link.state = ST_RUN;
+    }
     return 0;
 }
 
