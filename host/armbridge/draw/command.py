@@ -204,9 +204,18 @@ def draw_cmd(
             run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
         finally:  # completed or not: the figure and the SVG show what was drawn
             if (png is not None or svg_out is not None) and rrd.exists():
-                from armbridge.draw.export import drawn_strokes
+                _drawn_outputs(d, png, svg_out, source, rrd)
 
-                _outputs(d, png, svg_out, source, drawn_strokes(rrd))
+
+def _drawn_outputs(d, png: Path | None, svg_out: Path | None, source: str, rrd: Path) -> None:
+    """The figure and the SVG again, from the run's recording; a problem is a warning (the run's
+    own outcome and exit code stand)."""
+    from armbridge.draw.export import drawn_strokes
+
+    try:
+        _outputs(d, png, svg_out, source, drawn_strokes(rrd))
+    except (ArmbridgeError, OSError) as exc:
+        typer.secho(f"warning: the figure or SVG of what was drawn was not written: {exc}", fg="yellow", err=True)
 
 
 def _outputs(d, png: Path | None, svg_out: Path | None, source: str, trace) -> None:
