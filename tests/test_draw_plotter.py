@@ -243,6 +243,7 @@ def test_svg_of_a_run_holds_the_drawn_strokes_close_to_the_plan(tmp_path):
     import json
 
     summary = json.loads(js.read_text())["drawing"]
+    assert summary["safe_outside"] == 0  # the executed pen, rapids included, kept to the safe disc
     plan = load_plan(out)
     sheet, at = page.parse_page("60x40", margin_mm=5), plan.provenance["drawing"]["at"]
     strokes, (w, h) = _svg_strokes(svg.read_text())
