@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 
 import pytest
 from cli_procs import ARMBRIDGE
@@ -100,3 +101,19 @@ def test_run_takes_its_port_from_armbridge_port_and_json_dash_is_stdout_alone(tm
     s = json.loads(r.stdout)
     assert s["completed"] and s["waypoints_done"] == 3 and s["port"] == "emu:esp32?speed=0"
     assert "run of" in r.stderr                                   # the table went to stderr
+
+
+# ---------------------------------------------------------------- numba's first compile is said
+
+
+def test_the_first_planning_says_it_compiles_and_the_next_does_not(tmp_path):
+    """A fresh numba cache (a fresh install): `compile_note` speaks; once a kernel is cached, it does not."""
+    code = ("import sys; from armbridge.planning.base import compile_note; print(compile_note(sys.argv[1]));"
+            "from armbridge.robots.masr_kernels import action_cost; import numpy as np;"
+            "action_cost(np.zeros(6), np.ones(6), np.array([0.0, .2, .4, .6, .7]), 0.1, 0.28);"
+            "print(compile_note('masr'))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    r = subprocess.run([sys.executable, "-c", code, "masr"], capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    first, after = r.stdout.splitlines()
+    assert first.startswith("compiling the planner's kernels") and after == "None"

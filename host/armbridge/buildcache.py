@@ -13,6 +13,7 @@ import fcntl
 import hashlib
 import os
 import subprocess
+from typing import Any
 from pathlib import Path
 
 from armbridge.errors import ArmbridgeError
@@ -67,3 +68,21 @@ def mpy_source(mpy: bytes) -> bytes | None:
     """The source `remember_source` recorded for these .mpy bytes, or None."""
     p = _source_path(mpy)
     return p.read_bytes() if p.is_file() else None
+
+
+def numba_cold(*modules: Any) -> bool:
+    """Whether none of the numba kernels of these modules (`@njit(cache=True)`) has a cache
+    on disk yet: a fresh install, whose first planning compiles them (tens of seconds), so
+    the commands say so before they start instead of sitting silent. (A kernel only ever
+    called from other kernels never gets a cache of its own, hence "none", not "any".)
+    Reads numba's cache index path (a FunctionCache's `_cache_file._index_path`); a numba
+    without it: False."""
+    seen = False
+    for module in modules:
+        for obj in vars(module).values():
+            index = getattr(getattr(getattr(obj, "_cache", None), "_cache_file", None), "_index_path", None)
+            if isinstance(index, str):
+                if os.path.exists(index):
+                    return False
+                seen = True
+    return seen

@@ -24,8 +24,12 @@ def run(opts: DemoOptions, console: Any) -> None:
     from armbridge.planning.command import resolve_goal_ik
     from armbridge.planning.masr.environment import load_environment
     from armbridge.planning.masr.plan_file import save_masr_plan
+    from armbridge.planning.base import compile_note
     from armbridge.planning.masr.rrt_star import plan as plan_rrt
 
+    note = compile_note("masr")
+    if note is not None:
+        console.print(f"demo: {note}")
     env = load_environment(ENV)
     goal_ik, ik = resolve_goal_ik(env)
     console.print(f"demo: MASR-RRT* in {ENV} ({ITERATIONS} iterations, seed {opts.seed}, goal IK: {ik})")

@@ -39,6 +39,7 @@ class SoftDemo:
 def execute(opts: DemoOptions, console: Any, *, tolerance: float | None = None) -> SoftDemo | None:
     """Plan, write (--write-plan: returns None) or run, and report (module doc)."""
     from armbridge.executor.command import run_command
+    from armbridge.planning.base import compile_note
     from armbridge.planning.soft.command import plan_for_pump
     from armbridge.plans.soft import soft_info
     from armbridge.plans.format import save_plan
@@ -46,6 +47,9 @@ def execute(opts: DemoOptions, console: Any, *, tolerance: float | None = None) 
     from armbridge.demos.soft_report import read_trace, soft_report
 
     console.print(f"demo: {PLANNER.upper()} on {SCENE} (seed {opts.seed})")
+    note = compile_note("soft")
+    if note is not None:
+        console.print(f"demo: {note}")
     sp = plan_for_pump(SCENE, PLANNER, seed=opts.seed, tolerance=tolerance, tool="armbridge demo")
     w, plan = sp.waypoints, sp.plan
     console.print(f"demo: {w.planned_nodes} planned nodes -> {len(w.q)} pump waypoints (tracking tolerance "

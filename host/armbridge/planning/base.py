@@ -105,3 +105,25 @@ class PlanResult:
             **self.stats,
             **self.settings,
         }
+
+
+#: The modules whose numba kernels a robot's planners call (`compile_note`).
+KERNELS: dict[str, tuple[str, ...]] = {
+    "masr": ("armbridge.robots.masr_kernels", "armbridge.planning.masr.kernels", "armbridge.planning.masr.collision",
+             "armbridge.planning.tree", "armbridge.ik.masr_dls"),
+    "soft": ("armbridge.planning.tree", "armbridge.planning.polygons", "armbridge.planning.soft.space",
+             "armbridge.planning.soft.jtstep", "armbridge.planning.soft.jacobian_rrt", "armbridge.planning.soft.ik",
+             "armbridge.planning.soft.margin", "armbridge.planning.soft.waypoints"),
+}
+
+
+def compile_note(robot: str) -> str | None:
+    """What to say before planning when the kernels of `robot`'s planners ("masr", "soft")
+    are not compiled yet (buildcache.numba_cold), else None."""
+    import importlib
+
+    from armbridge.buildcache import numba_cold
+
+    if not numba_cold(*(importlib.import_module(m) for m in KERNELS[robot])):
+        return None
+    return "compiling the planner's kernels (numba: once per install, up to a minute) ..."

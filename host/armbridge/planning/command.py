@@ -12,6 +12,7 @@ from rich.table import Table
 from armbridge import resources
 from armbridge.errors import ArmbridgeError
 from armbridge.jsonfile import JSON_HELP, emit_json
+from armbridge.planning.base import compile_note
 from armbridge.planning.soft.command import soft_cmd
 
 plan_app = typer.Typer(help="Plan robot motions and write plan files.", no_args_is_help=True,
@@ -102,11 +103,15 @@ def masr_cmd(
     console = Console()
     if planner not in rrt_star.PLANNERS:
         raise ArmbridgeError(f"unknown planner {planner!r} (known: {', '.join(rrt_star.PLANNERS)})")
+    note = compile_note("masr")
+    if note is not None:
+        console.print(note, style="dim")
     environment = load_environment(env)
     p_c = pc if planner == "masr-rrt*" else 0.0
     goal_ik, ik_desc = (None, "none") if p_c == 0 else resolve_goal_ik(environment, ik)
-    result = rrt_star.plan(environment, planner=planner, iterations=iterations, goal_ik=goal_ik, p_c=p_c,
-                           goal_bias=goal_bias, n_near=n_near, step=step, seed=seed)
+    with console.status(f"{planner}: {iterations} iterations on {environment.name} ..."):
+        result = rrt_star.plan(environment, planner=planner, iterations=iterations, goal_ik=goal_ik, p_c=p_c,
+                               goal_bias=goal_bias, n_near=n_near, step=step, seed=seed)
     summary = result.summary()
     summary.update({"environment": environment.name, "ik": ik_desc, "iterations_per_s": iterations / result.time_s})
     table = Table(title=f"{planner} on {environment.name}", show_header=False)

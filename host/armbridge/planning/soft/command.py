@@ -121,11 +121,16 @@ def soft_cmd(
     from rich.console import Console
     from rich.table import Table
 
+    from armbridge.planning.base import compile_note
     from armbridge.plans.format import save_plan
 
     console = Console()
-    sp = plan_for_pump(env, planner, seed=seed, iterations=iterations, tolerance=tolerance,
-                       margin=None if margin is None else margin / 1000.0)
+    note = compile_note("soft")
+    if note is not None:
+        console.print(note, style="dim")
+    with console.status(f"{planner} on {env} ..."):
+        sp = plan_for_pump(env, planner, seed=seed, iterations=iterations, tolerance=tolerance,
+                           margin=None if margin is None else margin / 1000.0)
     summary = sp.summary()
     table = Table(title=f"{planner} on {sp.scene.name}", show_header=False)
     for key in ("iterations", "planning_time_s", "tree_size", "planned_nodes", "waypoints", "plan_rows",
