@@ -316,15 +316,15 @@ extern "C" void __attribute__((noinline)) ctl_period(void) {
     cli();
 }
 
-/* The period starts at a fixed cycle: the interrupt is entered up to ~20 us after the
- * compare match (another interrupt running then: the receive, ADC, UDRE and Timer0
- * ones, ~5-9 us each, or a short lock of the main loop's), so it waits, interrupts
- * off, until CTL_ALIGN counts (0.5 us each) after the match before the period proper
- * begins. While it waits it takes the received bytes itself (rx_take: the e-stop byte
+/* The period starts at a fixed cycle: the interrupt is entered up to ~30 us after the
+ * compare match (other interrupts running then: the receive, ADC, UDRE and Timer0
+ * ones, ~5-10 us each, or a short lock of the main loop's with those inside it), so it
+ * waits, interrupts off, until CTL_ALIGN counts (0.5 us each) after the match before
+ * the period proper begins. While it waits it takes the received bytes itself (rx_take: the e-stop byte
  * cuts the outputs within ~1 us of its arrival, as in its own interrupt); the ADC, UDRE
  * and Timer0 interrupts wait at most CTL_ALIGN (their next event is 87 us or more away).
  * An entry later than that (a long lock: SETLIM, HELLO, CLR) starts at once. */
-#define CTL_ALIGN 64                        /* 32 us */
+#define CTL_ALIGN 80                        /* 40 us */
 static inline __attribute__((always_inline)) void ctl_enter() {
     while (TCNT5 < CTL_ALIGN) {
         if (UCSR0A & _BV(RXC0)) rx_take();

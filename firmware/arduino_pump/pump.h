@@ -70,6 +70,7 @@ public:
     void save_settings();
     void save_calibration(uint32_t id);   /* CALID: gains, bands and bends under id */
     int32_t syringe_permille(uint8_t j) const { return syr_[j] / 1000; }
+    int32_t syringe_raw(uint8_t j) const { return syr_[j]; }   /* 1/1000 per-mille */
     Hal *hal() { return hal_; }
 
     Link link;

@@ -206,16 +206,19 @@ static uint16_t latch_code() {
 int mb_read_input(uint16_t addr, uint16_t *val) {
     static uint16_t ms_lo;   /* latched by reading MB_IR_MS_HI */
     PumpBoard &b = *g_pump;
-    CtlLock l(b.hal());       /* the period's values (link.h): a few us */
-    if (addr < MB_IR_TARGET) {
-        *val = (uint16_t)(int16_t)b.q[addr];
-    } else if (addr < MB_IR_DUTY) {
-        float x = b.traj.sp[addr - MB_IR_TARGET];
-        *val = (uint16_t)(int16_t)(x < 0 ? x - 0.5f : x + 0.5f);
-    } else if (addr < MB_IR_SYRINGE) {
-        *val = (uint16_t)b.u[addr - MB_IR_DUTY];
-    } else if (addr < MB_IR_STATE) {
-        *val = (uint16_t)b.syringe_permille((uint8_t)(addr - MB_IR_SYRINGE));
+    if (addr < MB_IR_STATE) {   /* the period's values (link.h): copied under the lock, converted after */
+        int32_t v;
+        float x = 0.0f;
+        {
+            CtlLock l(b.hal());
+            if (addr < MB_IR_TARGET) v = b.q[addr];
+            else if (addr < MB_IR_DUTY) x = b.traj.sp[addr - MB_IR_TARGET], v = 0;
+            else if (addr < MB_IR_SYRINGE) v = b.u[addr - MB_IR_DUTY];
+            else v = b.syringe_raw((uint8_t)(addr - MB_IR_SYRINGE));
+        }
+        if (addr >= MB_IR_TARGET && addr < MB_IR_DUTY) v = (int32_t)(x < 0 ? x - 0.5f : x + 0.5f);
+        else if (addr >= MB_IR_SYRINGE) v /= 1000;
+        *val = (uint16_t)(int16_t)v;
     } else if (addr == MB_IR_STATE) {
         *val = b.link.state;
     } else if (addr == MB_IR_LATCH) {
