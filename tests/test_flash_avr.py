@@ -92,13 +92,15 @@ def test_a_port_without_the_bootloader_is_one_line(silent_port):
     assert "Traceback" not in r.stderr
 
 
-def test_micropython_image_for_the_mega_is_refused_and_nothing_is_written(tmp_path):
-    """`--micropython` names an image for a MicroPython board: on the Mega (C firmware) it is bad
-    input, one line, exit 2, before any port is touched (it was ignored, and the flash went on)."""
+@pytest.mark.parametrize("flags", [["--micropython", "IMAGE"], ["--dry-run"], ["--link", "/dev/null"], ["--force"]])
+def test_an_option_of_the_micropython_boards_is_refused_on_the_mega(tmp_path, flags):
+    """`--micropython` (an image for a MicroPython board), `--dry-run`, `--link`, `--force` do not apply to
+    the Mega's C firmware: bad input, one line naming the option, exit 2, before any port is touched
+    (--micropython was ignored once, and the flash went on)."""
     image = tmp_path / "ESP32_GENERIC.bin"
     image.write_bytes(b"\xe9" + bytes(4095))
-    r = _flash("--port", str(tmp_path / "no-such-port"), "--micropython", str(image))
+    r = _flash("--port", str(tmp_path / "no-such-port"), *[str(image) if f == "IMAGE" else f for f in flags])
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1 and "--micropython is for the MicroPython boards" in lines[0], r.stderr
+    assert len(lines) == 1 and f"{flags[0]}: for the MicroPython boards" in lines[0], r.stderr
     assert "Traceback" not in r.stderr

@@ -82,9 +82,13 @@ def flash_cmd(
     avrdude through the Mega's bootloader (verified)."""
     target, flash = _flasher(board)
     out = Console(stderr=True, highlight=False)
-    if target.kind == "avrdude" and micropython is not None:
-        raise ArmbridgeError(f"--micropython is for the MicroPython boards; {board} runs its C firmware "
-                             "(flash it without --micropython: avrdude writes the .hex through its bootloader)")
+    if target.kind == "avrdude":
+        foreign = [flag for flag, given in (("--micropython", micropython is not None), ("--dry-run", dry_run),
+                                            ("--link", link is not None), ("--force", force)) if given]
+        if foreign:
+            raise ArmbridgeError(f"{', '.join(foreign)}: for the MicroPython boards; {board} runs its C firmware "
+                                 "(avrdude writes and verifies the .hex through its bootloader; it takes --port, "
+                                 "--firmware and --timeout)")
     if target.kind == "avrdude":
         _flash_avr(target, flash, port, firmware, timeout, out)
         return

@@ -7,6 +7,8 @@ on pairs of joints as in Figs. 12-14.
 """
 from __future__ import annotations
 
+import importlib.util
+
 import math
 import time
 from pathlib import Path
@@ -26,7 +28,9 @@ def smm_cmd(
     robot: str = typer.Argument(..., help="planar3r, spatial4r, spatial7r or arm3r."),
     at: str = typer.Option(..., "--at", help="Task location: x,y (planar), x,y,z (4R) or x,y,z,rx,ry,rz (7R: "
                            "position in m and rotation vector in rad)."),
-    method: str = typer.Option("nullspace", "--method", help="nullspace (ground truth) or learned (ONNX networks)."),
+    method: str = typer.Option("auto", "--method", help="nullspace (ground truth; needs the train extra's torch), "
+                                                         "learned (the shipped ONNX networks) or auto (nullspace "
+                                                         "where torch is installed, else learned)."),
     model: Path | None = typer.Option(None, "--model", help="Learned model folder [default: the shipped smm-ROBOT]."),
     correct: int = typer.Option(0, "--correct", min=0, help="Eq. (18) correction steps for --method learned."),
     png: Path | None = typer.Option(None, "--png", help="Write the branches projected on joint planes to this PNG."),
@@ -40,8 +44,10 @@ def smm_cmd(
 
     arm = get_smm_arm(robot)
     x = parse_location(at, arm.m, arm.name)
+    if method == "auto":
+        method = "nullspace" if importlib.util.find_spec("torch") is not None else "learned"
     if method not in METHODS:
-        raise ArmbridgeError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+        raise ArmbridgeError(f"--method must be one of auto, {', '.join(METHODS)}, got {method!r}")
     t0 = time.perf_counter()
     if method == "nullspace":
         torch = require("torch", "train", "--method nullspace")
