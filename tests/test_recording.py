@@ -258,7 +258,7 @@ def test_a_joint_plan_opens_in_its_own_layout(tmp_path):
     joints = list(ARM3R.joint_names)
     tree = layout(rrd)
     assert names(tree) == ["Horizontal", [
-        ["Vertical", ["arm", ["Tabs", ["events", "errors", "plan", "done waypoint"]]]],
+        ["Vertical", ["arm", ["Tabs", ["events", "errors", "plan", "summary", "done waypoint"]]]],
         ["Tabs", [["Grid", joints], ["Grid", [f"{j} error" for j in joints]],
                   ["Grid", [f"{j} effort" for j in joints]]]]]]
     arm = tree["children"][0]["children"][0]
@@ -266,7 +266,8 @@ def test_a_joint_plan_opens_in_its_own_layout(tmp_path):
     assert set(arm["contents"]) == {"arm/**", "plan/path", "plan/waypoints", "trace/**", "workspace"}
     logs = tree["children"][0]["children"][1]["children"]
     assert [(v["view"], v["origin"]) for v in logs] == [("TextLog", "events"), ("TextLog", "errors"),
-                                                        ("TextDocument", "plan/info"), ("TimeSeries", "board")]
+                                                        ("TextDocument", "plan/info"), ("TextDocument", "run/summary"),
+                                                        ("TimeSeries", "board")]
     pos, err, eff = tree["children"][1]["children"]
     assert [g["name"] for g in (pos, err, eff)] == ["position", "error", "effort"]
     # the position plot is the joint's series less error and effort: q, the set point (and a caller's extras)

@@ -78,6 +78,7 @@ def _register() -> None:
     from armbridge.executor.command import run_cmd
     from armbridge.flash.command import flash_cmd
     from armbridge.planning.command import plan_app
+    from armbridge.report.command import report_cmd
     from armbridge.smm.command import smm_cmd
     from armbridge.telemetry.command import view_cmd
     from armbridge.train.command import train_app
@@ -88,6 +89,7 @@ def _register() -> None:
     app.command("emulate")(emulate_cmd)
     app.command("flash")(flash_cmd)
     app.command("ports")(ports_cmd)
+    app.command("report")(report_cmd)
     app.command("run")(run_cmd)
     app.command("smm")(smm_cmd)
     app.command("view")(view_cmd)

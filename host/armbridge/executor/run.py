@@ -248,6 +248,7 @@ def run_plan(
         finally:
             with holding():
                 if rec is not None:
+                    rec.summary(summary.to_dict())  # the run's summary in its recording (`armbridge report`)
                     rec.close()
     if failure is not None:
         raise RunFailed(summary.error or str(failure), summary) from failure

@@ -8,7 +8,7 @@ Two, built from the same parts (`arm_view`, `joint_plots`, `logs`):
 * `run_layout`: every other plan (joint plans of any robot: arm3r, a MASR, a DH
   chain; the demos): the arm (2-D or, for a spatial chain, 3-D: the measured arm,
   its set point, the plan's path, the tip trace) over the board's logs (events,
-  errors, the plan's text, the done waypoint), beside a grid of joint plots, one
+  errors, the plan's text, the run's summary, the done waypoint), beside a grid of joint plots, one
   per joint, in three tabs: position (measured and set point, and anything else a
   caller logs under `joints/<joint>/`, e.g. the fault-tolerant demo's artificial
   limits), error (set point - measured) and effort. A caller with entities of its
@@ -69,9 +69,11 @@ def joint_plots(joint_names: Sequence[str], series: str | None = None, suffix: s
 
 
 def logs() -> rrb.Tabs:
-    """The board's logs: events and errors (TextLog), the plan's text, the last done waypoint."""
+    """The board's logs: events and errors (TextLog), the plan's text, the run's summary (JSON),
+    the last done waypoint."""
     return rrb.Tabs(rrb.TextLogView(origin="events", name="events"), rrb.TextLogView(origin="errors", name="errors"),
                     rrb.TextDocumentView(origin="plan/info", name="plan"),
+                    rrb.TextDocumentView(origin="run/summary", name="summary"),
                     rrb.TimeSeriesView(origin="board", contents=["board/done"], name="done waypoint"))
 
 

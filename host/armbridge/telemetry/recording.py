@@ -25,6 +25,9 @@ Entity paths (timeline `board_time`, a duration in s from the board's clock):
                               positions, end-stop bits)
     events                    board events, state changes      TextLog
     errors                    link errors, refusals, resyncs   TextLog
+    plan/info                 the plan's source, robot, size   TextDocument, static
+    run/summary               the run's summary as JSON (docs/ TextDocument, static, logged as the
+                              formats.md §3, `--json`'s)        run ends (`Recording.summary`)
 
 Any robot of the robot interface (robots/base.py) is drawn the same way: the
 arm is `robot.joint_points(q)` (one strip per sample), the tip is
@@ -49,6 +52,7 @@ so several can be open at the same time (tests do).
 """
 from __future__ import annotations
 
+import json
 import uuid
 from datetime import datetime
 from pathlib import Path
@@ -62,6 +66,7 @@ from armbridge.telemetry.layout import BOARD_COLUMNS, drawing_layout, run_layout
 
 APPLICATION_ID = "armbridge"
 TIMELINE = "board_time"
+SUMMARY_ENTITY = "run/summary"  # the run's summary, JSON text (Recording.summary; `armbridge report` reads it)
 
 _LEVEL = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN, "error": rr.TextLogLevel.ERROR,
           "debug": rr.TextLogLevel.DEBUG}
@@ -213,6 +218,15 @@ class Recording:
             self._t = max(self._t, float(t))
         self.rec.set_time(TIMELINE, duration=float(t))
         self.rec.log(path, rr.TextLog(text, level=_LEVEL.get(level, rr.TextLogLevel.INFO)))
+
+    def summary(self, doc: dict) -> None:
+        """The run's summary (`Summary.to_dict()`, the `--json` document) as JSON text at
+        `run/summary`, static: what `armbridge report` shows beside the telemetry. Logged
+        once, as the run ends; nothing after close."""
+        if self._closed:
+            return
+        text = json.dumps(doc, indent=2, default=float)
+        self.rec.log(SUMMARY_ENTITY, rr.TextDocument(text, media_type=rr.MediaType.TEXT), static=True)
 
     def flush(self) -> None:
         """Send the buffered telemetry as columns."""
