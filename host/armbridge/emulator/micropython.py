@@ -68,9 +68,11 @@ def find_node() -> str:
 
 
 def find_micropython() -> Path:
-    """micropython.mjs of the npm package: $ARMBRIDGE_MICROPYTHON, else
-    node_modules in the working directory or a folder above it, else the
-    armbridge checkout this module runs from (`make setup` installs it there)."""
+    """micropython.mjs of the npm package: $ARMBRIDGE_MICROPYTHON, else the copy
+    the package ships (`armbridge/_data/micropython`: the wheel holds it; in the
+    checkout a link to node_modules), else node_modules in the working directory
+    or a folder above it, else the armbridge checkout this module runs from
+    (`make setup` installs it there)."""
     env = os.environ.get(ENV_PACKAGE)
     if env:
         p = Path(env)
@@ -78,6 +80,9 @@ def find_micropython() -> Path:
         if not mjs.is_file():
             raise ArmbridgeError(f"{ENV_PACKAGE}={env}: no micropython.mjs there; " + INSTALL)
         return mjs
+    shipped = resources.files("armbridge").joinpath("_data", "micropython", "micropython.mjs")
+    if isinstance(shipped, Path) and shipped.is_file() and shipped.with_suffix(".wasm").is_file():
+        return shipped
     rel = Path("node_modules", *PACKAGE.split("/"), "micropython.mjs")
     cwd = Path.cwd().resolve()
     for base in (cwd, *cwd.parents, Path(__file__).resolve().parents[3]):
