@@ -20,9 +20,7 @@ import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.telemetry.recording import SUMMARY_ENTITY, TIMELINE
-
-#: the first bytes of a Rerun recording (RRF2 in rerun 0.41; RRF0/RRF1 before it)
-RRD_MAGIC = b"RRF"
+from armbridge.telemetry.rrdfile import check_rrd
 
 Series = tuple[np.ndarray, np.ndarray]  # board time (s), values
 
@@ -84,23 +82,6 @@ class RunData:
         return float(min(t[0] for t in ts)), float(max(t[-1] for t in ts))
 
 
-def check_rrd(path: Path) -> None:
-    """One line unless `path` is an existing, non-empty file that starts as a Rerun recording."""
-    if not path.exists():
-        raise ArmbridgeError(f"{path}: no such recording")
-    if not path.is_file():
-        raise ArmbridgeError(f"{path}: is not a file (a recording is an .rrd file)")
-    try:
-        with path.open("rb") as f:
-            head = f.read(4)
-    except OSError as exc:
-        raise ArmbridgeError(f"{path}: cannot read: {exc.strerror}") from None
-    if not head:
-        raise ArmbridgeError(f"{path}: is empty (0 bytes), not a recording")
-    if not head.startswith(RRD_MAGIC):
-        raise ArmbridgeError(f"{path}: is not a Rerun recording (.rrd): it does not start with RRF")
-
-
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
@@ -127,11 +108,15 @@ def load(path: Path | str) -> RunData:
     """The recording at `path` read back (module docstring); ArmbridgeError in one line otherwise."""
     path = Path(path)
     check_rrd(path)
+    import warnings
+
     try:
         from rerun.chunk import RrdReader
 
-        reader = RrdReader(path)
-        stores = reader.recordings()
+        with warnings.catch_warnings():  # a file without its footer (cut, or older): rerun warns, then scans it
+            warnings.simplefilter("ignore")
+            reader = RrdReader(path)
+            stores = reader.recordings()
     except Exception as exc:  # noqa: BLE001 - rerun raises plain exceptions for bad files
         raise ArmbridgeError(f"{path}: cannot read the recording: {_first_line(exc)}") from None
     if not stores:
@@ -141,9 +126,11 @@ def load(path: Path | str) -> RunData:
     order: list[str] = []  # joint names in the order of their first entity
     chunks = 0
     try:
-        for chunk in reader.stream(store=stores[0]):
-            chunks += 1
-            _chunk(data, chunk, parts, order)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for chunk in reader.stream(store=stores[0]):
+                chunks += 1
+                _chunk(data, chunk, parts, order)
     except Exception as exc:  # noqa: BLE001 - a cut file raises mid-stream
         if chunks == 0:
             raise ArmbridgeError(f"{path}: cannot read the recording: {_first_line(exc)}") from None
