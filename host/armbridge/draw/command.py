@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.command import CARTESIAN_HELP, PEN_HELP
+from armbridge.executor.command import CARTESIAN_HELP, KEYS_HELP, PEN_HELP
 
 DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
 DEFAULT_TRAVEL_SPEED = 0.1  # m/s: pen-up moves (the fastest the 3 mm safety margin was measured at)
@@ -137,6 +137,7 @@ def draw_cmd(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="With --port: show a progress bar."),
     cartesian: bool = typer.Option(False, "--cartesian", help="With --port: " + CARTESIAN_HELP),
     pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help="With --port: " + PEN_HELP),
+    keys: bool = typer.Option(True, "--keys/--no-keys", help="With --port: " + KEYS_HELP),
 ) -> None:
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
@@ -201,7 +202,7 @@ def draw_cmd(
 
         rrd = rrd if rrd is not None else default_rrd_path(d.plan.name)
         try:
-            run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen)
+            run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, keys=keys)
         finally:  # completed or not: the figure and the SVG show what was drawn
             if (png is not None or svg_out is not None) and rrd.exists():
                 _drawn_outputs(d, png, svg_out, source, rrd)

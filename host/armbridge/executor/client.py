@@ -18,6 +18,7 @@ latch policy.
     info = client.connect()                 # HELLO until answered, LIM j, checks
     client.command("RATE", 50)              # one command, answered or ArmbridgeError
     client.execute(durations_ms, q_milli)   # streams waypoints until the last is DONE
+    client.request_hold(True)               # from any thread: HOLD at execute's next turn (False: RESUME)
     client.estop()                          # the 0x98 byte, at once
 
 Time: every timer and timeout runs on `clock` (seconds; default the port's
@@ -43,6 +44,7 @@ from typing import Any
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.faults import fault_text
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits, hello, parse_hello, read_limits
+from armbridge.executor.hold import HoldRequests, PausableDeadline, hold_turn, release_hold
 from armbridge.executor.signals import holding
 from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
@@ -125,6 +127,9 @@ class BoardClient(Streaming):
         self._base = 0  # waypoints streamed in this session before the current plan
         self._stream: Stream | None = None  # the current (or last) plan
         self._streaming = False
+        self._hold_requests = HoldRequests()  # request_hold, from any thread (executor/hold.py)
+        self._held = False  # HOLD answered OK, RESUME not yet
+        self._hold_lost = False
 
     # ------------------------------------------------------------------ views
     @property
@@ -245,6 +250,7 @@ class BoardClient(Streaming):
             self._error(None, f"resync: {reason}")
         info = parse_hello(hello(arq, self.session, self.connect_timeout))
         self.state = info.state
+        self._hold_lost = self._held and info.state != "HOLD"  # a board that reset: held again (hold.py)
         stream = self._stream if self._streaming else None
         if stream is not None:
             stream.resume(info.done, info.queued, reason)
@@ -316,6 +322,12 @@ class BoardClient(Streaming):
         self._estop_wanted = True
         self._write_estop()
 
+    def request_hold(self, on: bool) -> None:
+        """From any thread: hold (True) or resume (False) the plan that `execute` streams; it sends
+        HOLD or RESUME at its next turn, answered (a refusal, e.g. LATCHED, goes to on_error;
+        nothing is cleared). The plan's deadline does not count while the board is held."""
+        self._hold_requests.request(on)
+
     def _write_estop(self) -> None:
         self.port.write(P.ESTOP_BYTE)
         try:
@@ -386,22 +398,26 @@ class BoardClient(Streaming):
                                  "robot)")
         stream = Stream(durations_ms, q_milli, self._base, on_progress, verb=verb, pen=pen, commands=commands)
         self._stream, self._streaming = stream, True
+        self._held = self.state == "HOLD"
         arq = self.arq
         planned = sum(stream.durations) / 1000.0
-        deadline = self.now() + (timeout if timeout is not None else 30.0 + 5.0 * planned)
+        deadline = PausableDeadline(self.now, timeout if timeout is not None else 30.0 + 5.0 * planned)
         try:
             while not stream.finished:
                 if arq.need_resync is not None:
                     self._resync()
                     continue
                 self._check_state(stream)
+                hold_turn(self, self._hold_requests)
                 stream.fill(arq)
                 if arq.refused:
                     raise stream.refusal(*arq.refused.pop(0), self.state)
-                if self.now() > deadline:
+                deadline.tick(self._held or self.state == "HOLD")
+                if deadline.passed():
                     raise ArmbridgeError(f"the plan did not finish in time: {stream.progress()}, "
                                          f"board state {self.state}")
                 arq.loop_once()
+            release_hold(self)  # held as the last waypoint finished: nothing is left to move
         finally:
             self._streaming = False
             stream.on_progress = None

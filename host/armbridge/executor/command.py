@@ -24,6 +24,9 @@ from armbridge.link.ports import auto_port
 
 CARTESIAN_HELP = ("Send Cartesian waypoints (X x y theta, from the plan by FK) and let the board solve its own IK "
                   "(the 3R arm's int8 net + FABRIK).")
+KEYS_HELP = ("At a terminal, space or p holds the arm where it is (the protocol's HOLD) and resumes it (RESUME); "
+             "the plan's timeout does not count while held, and Ctrl-C still e-stops. --no-keys: the keyboard is "
+             "left alone.")
 PEN_HELP = ("Plans with pen flags: 'auto' drives the board's pen-lift servo when it has one, 'on' requires one, "
             "'off' never sends PEN (pen-up moves only marked).")
 
@@ -49,31 +52,33 @@ def run_cmd(
     no_cal_check: bool = typer.Option(False, "--no-calibration-check",
                                       help="Run on a board whose calibration is not the one this host made for it "
                                            "(docs/calibration.md)."),
+    keys: bool = typer.Option(True, "--keys/--no-keys", help=KEYS_HELP),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
     run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, home=home,
-                calibration="ignore" if no_cal_check else "check")
+                calibration="ignore" if no_cal_check else "check", keys=keys)
 
 
 def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
-                home=False, goal_exit=True, calibration="check") -> Summary:
+                home=False, goal_exit=True, calibration="check", keys=True) -> Summary:
     """What `armbridge run` does with its options (also `armbridge draw --port`, the demos); the
-    Summary of a completed run (any other outcome exits with its code)."""
+    Summary of a completed run (any other outcome exits with its code). `keys`: space or p
+    holds and resumes the arm while the plan streams, when stdin is a terminal."""
     # With --json - stdout carries the JSON alone; the table and the bar go to stderr.
     console = Console(stderr=json_out == "-")
     try:
         with stop_on_signals():
             return run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian,
-                                  pen=pen, home=home, goal_exit=goal_exit, calibration=calibration)
+                                  pen=pen, home=home, goal_exit=goal_exit, calibration=calibration, keys=keys)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto", home=False, goal_exit=True, calibration="check") -> Summary:
+                   pen="auto", home=False, goal_exit=True, calibration="check", keys=False) -> Summary:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
     and the exit code (1: the run failed, 3: it completed with the arm outside the
     plan's goal, unless `goal_exit` is False (the caller reports it), 128 + n: stopped
@@ -81,7 +86,7 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
-                           cartesian=cartesian, pen=pen, home=home, calibration=calibration)
+                           cartesian=cartesian, pen=pen, home=home, calibration=calibration, pause_keys=keys)
     except RunFailed as exc:
         failed, summary = exc, exc.summary
     with holding():

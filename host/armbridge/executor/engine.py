@@ -82,6 +82,17 @@ class Engine:
             self._estop_due.set()
         self.abort.set()
 
+    def request_hold(self, on: bool) -> None:
+        """From any thread: hold (True) or resume (False) the running plan, like the e-stop out of
+        band (the engine is mid-`execute`); the client sends HOLD / RESUME at its next turn."""
+        request = getattr(self.client, "request_hold", None)
+        if request is None:
+            from armbridge.executor.hold import hold_unsupported
+
+            self._err(None, hold_unsupported(type(self.client).__name__))
+            return
+        request(on)
+
     def _estop_if_due(self) -> None:
         if self._estop_due.is_set():
             self._estop_due.clear()
@@ -232,8 +243,8 @@ class _Outbox:
 
 
 def _reader(sock: socket.socket, engine: Engine, buf: bytes = b"") -> None:
-    """The caller's messages: an e-stop is acted on here and now (the engine may be in the
-    middle of a call), every other message goes to the engine. The caller gone without
+    """The caller's messages: an e-stop, an abort and a hold are acted on here and now (the
+    engine may be in the middle of a call), every other message goes to the engine. The caller gone without
     `close` (killed, crashed): e-stop, and the engine is told to close."""
     chunk = b"-"
     while True:
@@ -249,6 +260,9 @@ def _reader(sock: socket.socket, engine: Engine, buf: bytes = b"") -> None:
                 continue
             if msg["k"] == "abort":
                 engine.abort.set()
+                continue
+            if msg["k"] == "hold":
+                engine.request_hold(bool(msg["on"]))
                 continue
             engine.inbox.put(msg)
             if msg["k"] == "close":

@@ -30,6 +30,7 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.faults import fault_text
 from armbridge.executor.handshake import BoardInfo, check_identity, check_limits
+from armbridge.executor.hold import HoldRequests, PausableDeadline, hold_turn, release_hold
 from armbridge.executor.stream import Stream, Streaming
 from armbridge.link import protocol as P
 from armbridge.link.boardclock import BoardClock
@@ -90,6 +91,8 @@ class ModbusClient(Streaming):
         self._live = False
         self._next_poll = 0.0
         self._bseq = 0
+        self._hold_requests = HoldRequests()  # request_hold, from any thread (executor/hold.py)
+        self._held = False  # HOLD written, RESUME not yet
 
     # ------------------------------------------------------------------ views
     @property
@@ -255,6 +258,15 @@ class ModbusClient(Streaming):
             raise ArmbridgeError(f"the board refused {verb}: {ans.code} {ans.name}")
         return True
 
+    def request_hold(self, on: bool) -> None:
+        """From any thread: HOLD (True) or RESUME (False) through the command register at
+        execute's next turn (BoardClient.request_hold)."""
+        self._hold_requests.request(on)
+
+    def _error(self, t: float | None, text: str) -> None:
+        if self.on_error is not None:
+            self.on_error(t, text)
+
     def estop(self) -> None:
         """ESTOP through the command register (to this board; broadcast if it does not answer)."""
         try:
@@ -313,21 +325,26 @@ class ModbusClient(Streaming):
                                  "have no registers): run it over the line protocol")
         stream = Stream(durations_ms, q_milli, self._base, on_progress)
         self._stream = stream
-        deadline = self.now() + (timeout if timeout is not None else 30.0 + 5.0 * sum(stream.durations) / 1000.0)
+        deadline = PausableDeadline(self.now, timeout if timeout is not None else
+                                    30.0 + 5.0 * sum(stream.durations) / 1000.0)
         self.poll()
+        self._held = self.state == "HOLD"
         try:
             while not stream.finished:
                 if self.state in LATCHED_STATES:
                     why = {"ESTOP": "an e-stop latched", "WDOG": "its watchdog fired (no valid frame in time)",
                            "FAULT": f"FAULT latched, {self.fault_reason or 'reason not known'}"}[self.state]
                     raise ArmbridgeError(f"the board stopped: {why}; {stream.progress()}")
+                hold_turn(self, self._hold_requests)  # HOLD / RESUME through the command register
                 while stream.next_wp < stream.k and self.free > 0:
                     if not self._send_waypoint(stream):
                         break
-                if self.now() > deadline:
+                deadline.tick(self._held or self.state == "HOLD")
+                if deadline.passed():
                     raise ArmbridgeError(f"the plan did not finish in time: {stream.progress()}, board state "
                                          f"{self.state}")
                 self._tick()
+            release_hold(self)
         finally:
             stream.on_progress = None
             self._base += stream.k

@@ -1,7 +1,7 @@
 """The caller's side of a session served by a link engine (executor/engine.py).
 
 `RemoteClient` has BoardClient's surface (connect, command, ask, can, stat,
-set_rate, execute, drain, estop, settle_tolerance; state, info, stats,
+set_rate, execute, drain, estop, request_hold, settle_tolerance; state, info, stats,
 fault_reason, done_index, done_times, start_times), so `armbridge run`, the
 console and the demos do not know where the session runs. A call is a message
 to the engine; while it runs, the engine's messages are dispatched here, in
@@ -77,6 +77,10 @@ class ThreadLink:
         """From this thread, at once (Engine.request_estop: the engine may be mid-call)."""
         self._engine.request_estop()
 
+    def hold(self, on: bool) -> None:
+        """From any thread: hold or resume the running plan (Engine.request_hold)."""
+        self._engine.request_hold(on)
+
     def abort(self) -> None:
         self._abort.set()
 
@@ -95,6 +99,7 @@ class ProcessLink:
         from armbridge.robots.catalog import robot_to_dict
 
         self.url = url
+        self._send_lock = threading.Lock()
         parent, child = socket.socketpair()
         self._err = tempfile.TemporaryFile()
         try:
@@ -119,7 +124,8 @@ class ProcessLink:
 
     def send(self, msg: dict) -> None:
         try:
-            self.sock.sendall(encode(msg))
+            with self._send_lock:  # the keyboard's thread may send a hold while this one sends a call
+                self.sock.sendall(encode(msg))
         except OSError as exc:
             raise EngineGone(f"the link engine for {self.url} is gone ({exc}){self._stderr()}") from None
 
@@ -139,6 +145,10 @@ class ProcessLink:
 
     def estop(self) -> None:
         self.send({"k": "estop"})
+
+    def hold(self, on: bool) -> None:
+        """From any thread: the child's reader hands it to its engine at once (Engine.request_hold)."""
+        self.send({"k": "hold", "on": bool(on)})
 
     def abort(self) -> None:
         self.send({"k": "abort"})
@@ -315,6 +325,11 @@ class RemoteClient:
 
     def estop(self) -> None:
         self.link.estop()
+
+    def request_hold(self, on: bool) -> None:
+        """From any thread: hold (True) or resume (False) the running plan, out of band like the
+        e-stop (BoardClient.request_hold, in the engine)."""
+        self.link.hold(on)
 
     def close(self) -> None:
         self.link.close()

@@ -65,6 +65,7 @@ def run_plan(
     pen: str = "auto",
     home: bool = False,
     calibration: str = "check",
+    pause_keys: bool = False,
 ) -> Summary:
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
 
@@ -81,6 +82,10 @@ def run_plan(
     "on" requires one, "off" never sends PEN (pen-up moves are only marked).
     `home` (MASR plans): a HOME action first, for a board that does not know where
     its MA is (UNHOMED after a power on).
+
+    `pause_keys`: on a terminal, space or p holds and resumes the arm while the plan
+    streams (the protocol's HOLD / RESUME, executor/pause.py); the summary counts the
+    holds and the time held, which the measured duration leaves out.
 
     Outcomes: a Summary (completed, or `stopped_by_user` after SIGINT/SIGTERM/
     SIGHUP: e-stop sent, `stopped_by` names the signal); `RunFailed` carrying
@@ -137,6 +142,9 @@ def run_plan(
     rec: Recording | None = None
     client: BoardClient | None = None
     last_state: list[str | None] = [None]
+    from armbridge.executor.pause import PauseView
+
+    pause = PauseView(console, pause_keys)  # hold / resume: the keys, the bar's status, the summary's count
 
     def on_telemetry(t: float, m: P.Telemetry) -> None:
         if m.q.shape != (robot.dof,):
@@ -145,6 +153,7 @@ def run_plan(
         if masr is not None:  # the board's d is an estimate (+- its bound): a mm past an end is the MA at that end
             m.q[-1] = min(max(float(m.q[-1]), 0.0), masr.robot.total_length)
         samples.append((t, m.state, m.q, m.target, active))
+        pause.on_telemetry(t)
         if rec is not None:
             rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
             if m.extra:  # the board's own columns, named by its kind (telemetry.layout.BOARD_COLUMNS)
@@ -155,6 +164,7 @@ def run_plan(
 
     def on_event(t: float | None, ev: P.Event) -> None:
         summary.events += 1
+        pause.on_event(t, ev)
         if rec is not None:
             level = "error" if ev.kind in LATCHED_STATES else "warn" if ev.kind in ("SLOW", "BOOT") else "info"
             rec.event(t, " ".join([ev.kind, *ev.args]), level)
@@ -180,10 +190,11 @@ def run_plan(
                     _check_board_ik(c)
                 pen_flags = _pen_flags(c, plan, pen, summary)
                 band = c.settle_tolerance(robot.dof)  # None: the board has no dead band
-                bar = _progress_bar(plan, console) if progress else None
+                bar = pause.bar = _progress_bar(plan, console) if progress else None
                 try:
-                    c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
-                              verb=verb, pen=pen_flags, commands=commands)
+                    with pause.keys(c):  # space or p: HOLD / RESUME at the streaming loop's next turn
+                        c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
+                                  verb=verb, pen=pen_flags, commands=commands)
                     if pen_flags is not None:
                         c.command("PEN", 0)  # the drawing is done: lift the pen
                     # Let the last samples (the arm settling on the final waypoint) arrive.
@@ -199,7 +210,8 @@ def run_plan(
                 finally:
                     if bar is not None:
                         bar.stop()
-                    fill(summary, c, plan, samples, names)
+                    pause.close(summary)
+                    fill(summary, c, plan, samples, names, held=pause.intervals)
                     if band is not None:
                         fill_settle(summary, c, plan, samples, names, *band)
                     if plan.pen is not None:
@@ -362,15 +374,19 @@ def _progress_bar(plan: Plan, console):
     """A rich progress bar over the waypoints: .update(done), .stop()."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    bar = Progress(TextColumn("[bold]running[/bold] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("waypoints"), TimeElapsedColumn(), console=console, transient=False)
-    task = bar.add_task(plan.name, total=plan.k)
+    bar = Progress(TextColumn("[bold]{task.fields[status]}[/bold] {task.description}"), BarColumn(),
+                   MofNCompleteColumn(), TextColumn("waypoints"), TimeElapsedColumn(), console=console, transient=False)
+    task = bar.add_task(plan.name, total=plan.k, status="running")
     bar.start()
 
     class _Bar:
         @staticmethod
         def update(done: int) -> None:
             bar.update(task, completed=done)
+
+        @staticmethod
+        def status(text: str) -> None:  # "running", or "held (space resumes)" (executor/pause.py)
+            bar.update(task, status=text)
 
         @staticmethod
         def stop() -> None:

@@ -6,6 +6,7 @@ Pure: numpy in, numbers out; the run (executor/run.py) collects, this sums up.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -63,7 +64,9 @@ class Summary:
     telemetry_samples: int = 0
     events: int = 0
     planned_duration_s: float = math.nan  # a MASR plan: tau, its own actions' time
-    measured_duration_s: float = math.nan  # a MASR plan: its own actions, the setup apart
+    measured_duration_s: float = math.nan  # a MASR plan: its own actions, the setup apart; held time left out
+    holds: int = 0  # times the board was held mid-run (HOLD / RESUME: space or p at the terminal)
+    held_s: float = 0.0  # board time held, in all (not in measured_duration_s)
     setup_steps: int = 0  # a MASR plan run with --home: the setup's actions ahead of the plan's own
     setup_duration_s: float = math.nan  # ... and their board time (START of the first to DONE of the last)
     joint_units: dict[str, str] = field(default_factory=dict)  # the robot's unit per joint: "rad" or "m"
@@ -156,6 +159,8 @@ class Summary:
         if self.setup_steps:  # a MASR run's setup: not part of the plan, kept out of the rows below
             t.add_row("setup before the plan (apart)", f"{self.setup_steps} actions, {_f(self.setup_duration_s, 3)} s")
         t.add_row("duration planned / measured", f"{_f(self.planned_duration_s, 3)} s / {_f(self.measured_duration_s, 3)} s")
+        if self.holds:
+            t.add_row("held (holds / time)", f"{self.holds} / {_f(self.held_s, 3)} s (not in the measured duration)")
         for name, tr in self.tracking_setpoint.items():
             tp = self.tracking_plan.get(name, JointTracking())
             unit = _milli_unit(self.joint_units.get(name, "rad"))
@@ -333,9 +338,11 @@ def settle_times(t: np.ndarray, q: np.ndarray, plan_q: np.ndarray, done_t: dict[
     return out
 
 
-def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> None:
+def fill(summary: Summary, client, plan: Plan, samples, names: list[str],
+         held: Sequence[tuple[float, float]] = ()) -> None:
     """The link statistics, the board-time duration and the tracking errors of a
-    finished (or stopped) run, from the client and the telemetry samples."""
+    finished (or stopped) run, from the client and the telemetry samples. `held`: the
+    board-time intervals the board was held, left out of the measured duration."""
     s = client.stats
     summary.waypoints_done = client.done_index + 1
     summary.waypoints_sent = s.waypoints_sent
@@ -375,7 +382,7 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
         t0 = done[i] - float(np.sum(plan.durations[setup: i + 1]))
     t1 = done.get(last) if client.done_index >= last else None
     if t0 is not None and t1 is not None:
-        summary.measured_duration_s = float(t1 - t0)
+        summary.measured_duration_s = float(t1 - t0) - sum(max(0.0, min(b, t1) - max(a, t0)) for a, b in held)
     run = [x for x in samples if x[1] == "RUN" and x[4] >= setup]
     if run:
         t = np.array([x[0] for x in run])
@@ -390,10 +397,18 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str]) -> Non
             ts = client.start_times.get(i + 1)
             if ts is None or ts - td <= 0.011:
                 seg_start[i + 1] = td
+        if held:  # the plan's clock stood still while the board was held: both times on it
+            t = t - np.array([_held_before(held, x) for x in t])
+            seg_start = {i: ts - _held_before(held, ts) for i, ts in seg_start.items()}
         summary.tracking_plan = _tracking(plan_error(plan, t, q, seg, seg_start, first=setup), names)
     else:
         summary.tracking_setpoint = _tracking(np.zeros((0, len(names))), names)
         summary.tracking_plan = _tracking(np.zeros((0, len(names))), names)
+
+
+def _held_before(held: Sequence[tuple[float, float]], t: float) -> float:
+    """Board time held before `t`."""
+    return float(sum(max(0.0, min(b, t) - a) for a, b in held))
 
 
 def fill_settle(summary: Summary, client, plan: Plan, samples, names: list[str], band: np.ndarray,

@@ -13,6 +13,7 @@ Messages (a dict with "k", the kind):
                         idle {resync}               how to serve the link between calls
                         abort                       end the running call (Aborted)
                         estop                       the e-stop byte at once, then abort
+                        hold {on}                   HOLD (true) / RESUME (false) at execute's next turn
                         close                       stop serving; the engine closes the port
     engine -> caller    tel {t, m, mirror}          on_telemetry(t, m)
                         ev {t, m, mirror}           on_event(t, m)
