@@ -171,7 +171,8 @@ static uint32_t need_ms(float a, int32_t vmax, uint32_t dur) {
         if ((float)ai == a && dur * (uint32_t)vmax >= (uint32_t)ai * 1000u) return 0;
     }
     float need = a * 1000.0f / (float)vmax;
-    uint32_t ms = (uint32_t)need;
+    /* beyond 2^32 ms (a tiny vmax) the conversion is undefined: saturate (largest float below 2^32) */
+    uint32_t ms = need < 4294967040.0f ? (uint32_t)need : 4294967040UL;
     if ((float)ms < need) ms++;
     return ms > dur ? ms : 0;
 }

@@ -177,7 +177,7 @@ inline int RefTraj::plan(uint32_t dur) {
         float d = end_[j] - start_[j];
         if (d < 0) d = -d;
         float need = d * 1000.0f / (float)vmax[j];
-        uint32_t need_ms = (uint32_t)need;
+        uint32_t need_ms = need < 4294967040.0f ? (uint32_t)need : 4294967040UL;   /* as traj.cpp: no UB */
         if ((float)need_ms < need) need_ms++;
         if (need_ms > dur) {
             dur = need_ms;
