@@ -177,7 +177,8 @@ def test_view_starts_the_rerun_viewer(tmp_path, monkeypatch):
         returncode = 0
 
     monkeypatch.setattr(view.subprocess, "run", lambda argv, check: calls.append(argv) or Done())
-    view.view_cmd(rrd)
+    monkeypatch.setattr(view, "has_display", lambda: True)  # the native viewer where there is a display
+    view.view_cmd(rrd, web=False, port=None, bind="127.0.0.1", no_open=False)
     exe = view.rerun_executable()
     assert calls == [[exe, str(rrd)]]
     assert Path(exe).name == "rerun" and Path(exe).is_file()
