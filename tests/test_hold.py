@@ -158,23 +158,24 @@ def test_on_the_process_engine_a_hold_goes_out_of_band_mid_execute(board):
 
 
 def test_resume_on_a_latched_board_is_refused_and_clears_nothing():
-    """A hold never touches a latch: an e-stop while held, then RESUME: the board refuses it
-    (LATCHED), the refusal is said, the board stays in ESTOP and the run fails on the latch."""
+    """A hold never touches a latch. An e-stop while held ends the run on the latch as ever;
+    a RESUME then (the key pressed again) is refused by the board (LATCHED), the refusal is
+    said, and the board stays in ESTOP: only CLR clears it."""
     from armbridge.errors import ArmbridgeError
+    from armbridge.executor.hold import HoldRequests, hold_turn
 
     k = 20
     durs, q = wave(k)
     port = transport.open_port("emu:esp32?speed=0")
     try:
         errors: list[str] = []
-        state: dict = {"held": False, "stopped": False}
+        stopped: list[bool] = []
         c: BoardClient
 
         def on_telemetry(t: float, m: P.Telemetry) -> None:
-            if m.state == "HOLD" and not state["stopped"]:
-                state["stopped"] = True
-                c.estop()
-                c.request_hold(False)
+            if m.state == "HOLD" and not stopped:
+                stopped.append(True)
+                c.estop()  # Ctrl-C while held
 
         c = BoardClient(port, ARM3R, on_telemetry=on_telemetry, on_error=lambda t, text: errors.append(text))
         c.connect()
@@ -182,8 +183,14 @@ def test_resume_on_a_latched_board_is_refused_and_clears_nothing():
         c.request_hold(True)  # before anything moves
         with pytest.raises(ArmbridgeError, match="e-stop latched"):
             c.execute(durs, q)
-        assert c.stat()[0] == "ESTOP"
-        assert port.emulator.state == "ESTOP"
+        assert c._held and port.emulator.state == "ESTOP"
+        resume = HoldRequests()
+        resume.request(False)
+        hold_turn(c, resume)  # what the loop does with the next key
+        assert any("refused RESUME" in e and "LATCHED" in e and "nothing was cleared" in e for e in errors), errors
+        assert c._held  # still held as far as the host knows: nothing moves until CLR
+        assert c.stat()[0] == "ESTOP" and port.emulator.state == "ESTOP"
+        assert port.emulator.executed == []  # held from the start: no waypoint ran
     finally:
         port.close()
 
@@ -333,3 +340,29 @@ def test_over_modbus_hold_and_resume_go_through_the_command_register():
     assert kinds == ["HOLD", "RESUME"], (kinds, p.errors)
     held = [s for s in p.samples if s[1] == "HOLD"]
     assert len(held) >= 3 and len({s[2] for s in held}) == 1
+
+
+def test_draw_port_passes_the_keys_through(tmp_path, board):
+    """`armbridge draw --port` runs its plan as `armbridge run` does, keys included."""
+    emu, link = board
+    js = tmp_path / "draw.json"
+    term = Terminal("draw", "I", "--speed", "0.1", "--travel-speed", "0.1", "--out", str(tmp_path / "i.json"),
+                    "--port", link, "--rrd", str(tmp_path / "draw.rrd"), "--json", str(js), "--no-progress")
+    try:
+        term.wait_for("space or p: hold / resume")
+        emu.wait_for(" DONE 5 ")
+        term.type(b" ")
+        emu.wait_for(" HOLD")
+        term.wait_for("held (space resumes)")
+        time.sleep(1.0)
+        term.type(b" ")
+        emu.wait_for(" RESUME")
+        term.wait_for("resumed")
+        rc = term.finish()
+    finally:
+        if term.p.poll() is None:
+            term.p.kill()
+    assert rc == 0, term.text()[-3000:]
+    s = json.loads(js.read_text())
+    assert s["completed"] and s["holds"] == 1 and s["held_s"] >= 0.8
+    assert "drawing error" in term.text()
