@@ -15,7 +15,8 @@ VENV=.venv
 PIP_EXTRAS="[test,train,masr,ompl,smm-peer,ray]"
 STUBS=micropython-esp32-stubs
 # libompl-dev: OMPL 1.5 headers and libompl.so for the STRIDE shim (planning/ext; the PyPI wheel binds no STRIDE).
-APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude libompl-dev)
+# chromium: the headless browser tests/test_view_web.py loads `armbridge view`'s web viewer in.
+APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude libompl-dev chromium)
 
 log() { printf 'setup: %s\n' "$*"; }
 
