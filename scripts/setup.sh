@@ -15,8 +15,10 @@ VENV=.venv
 PIP_EXTRAS="[test,train,masr,ompl,smm-peer,ray]"
 STUBS=micropython-esp32-stubs
 # libompl-dev: OMPL 1.5 headers and libompl.so for the STRIDE shim (planning/ext; the PyPI wheel binds no STRIDE).
+# clang, libclang-rt-14-dev (the sanitizer and libFuzzer runtimes clang links), llvm (llvm-cov, llvm-profdata):
+# libFuzzer with ASan/UBSan and source-based coverage (make fuzz, docs/fuzzing.md).
 # chromium: the headless browser tests/test_view_web.py loads `armbridge view`'s web viewer in.
-APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude libompl-dev chromium)
+APT_PKGS=(gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude libompl-dev clang libclang-rt-14-dev llvm chromium)
 
 log() { printf 'setup: %s\n' "$*"; }
 
@@ -78,11 +80,11 @@ step_apt() {
     if dpkg -s "${APT_PKGS[@]}" >/dev/null 2>&1; then return; fi
     local cmd="apt-get install -y --no-install-recommends ${APT_PKGS[*]}"
     if [[ $(id -u) -ne 0 ]]; then
-        echo "setup: AVR toolchain or libompl-dev missing (needed for the Arduino firmware, its simavr tests and OMPL STRIDE); run:" >&2
+        echo "setup: AVR toolchain, clang/LLVM or libompl-dev missing (needed for the Arduino firmware, its simavr tests, the fuzzers and OMPL STRIDE); run:" >&2
         echo "  sudo apt-get update && sudo $cmd" >&2
         return
     fi
-    log "installing AVR toolchain and libompl-dev from apt"
+    log "installing AVR toolchain, clang/LLVM and libompl-dev from apt"
     export DEBIAN_FRONTEND=noninteractive
     apt-get update -qq
     $cmd -qq >/dev/null
