@@ -366,3 +366,70 @@ def test_draw_port_passes_the_keys_through(tmp_path, board):
     s = json.loads(js.read_text())
     assert s["completed"] and s["holds"] == 1 and s["held_s"] >= 0.8
     assert "drawing error" in term.text()
+
+
+def test_pause_keys_leave_a_terminal_alone_in_the_background():
+    """A run started in the background (`armbridge run ... &`) whose stdin is still the terminal:
+    setting the terminal's mode or reading it would stop the run (SIGTTOU, SIGTTIN), so the keys
+    stay off."""
+    code = (
+        "import os, signal, sys\n"
+        "from armbridge.executor.keys import PauseKeys\n"
+        "signal.signal(signal.SIGTTOU, signal.SIG_IGN)\n"
+        "os.setpgid(0, 0)\n"  # our own group: the terminal's foreground group is another one now
+        "with PauseKeys(lambda on: None) as keys:\n"
+        "    print('active' if keys.active else 'inactive', flush=True)\n"
+    )
+    master, slave = os.openpty()
+
+    def fg_elsewhere() -> None:
+        default_signals()
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)  # the pty controls this session, its group is foreground
+
+    try:
+        r = subprocess.run([os.path.join(os.path.dirname(ARMBRIDGE), "python"), "-c",
+                            "import os, subprocess, sys\n"
+                            f"p = subprocess.run([sys.executable, '-c', {code!r}], stdout=subprocess.PIPE, text=True)\n"
+                            "print(p.stdout.strip(), file=sys.stderr)\n"],
+                           stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           preexec_fn=fg_elsewhere, timeout=60)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert r.stderr.strip().splitlines()[-1] == "inactive", r.stderr
+
+
+def test_a_board_that_resets_while_held_is_held_again_before_anything_moves():
+    """A reset forgets the hold (the board boots IDLE); the resync resends the rest of the
+    plan, so the host sends HOLD again first: nothing runs until the user resumes."""
+    k = 30
+    durs, q = wave(k)
+    port = transport.open_port("emu:esp32?speed=0")
+    emu = port.emulator
+    marks: dict[str, int] = {}
+
+    class ResetWhileHeld(Pauser):
+        def on_telemetry(self, t: float, m: P.Telemetry) -> None:
+            if self.held_at is not None and "reset" not in marks and t - self.held_at >= 0.3:
+                marks["reset"] = len(emu.executed)
+                emu.reset()
+            if self.held_at is not None and not self.resumed and t - self.held_at >= self.hold_s:
+                marks["resume"] = len(emu.executed)
+            super().on_telemetry(t, m)
+
+    p = ResetWhileHeld(at=8, hold_s=2.0)
+    try:
+        c = BoardClient(port, ARM3R, **p.callbacks())
+        p.client = c
+        c.connect()
+        c.set_rate(50)
+        c.execute(durs, q, on_progress=p.on_progress)
+        assert executed(emu) == [(i, tuple(q[i])) for i in range(k)]  # each once, in order, after the reset too
+    finally:
+        port.close()
+    assert marks["resume"] == marks["reset"], marks  # nothing ran between the reset and the resume
+    assert c.stats.resyncs >= 1
+    assert any("forgot its hold" in e for e in p.errors), p.errors
+    kinds = [e[1] for e in p.events if e[1] in ("HOLD", "RESUME", "BOOT")]
+    assert kinds[kinds.index("HOLD"):] == ["HOLD", "BOOT", "HOLD", "RESUME"], kinds

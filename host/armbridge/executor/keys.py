@@ -5,7 +5,8 @@ the terminal in cbreak mode (keys arrive one at a time, unechoed, Ctrl-C still
 a signal) and reads keys on a daemon thread; space or p toggles between held
 and running and calls `on_hold(True)` (hold) or `on_hold(False)` (resume).
 Leaving restores the terminal. Not on a terminal (a pipe, a test, a CI job),
-it does nothing and `active` is False.
+or in the background (`armbridge run ... &`, whose reading the terminal would
+stop it), it does nothing and `active` is False.
 
 `armbridge run` and `armbridge draw --port` (and the demos, through
 executor/command.py `run_command`) pass `on_hold` = the session client's
@@ -51,7 +52,7 @@ class PauseKeys:
             tty_in = os.isatty(self._fd)
         except (AttributeError, OSError, ValueError):
             tty_in = False
-        if not tty_in:
+        if not tty_in or not self._foreground():  # a background job (`armbridge run ... &`): hands off
             return self
         import termios
         import tty
@@ -63,8 +64,20 @@ class PauseKeys:
         self._thread.start()
         return self
 
+    def _foreground(self) -> bool:
+        """Whether this process may read its terminal: reading it (or setting its mode) from
+        a background process group stops the whole process (SIGTTIN, SIGTTOU). A terminal
+        that is not our controlling one (a pty a test opened) stops nothing."""
+        try:
+            return os.tcgetpgrp(self._fd) == os.getpgrp()
+        except OSError:
+            return True
+
     def _read(self) -> None:
         while not self._stop.is_set():
+            if not self._foreground():  # put in the background meanwhile (Ctrl-Z, bg): keys wait
+                self._stop.wait(POLL_S)
+                continue
             try:
                 ready, _, _ = select.select([self._fd], [], [], POLL_S)
                 if not ready:
