@@ -433,3 +433,50 @@ def test_a_board_that_resets_while_held_is_held_again_before_anything_moves():
     assert any("forgot its hold" in e for e in p.errors), p.errors
     kinds = [e[1] for e in p.events if e[1] in ("HOLD", "RESUME", "BOOT")]
     assert kinds[kinds.index("HOLD"):] == ["HOLD", "BOOT", "HOLD", "RESUME"], kinds
+
+
+def test_the_summary_counts_the_hold_and_leaves_it_out_of_the_measured_figures(tmp_path, monkeypatch):
+    """run_plan on a lockstep emulator, held 2 s of board time at waypoint 6 by a stand-in for the
+    keyboard: the summary's holds and held_s; the measured duration and the tracking against the
+    plan come out as in the same run never held (the plan's clock stood still too)."""
+    import armbridge.executor.pause as pause_mod
+    from armbridge.executor.run import run_plan
+
+    class Keys:  # PauseKeys' surface, pressing "space" from the board's own telemetry
+        def __init__(self, on_hold) -> None:
+            self.active = True
+            self.client = on_hold.__self__  # the inline engine's BoardClient
+            self.held_at: float | None = None
+            self.resumed = False
+            inner = self.client.on_telemetry
+
+            def on_telemetry(t: float, m: P.Telemetry) -> None:
+                inner(t, m)
+                if self.held_at is None and self.client.done_index >= 5:
+                    self.held_at = t
+                    on_hold(True)
+                elif self.held_at is not None and not self.resumed and t - self.held_at >= 2.0:
+                    self.resumed = True
+                    on_hold(False)
+
+            self.client.on_telemetry = on_telemetry
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc) -> None:
+            pass
+
+    robot = get_robot("arm3r")
+    qs = [[1.5 + 0.3 * (i % 2), -1.5 + 0.1 * (i % 3), 0.0] for i in range(16)]
+    plan = make_plan(robot, qs, 0.25)
+    plain = run_plan(plan, "emu:esp32?speed=0&seed=3", tmp_path / "plain.rrd", progress=False)
+    monkeypatch.setattr(pause_mod, "PauseKeys", Keys)
+    held = run_plan(plan, "emu:esp32?speed=0&seed=3", tmp_path / "held.rrd", progress=False, pause_keys=True,
+                    timeout=10.0)
+    assert plain.completed and held.completed and plain.holds == 0
+    assert held.holds == 1 and 1.9 <= held.held_s <= 2.3, held.held_s
+    assert abs(held.measured_duration_s - plain.measured_duration_s) < 0.1
+    for name, tr in held.tracking_plan.items():
+        assert tr.max <= 1.5 * plain.tracking_plan[name].max + 0.01, (name, tr, plain.tracking_plan[name])
+    assert "held (holds / time)" in str([c for c in held.table().columns[0]._cells])

@@ -29,7 +29,8 @@ from armbridge.executor.calcheck import CalibrationMismatch
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.settle import resting, still
 from armbridge.executor.signals import holding, stop_on_signals
-from armbridge.executor.summary import JointTracking, Summary, fill, fill_settle, goal_check, plan_error
+from armbridge.executor.summary import (JointTracking, Summary, fill, fill_settle, goal_check, held_between,
+                                        plan_error)
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, load_plan, validate
 
@@ -223,7 +224,8 @@ def run_plan(
                         if home:  # the plan's own time starts when HOME and the MV to its start are DONE
                             d = c.done_times
                             s0 = int(plan.provenance["masr_plan"]["setup"]) - 1
-                            executed = d[plan.k - 1] - d[s0] if s0 in d and plan.k - 1 in d else float("nan")
+                            executed = (d[plan.k - 1] - d[s0] - held_between(pause.intervals, d[s0], d[plan.k - 1])
+                                        if s0 in d and plan.k - 1 in d else float("nan"))
                         summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
                     summary.goal = _goal(plan, masr, summary, samples)
         except CalibrationMismatch:  # nothing was sent: one line, no summary, no recording

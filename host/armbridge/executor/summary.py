@@ -382,7 +382,7 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str],
         t0 = done[i] - float(np.sum(plan.durations[setup: i + 1]))
     t1 = done.get(last) if client.done_index >= last else None
     if t0 is not None and t1 is not None:
-        summary.measured_duration_s = float(t1 - t0) - sum(max(0.0, min(b, t1) - max(a, t0)) for a, b in held)
+        summary.measured_duration_s = float(t1 - t0) - held_between(held, t0, t1)
     run = [x for x in samples if x[1] == "RUN" and x[4] >= setup]
     if run:
         t = np.array([x[0] for x in run])
@@ -409,6 +409,11 @@ def fill(summary: Summary, client, plan: Plan, samples, names: list[str],
 def _held_before(held: Sequence[tuple[float, float]], t: float) -> float:
     """Board time held before `t`."""
     return float(sum(max(0.0, min(b, t) - a) for a, b in held))
+
+
+def held_between(held: Sequence[tuple[float, float]], t0: float, t1: float) -> float:
+    """Board time held between `t0` and `t1` (`held`: the intervals the board was held)."""
+    return float(sum(max(0.0, min(b, t1) - max(a, t0)) for a, b in held))
 
 
 def fill_settle(summary: Summary, client, plan: Plan, samples, names: list[str], band: np.ndarray,
