@@ -168,7 +168,7 @@ def _bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
         for i in range(200):
             rec.telemetry(0.01 * i, [1.4, -1.5, 0.0], [1.4, -1.5, 0.0], [0, 0, 0])
     cut = tmp / "cut.rrd"
-    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    cut.write_bytes(good.read_bytes()[:100])  # inside the first message: nothing can be read
     header = tmp / "header.rrd"
     header.write_bytes(b"RRF2" + b"\0" * 8)
     return {"text": (text, "is not a Rerun recording"), "empty": (empty, "is empty"),
@@ -183,6 +183,28 @@ def test_bad_files_are_one_line_and_exit_2(tmp_path):
         lines = [x for x in r.stderr.splitlines() if x.strip()]
         assert len(lines) == 1 and lines[0].startswith("error: ") and says in lines[0], (name, r.stderr)
         assert not (tmp_path / f"{name}.png").exists()
+
+
+def test_a_recording_cut_short_is_reported_as_far_as_it_reads_or_refused_in_one_line(tmp_path):
+    """A run killed before it closed its file leaves a recording without its footer, cut anywhere:
+    what can be read is reported, and the report says the file is cut; else one line, exit 2."""
+    good = tmp_path / "good.rrd"
+    plan = make_plan(ARM3R, [[1.4, -1.5, 0.0], [1.7, -1.3, 0.2]], 0.5)
+    with Recording(good, ARM3R, plan, flush_every=10) as rec:
+        for i in range(300):
+            rec.telemetry(0.01 * i, plan.q[0], plan.q[0], [0, 0, 0])
+    data = good.read_bytes()
+    for frac in (0.3, 0.5, 0.8):
+        cut = tmp_path / f"cut{frac}.rrd"
+        cut.write_bytes(data[: int(len(data) * frac)])
+        r = cli("report", str(cut), "--json", "-")
+        assert "Traceback" not in r.stderr
+        if r.returncode == 0:
+            doc = json.loads(r.stdout)
+            assert any("cut" in m for m in doc["missing"]), doc["missing"]
+        else:
+            lines = [x for x in r.stderr.splitlines() if x.strip()]
+            assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: "), r.stderr
 
 
 def test_an_unwritable_output_is_one_line(tmp_path):

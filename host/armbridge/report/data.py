@@ -42,6 +42,7 @@ class RunData:
     events: list[tuple[float, str, str]] = field(default_factory=list)  # t, level, text
     errors: list[tuple[float, str, str]] = field(default_factory=list)
     damaged: str | None = None  # the reader's error where the file ends early (a cut or damaged file)
+    no_footer: bool = False  # no footer: closed by nobody (a run killed mid-way), or written by an older rerun
 
     @property
     def robot(self) -> str | None:
@@ -73,6 +74,9 @@ class RunData:
             out.append("the plan (no plan/path)")
         if self.damaged:
             out.append(f"the end of the file (read up to a damaged or cut chunk: {self.damaged})")
+        elif self.no_footer:
+            out.append("the file's footer: it was cut short (the run did not close it) or written by an older "
+                       "rerun; what could be read is shown")
         return out
 
     def time_span(self) -> tuple[float, float] | None:
@@ -113,15 +117,15 @@ def load(path: Path | str) -> RunData:
     try:
         from rerun.chunk import RrdReader
 
-        with warnings.catch_warnings():  # a file without its footer (cut, or older): rerun warns, then scans it
-            warnings.simplefilter("ignore")
+        with warnings.catch_warnings(record=True) as caught:  # no footer (cut, or older): rerun warns, then scans
+            warnings.simplefilter("always")
             reader = RrdReader(path)
             stores = reader.recordings()
     except Exception as exc:  # noqa: BLE001 - rerun raises plain exceptions for bad files
         raise ArmbridgeError(f"{path}: cannot read the recording: {_first_line(exc)}") from None
     if not stores:
         raise ArmbridgeError(f"{path}: holds no recording (only a blueprint)")
-    data = RunData(path)
+    data = RunData(path, no_footer=any("footer" in str(w.message) for w in caught))
     parts: dict[str, list[tuple[np.ndarray, list]]] = {}  # timed entity -> [(t, values)]
     order: list[str] = []  # joint names in the order of their first entity
     chunks = 0
