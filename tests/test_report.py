@@ -225,3 +225,40 @@ def test_the_trace_distance_is_to_the_polyline():
     line = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     pts = np.array([[0.5, 0.2], [1.3, 0.5], [2.0, 2.0], [-1.0, 0.0]])
     assert polyline_distance(pts, line) == pytest.approx([0.2, 0.3, math.hypot(1, 1), 1.0])
+
+
+def test_a_failed_run_shows_its_fault(tmp_path):
+    """A stalled joint latches FAULT: the report of its recording has the failure, the fault in the
+    summary and the ERROR-level lines on the board's clock."""
+    from armbridge.executor.run import RunFailed
+    from armbridge.report.command import make_report
+    from plan_runs import wave_plan
+
+    rrd = tmp_path / "f.rrd"
+    with pytest.raises(RunFailed) as failed:
+        run_plan(wave_plan(60), "emu:esp32?speed=0&stall=1@0", rrd, progress=False)
+    doc = make_report(rrd, png=tmp_path / "f.png")
+    s = failed.value.summary
+    assert doc["summary"] == json.loads(json.dumps(s.to_dict()))
+    assert doc["status"].startswith("failed: ") and "FAULT" in doc["status"]
+    assert doc["summary"]["fault"].startswith("joint 1 (shoulder)")
+    assert any(f["text"].startswith("FAULT") for f in doc["faults"]), doc["faults"]
+    assert (tmp_path / "f.png").read_bytes().startswith(PNG_MAGIC)
+
+
+def test_a_spatial_arm_is_drawn_in_its_x_y_projection(tmp_path):
+    from armbridge.report.command import make_report
+    from armbridge.robots import get_robot
+
+    robot = get_robot("spatial4r")
+    q0 = np.zeros(robot.dof)
+    q1 = np.full(robot.dof, 0.3)
+    plan = make_plan(robot, [q0, q1], 0.5)
+    rrd = tmp_path / "s.rrd"
+    with Recording(rrd, robot, plan, flush_every=5) as rec:
+        for i in range(10):
+            q = q0 + (q1 - q0) * i / 9
+            rec.telemetry(0.05 * i, q, q, np.zeros(robot.dof))
+    doc = make_report(rrd, png=tmp_path / "s.png", html=tmp_path / "s.html")
+    assert len(doc["tip"]["plan_end"]) == 3 and doc["tip"]["end_off_plan_mm"] == pytest.approx(0.0, abs=1e-3)
+    assert (tmp_path / "s.png").read_bytes().startswith(PNG_MAGIC)

@@ -182,6 +182,11 @@ def _text_panel(ax, title: str, lines: list[tuple[str, str]], colors: dict[str, 
                 color=colors.get(kind, "#222222"), va="center", ha="left", transform=ax.transAxes, clip_on=True)
 
 
+def _cut(text: str, width: int) -> str:
+    """One line of the picture's text at most `width` characters (the HTML page has it whole)."""
+    return text if len(text) <= width else text[: max(1, width - 3)] + "..."
+
+
 def figure(data: RunData, doc: dict[str, Any]):
     """The report's figure (module docstring) for the recording and its numbers (numbers.numbers)."""
     plt = _pyplot()
@@ -210,16 +215,17 @@ def figure(data: RunData, doc: dict[str, Any]):
     if not data.joint_names:
         axes[0].text(0.5, 0.5, "no telemetry in this recording", ha="center", va="center", transform=axes[0].transAxes)
     bottom = outer[1].subgridspec(1, 2, width_ratios=[1.05, 1])
-    table = [("row", f"{a:<{lw}}  {b}") for a, b in rows]
+    table = [("row", f"{a:<{lw}}  {_cut(b, 98 - lw)}") for a, b in rows]
     _text_panel(fig.add_subplot(bottom[0]), "numbers" + ("" if doc["summary"] else " (no run summary in the recording)"),
                 table, {})
+    logs = [(lv, _cut(text, 92)) for lv, text in logs]
     _text_panel(fig.add_subplot(bottom[1]), f"events and errors ({doc['events']} + {doc['errors']} lines)", logs,
                 {"ERROR": OBST, "WARN": "#b25e00"})
     from pathlib import Path
 
     title = f"run of {Path(doc.get('plan') or '(plan unknown)').name} - {doc.get('robot') or 'robot unknown'}"
     if doc.get("status"):
-        title += f" - {doc['status']}"
+        title += f" - {_cut(doc['status'], 90)}"
     sub = str(data.path.name)
     if doc["missing"]:
         sub += "   |   not in this recording: " + "; ".join(m.split(":")[0] for m in doc["missing"])
