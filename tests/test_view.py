@@ -141,3 +141,16 @@ def test_port_sets_the_web_viewers_port(tmp_path):
         assert view.ports_of(served.url)[0] == port
     finally:
         assert served.stop(signal.SIGINT) == 0
+
+
+@pytest.mark.hil
+def test_a_busy_port_is_one_line(tmp_path):
+    rrd = recording(tmp_path / "r.rrd")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        r = subprocess.run([ARMBRIDGE, "view", str(rrd), "--port", str(s.getsockname()[1])], capture_output=True,
+                           text=True, timeout=300, env=headless_env())
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0].startswith("error: the rerun web viewer did not start") and "in use" in lines[0]

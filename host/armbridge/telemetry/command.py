@@ -109,7 +109,7 @@ def serve_web(file: Path, port: int, bind: str, open_browser: bool) -> int:
             elif time.monotonic() > deadline:
                 _stop(proc)
                 raise ArmbridgeError(f"the rerun web viewer said nowhere it serves within {SERVE_WAIT_S:.0f} s")
-            else:
+            elif not line.startswith("Error"):  # rerun's own error line is the one line said if it stops
                 _relay(line)
         typer.echo(f"the Rerun web viewer serves {file} at {url}")
         w, grpc = ports_of(url)
@@ -150,9 +150,9 @@ def view_cmd(
     file: Path = typer.Argument(..., help="A recording (.rrd) written by `armbridge run`."),
     web: bool = typer.Option(False, "--web", help="Serve Rerun's web viewer even where a display is "
                                                   "(without a display it is always the web viewer)."),
-    port: Optional[int] = typer.Option(None, "--port", "-p", min=0, max=65535,
+    port: Optional[int] = typer.Option(None, "--port", min=0, max=65535, metavar="N",
                                        help="The web viewer's HTTP port [default: a free one]; implies --web."),
-    bind: str = typer.Option("127.0.0.1", "--bind", help="The address the web viewer listens on "
+    bind: str = typer.Option("127.0.0.1", "--bind", metavar="ADDRESS", help="The address the web viewer listens on "
                                                          "(0.0.0.0: every interface)."),
     no_open: bool = typer.Option(False, "--no-open", help="Serve the web viewer and print its address; open "
                                                           "no browser (implies --web)."),
