@@ -108,7 +108,8 @@ def joint_pairs(n: int) -> list[tuple[int, int]]:
 
 
 def plot_branches(branches: list[np.ndarray], path: Path, title: str) -> None:
-    """Each branch (N, n) projected on the joint planes, one colour per branch."""
+    """Each branch (N, n) projected on the joint planes, one colour per branch, at a size a paper
+    prints (8 pt type); the legend below the panels, outside the data; joint names in mathtext."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -116,26 +117,35 @@ def plot_branches(branches: list[np.ndarray], path: Path, title: str) -> None:
 
     n = branches[0].shape[1]
     pairs = joint_pairs(n)
-    fig, axes = plt.subplots(1, len(pairs), figsize=(4 * len(pairs), 4), squeeze=False)
-    for ax, (i, j) in zip(axes[0], pairs):
-        for b, branch in enumerate(branches):
-            loop = np.vstack([branch, branch[:1]])
-            # Break the line where a joint wraps from pi to -pi.
-            jump = np.any(np.abs(np.diff(loop[:, [i, j]], axis=0)) > math.pi, axis=1)
-            xs, ys = loop[:, i].copy(), loop[:, j].copy()
-            xs[1:][jump], ys[1:][jump] = np.nan, np.nan
-            ax.plot(xs, ys, lw=1.5, label=f"branch {b + 1}")
-        ax.set_xlim(-math.pi, math.pi)
-        ax.set_ylim(-math.pi, math.pi)
-        ax.set_xlabel(f"theta{i + 1} (rad)")
-        ax.set_ylabel(f"theta{j + 1} (rad)")
-        ax.set_aspect("equal")
-    axes[0][0].legend(loc="upper right", fontsize="small")
-    fig.suptitle(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    width = min(7.2, 2.5 * len(pairs) + 0.4)
+    with plt.rc_context({"font.size": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
+                         "legend.fontsize": 8}):
+        fig, axes = plt.subplots(1, len(pairs), figsize=(width, width / len(pairs) + 0.9), squeeze=False)
+        ticks = [-math.pi, -math.pi / 2, 0.0, math.pi / 2, math.pi]
+        names = [r"$-\pi$", r"$-\pi/2$", "0", r"$\pi/2$", r"$\pi$"]
+        for ax, (i, j) in zip(axes[0], pairs):
+            for b, branch in enumerate(branches):
+                loop = np.vstack([branch, branch[:1]])
+                # Break the line where a joint wraps from pi to -pi.
+                jump = np.any(np.abs(np.diff(loop[:, [i, j]], axis=0)) > math.pi, axis=1)
+                xs, ys = loop[:, i].copy(), loop[:, j].copy()
+                xs[1:][jump], ys[1:][jump] = np.nan, np.nan
+                ax.plot(xs, ys, lw=1.2, label=f"branch {b + 1}")
+            ax.set_xlim(-math.pi, math.pi)
+            ax.set_ylim(-math.pi, math.pi)
+            ax.set_xticks(ticks, names)
+            ax.set_yticks(ticks, names)
+            ax.set_xlabel(rf"$\theta_{{{i + 1}}}$ (rad)")
+            ax.set_ylabel(rf"$\theta_{{{j + 1}}}$ (rad)")
+            ax.set_aspect("equal")
+            ax.grid(lw=0.3, alpha=0.5)
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels)), frameon=False)
+        fig.suptitle(title, fontsize=9)
+        fig.tight_layout(rect=(0, 0.08, 1, 1))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=200)
+        plt.close(fig)
 
 
 def _fmt(x: np.ndarray) -> str:
