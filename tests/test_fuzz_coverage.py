@@ -2,12 +2,13 @@
 
 The pump board's C++ parsers under libFuzzer with ASan and UBSan
 (firmware/arduino_pump/fuzz/Makefile: codec, session, modbus, board), each for
-ARMBRIDGE_FUZZ_SECONDS (default 10) from the kept corpus and the seeds of the
-shared vectors; their llvm-cov coverage over the kept corpus above the floors
-measured when the corpus was made; every kept input (a crash-* one is a
-regression) replayed. The Python codecs (host, MicroPython firmware's, and the
-C++ through ctypes) under atheris for the same time, differentially
-(tests/fuzz_codecs.py), their kept corpus replayed and its coverage above floors.
+ARMBRIDGE_FUZZ_SECONDS (default 10; ARMBRIDGE_FUZZ_RUNS bounds the inputs too)
+from the kept corpus and the seeds of the shared vectors; their llvm-cov coverage
+over the kept corpus above the floors measured when the corpus was made; every
+kept input (a crash-* one is a regression) replayed. The Python codecs (host,
+MicroPython firmware's, and the C++ through ctypes) under atheris for the same
+time, differentially (tests/fuzz_codecs.py), their kept corpus replayed and its
+coverage above floors.
 
 A missing clang, llvm-cov or atheris skips with the reason, and fails under
 ARMBRIDGE_REQUIRE_HIL=1 (tests/require.py). The replay of the Python corpus needs
@@ -30,6 +31,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 FUZZ = ROOT / "firmware" / "arduino_pump" / "fuzz"
 B = ROOT / "firmware" / "arduino_pump" / "build" / "pytest-fuzz"
 SECONDS = int(os.environ.get("ARMBRIDGE_FUZZ_SECONDS", "10"))
+RUNS = os.environ.get("ARMBRIDGE_FUZZ_RUNS", "")   # inputs per fuzzer besides the time, when given
 TARGETS = ("codec", "session", "modbus", "board")
 
 # llvm-cov over the kept corpus (firmware/arduino_pump/fuzz/corpus/<target>) when it was
@@ -63,12 +65,12 @@ def built():
 
 def test_libfuzzer_targets_run_without_a_crash(built):
     shutil.rmtree(B / "crash", ignore_errors=True)
-    r = _make("run", f"FUZZ_SECONDS={SECONDS}", timeout=SECONDS * len(TARGETS) + 300)
+    r = _make("run", f"FUZZ_SECONDS={SECONDS}", f"FUZZ_RUNS={RUNS}", timeout=SECONDS * len(TARGETS) + 300)
     out = r.stdout + r.stderr
     assert r.returncode == 0, out[-6000:]
     for t in TARGETS:
         done = re.search(rf"fuzz {t}: #(\d+)\s+DONE\s+cov: (\d+)", out)
-        assert done and int(done.group(1)) > 100, (t, out[-3000:])
+        assert done and int(done.group(1)) > 0, (t, out[-3000:])
     assert not list((B / "crash").glob("*")), "crash inputs in " + str(B / "crash")
 
 
@@ -128,7 +130,8 @@ def test_python_fuzzer_runs_without_a_disagreement(target, tmp_path):
     except ImportError:
         missing("atheris is not installed (pip install -e '.[test]')")
     _shim()
-    r = _py("fuzz", target, f"-max_total_time={SECONDS}", "-seed=1", "-max_len=1024",
+    r = _py("fuzz", target, f"-max_total_time={SECONDS}", *([f"-runs={RUNS}"] if RUNS else []), "-seed=1",
+            "-max_len=1024",
             f"-artifact_prefix={tmp_path}/", str(tmp_path), f"tests/fuzz_corpus/{target}",
             f"firmware/arduino_pump/fuzz/corpus/{target}", timeout=SECONDS + 300)
     out = r.stdout + r.stderr
