@@ -15,8 +15,10 @@ from armbridge.report.numbers import summary_rows
 STYLE = """
 body { font-family: system-ui, sans-serif; font-size: 16px; margin: 1.5em auto; max-width: 1800px; color: #222; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.4em; }
-img { max-width: 100%; border: 1px solid #ddd; }
-table { border-collapse: collapse; } td { padding: 0.15em 0.8em; border-bottom: 1px solid #eee; }
+img { max-width: 100%; box-sizing: border-box; border: 1px solid #ddd; }
+table { border-collapse: collapse; max-width: 100%; }
+td { padding: 0.15em 0.8em; border-bottom: 1px solid #eee; overflow-wrap: anywhere; }
+code { overflow-wrap: anywhere; }
 td.v { text-align: right; font-family: ui-monospace, monospace; }
 .missing { color: #a61e1e; } pre { font-size: 0.9em; background: #f6f6f6; padding: 0.6em; overflow-x: auto; }
 .ERROR { color: #c92a2a; } .WARN { color: #b25e00; }
