@@ -104,3 +104,24 @@ def test_an_option_of_the_micropython_boards_is_refused_on_the_mega(tmp_path, fl
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1 and f"{flags[0]}: for the MicroPython boards" in lines[0], r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_avrdude_that_never_finishes_is_stopped_and_leaves_nothing_behind(tmp_path, monkeypatch):
+    """avrdude on a port that never answers gets AVRDUDE_S and is killed, not left spinning after
+    the flash gives up (one was found still running half an hour after its port had closed)."""
+    from armbridge.errors import BoardFailure
+    from armbridge.flash import avrdude as A
+    from armbridge.flash import TARGETS
+
+    monkeypatch.setattr(A, "AVRDUDE_S", 1.0)
+    master, slave = os.openpty()
+    hexfile = tmp_path / "x.hex"
+    hexfile.write_text(":00000001FF\n")
+    try:
+        with pytest.raises(BoardFailure, match="avrdude did not finish on silent within 1 s"):
+            A.run_avrdude(TARGETS["arduino_pump"], os.ttyname(slave), hexfile, "silent")
+    finally:
+        os.close(master)
+        os.close(slave)
+    left = subprocess.run(["pgrep", "-f", f"avrdude.*{hexfile}"], capture_output=True, text=True)
+    assert left.stdout.strip() == "", left.stdout

@@ -19,6 +19,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -81,6 +82,8 @@ def avrdude_args(target: AvrTarget, port: str, hexfile: Path) -> list[str]:
 
 
 NO_BOOTLOADER = "does not answer the stk500v2 bootloader"
+#: The longest avrdude may take (s): the Mega's 256 KB written and verified at 115200 baud take about a minute.
+AVRDUDE_S = 300.0
 
 
 def run_avrdude(target: AvrTarget, port: str, hexfile: Path, label: str,
@@ -93,13 +96,27 @@ def run_avrdude(target: AvrTarget, port: str, hexfile: Path, label: str,
                             stderr=subprocess.STDOUT, text=True, errors="replace")
     lines: list[str] = []
     assert proc.stdout is not None
-    for line in proc.stdout:
-        line = line.strip()
-        if line:
-            lines.append(line)
-            if progress is not None and re.match(r"(avrdude: (writing|verifying|reading)|Writing|Reading)", line):
-                progress(line)
-    rc = proc.wait()
+    # avrdude on a port that went away can spin for ever: it gets AVRDUDE_S, and never outlives
+    # this call (a stop signal or an exception kills it on the way out)
+    expired: list[bool] = []
+    timer = threading.Timer(AVRDUDE_S, lambda: (expired.append(True), proc.kill()))
+    timer.start()
+    try:
+        for line in proc.stdout:
+            line = line.strip()
+            if line:
+                lines.append(line)
+                if progress is not None and re.match(r"(avrdude: (writing|verifying|reading)|Writing|Reading)", line):
+                    progress(line)
+        rc = proc.wait()
+    finally:
+        timer.cancel()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    if expired:
+        raise BoardFailure(f"avrdude did not finish on {label} within {AVRDUDE_S:g} s (stopped): "
+                           f"{_last_error(lines)}")
     text = "\n".join(lines)
     if rc == 0:
         m = re.search(r"(\d+) bytes of flash verified", text)
