@@ -44,7 +44,16 @@ def codec_seeds(v: dict) -> list:
         out.append(codec_input(latin1(text), epoch, board=side == "board"))
     for c in v["commands"]:   # every argument check, through a line that decodes
         out.append(codec_input(encode(1, c["verb"], c["args"], 7), 7, joints=c["n"]))
+    for verb, args in BOARD_LINES:   # each kind of board line, for the host's parse_board_line
+        for joints in (0, 3):
+            out.append(codec_input(encode(9, verb, args, 0), 0, board=True, joints=joints))
     return out
+
+
+BOARD_LINES = [("OK", [7, 31]), ("OK", [8, 30, "arm3r", "0.2.0"]), ("ER", [7, 7, "SEQ", 8]), ("ER", ["-", 1, "PARSE"]),
+               ("T", [1234, "RUN", 5, 31, 100, 200, 300, 110, 210, 310, 5, -5, 0]),
+               ("T", [1234, "IDLE", "-", 32, 1, 2, 3, 1, 2, 3, 0, 0, 0, 17, -3]),
+               ("EV", [1234, "DONE", 5]), ("EV", [99, "LATCH", "FOLLOW:2"]), ("BOOT", ["arduino_pump", "0.2.0", 2, "IDLE"])]
 
 
 # ------------------------------------------------------------------ sessions
