@@ -2,6 +2,7 @@
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -37,12 +38,12 @@ def silent_port():
     through the bootloader. (The test below reads what it said.)"""
     master, slave = os.openpty()
     proc = subprocess.Popen(_flash_cmd("--port", os.ttyname(slave)), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         yield proc
     finally:
-        if proc.returncode is None:   # the test did not read it
-            proc.kill()
+        if proc.returncode is None:   # the test did not read it: the flash and its avrdude go together
+            os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate()
         os.close(master)
         os.close(slave)
