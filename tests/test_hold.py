@@ -102,8 +102,10 @@ def executed(emu) -> list[tuple[int, tuple[int, ...]]]:
 
 # ---------------------------------------------------------------- the client, every engine
 
-@pytest.mark.parametrize("url,engine", [("emu:esp32?speed=0", "inline"), ("emu:esp32?speed=0", "thread"),
-                                        ("emu:esp32", "auto")])
+# (a thread engine on a speed-0 board is not among them: that board runs as fast as the CPU lets it, so
+# whether the hold lands before the plan's end would depend on the machine's load; a paced board's
+# "auto" engine is the thread)
+@pytest.mark.parametrize("url,engine", [("emu:esp32?speed=0", "inline"), ("emu:esp32", "auto")])
 def test_a_hold_mid_plan_freezes_the_arm_and_the_plan_completes_after_resume(url, engine):
     k = 40
     durs, q = wave(k)
@@ -263,7 +265,7 @@ class Terminal:
 
 def test_space_at_the_terminal_holds_and_resumes_armbridge_run(tmp_path, board):
     emu, link = board
-    k = 30
+    k = 60    # 6 s of plan: room for the key to land on a loaded machine
     plan, js = _plan(tmp_path, k, 0.1), tmp_path / "run.json"
     term = Terminal("run", str(plan), "--port", link, "--json", str(js), "--rrd", str(tmp_path / "run.rrd"))
     try:
@@ -346,7 +348,7 @@ def test_draw_port_passes_the_keys_through(tmp_path, board):
     """`armbridge draw --port` runs its plan as `armbridge run` does, keys included."""
     emu, link = board
     js = tmp_path / "draw.json"
-    term = Terminal("draw", "I", "--speed", "0.1", "--travel-speed", "0.1", "--out", str(tmp_path / "i.json"),
+    term = Terminal("draw", "I", "--speed", "0.02", "--travel-speed", "0.1", "--out", str(tmp_path / "i.json"),
                     "--port", link, "--rrd", str(tmp_path / "draw.rrd"), "--json", str(js), "--no-progress")
     try:
         term.wait_for("space or p: hold / resume")
