@@ -154,3 +154,20 @@ def test_a_busy_port_is_one_line(tmp_path):
     lines = [x for x in r.stderr.splitlines() if x.strip()]
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert lines[0].startswith("error: the rerun web viewer did not start") and "in use" in lines[0]
+
+
+def test_a_silent_viewer_process_cannot_hang_view(tmp_path, monkeypatch):
+    """A rerun that starts and says nothing (no address, no exit) is stopped after SERVE_WAIT_S with
+    one line: view never waits on it for ever (one run hung 300 s on a loaded machine)."""
+    import stat
+
+    from armbridge.errors import ArmbridgeError
+    from armbridge.telemetry import command as C
+
+    silent = tmp_path / "rerun"
+    silent.write_text("#!/bin/sh\nexec sleep 60\n")
+    silent.chmod(silent.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setattr(C, "rerun_executable", lambda: str(silent))
+    monkeypatch.setattr(C, "SERVE_WAIT_S", 1.0)
+    with pytest.raises(ArmbridgeError, match="said nowhere it serves within 1 s"):
+        C.serve_web(recording(tmp_path / "r.rrd"), 0, "127.0.0.1", open_browser=False)

@@ -10,14 +10,16 @@ A file that is not a recording is refused in one line before rerun sees it.
 from __future__ import annotations
 
 import os
+import queue
 import re
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
@@ -93,11 +95,18 @@ def serve_web(file: Path, port: int, bind: str, open_browser: bool) -> int:
     assert proc.stdout is not None
     previous = {s: signal.signal(s, _raise_interrupt) for s in (signal.SIGTERM, signal.SIGHUP)}
     last = ""
+    lines: queue.Queue[bytes] = queue.Queue()  # rerun's output, read by a thread: a silent rerun cannot hang us
+    threading.Thread(target=_pump_lines, args=(proc.stdout, lines), daemon=True).start()
     try:
         deadline = time.monotonic() + SERVE_WAIT_S
         url = None
         while url is None:
-            raw = proc.stdout.readline()
+            try:
+                raw = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                _stop(proc)
+                raise ArmbridgeError(f"the rerun web viewer said nowhere it serves within {SERVE_WAIT_S:.0f} s"
+                                     + (f": {last}" if last else "")) from None
             if not raw:  # rerun ended before it served
                 rc = proc.wait()
                 raise ArmbridgeError(f"the rerun web viewer did not start (exit {rc}): {last or 'no output'}")
@@ -118,7 +127,7 @@ def serve_web(file: Path, port: int, bind: str, open_browser: bool) -> int:
                        f"-L {grpc}:127.0.0.1:{grpc} THIS-HOST, then the same address; Ctrl-C stops it)")
         else:
             typer.echo("(Ctrl-C stops it)")
-        for raw in proc.stdout:
+        while raw := lines.get():
             _relay(_line(raw))
         return proc.wait()
     except KeyboardInterrupt:
@@ -127,6 +136,15 @@ def serve_web(file: Path, port: int, bind: str, open_browser: bool) -> int:
         _stop(proc)
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+def _pump_lines(stream: Any, out: "queue.Queue[bytes]") -> None:
+    """Every line of `stream` into `out`, then b"" at its end."""
+    try:
+        for raw in stream:
+            out.put(raw)
+    finally:
+        out.put(b"")
 
 
 def ports_of(url: str) -> tuple[int | None, int | None]:
