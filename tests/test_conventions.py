@@ -117,3 +117,10 @@ def test_the_first_planning_says_it_compiles_and_the_next_does_not(tmp_path):
     assert r.returncode == 0, r.stderr
     first, after = r.stdout.splitlines()
     assert first.startswith("compiling the planner's kernels") and after == "None"
+
+
+def test_plan_soft_json_dash_is_stdout_alone(tmp_path):
+    r = cli("plan", "soft", "--env", "two-arm", "--out", str(tmp_path / "s.json"), "--json", "-")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert "margin_mm" in s and "plan:" in r.stderr        # the table and the plan line went to stderr

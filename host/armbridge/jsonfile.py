@@ -45,13 +45,8 @@ def read_json(path: Path | str, what: str, hint: str = "") -> Any:
 
 
 def write_json(path: Path, doc: Any, what: str = "the summary") -> None:
-    """Write doc as indented JSON (numpy scalars as floats), making the folder; an OSError is one line."""
-
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    except OSError as exc:
-        raise ArmbridgeError(f"{path}: cannot write {what}: {exc.strerror}") from None
+    """Write doc as indented JSON to the file `path` (emit_json's file case: whole, the folder made)."""
+    emit_json(doc, Path(path), what)
 
 
 def wants_json_stdout(argv: list[str]) -> bool:
@@ -81,7 +76,7 @@ def emit_json(doc: Any, target: str | Path, what: str = "the summary") -> None:
             out.write(text)
             out.flush()
         except OSError:  # the terminal is gone: the exit code still says it
-            pass
+            detach(out)
         return
     path = Path(target)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -92,3 +87,14 @@ def emit_json(doc: Any, target: str | Path, what: str = "the summary") -> None:
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise ArmbridgeError(f"{path}: cannot write {what}: {exc.strerror}") from None
+
+
+def detach(stream: TextIO) -> None:
+    """Point `stream`'s file at /dev/null, so that Python's flush at exit cannot fail on a
+    closed terminal (which would turn the exit code into 120)."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, stream.fileno())
+        os.close(fd)
+    except (OSError, ValueError):
+        pass

@@ -8,7 +8,6 @@ SIGTERM, 129 SIGHUP), after the e-stop byte. The summary (table, and the
 """
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -18,7 +17,7 @@ from rich.console import Console
 
 from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, estop_note, run_plan
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
-from armbridge.jsonfile import JSON_HELP, emit_json
+from armbridge.jsonfile import JSON_HELP, detach, emit_json
 from armbridge.link.ports import auto_port
 
 
@@ -136,7 +135,7 @@ def _print(console: Console, renderable) -> None:
     try:
         console.print(renderable)
     except OSError:
-        _detach_stdout()
+        detach(sys.stdout)
 
 
 def _say(text: str, colour: str) -> None:
@@ -145,13 +144,3 @@ def _say(text: str, colour: str) -> None:
     except OSError:
         pass
 
-
-def _detach_stdout() -> None:
-    """Point stdout at /dev/null, so that Python's flush at exit cannot fail on a
-    closed terminal (which would turn our exit code into 120)."""
-    try:
-        fd = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(fd, sys.stdout.fileno())
-        os.close(fd)
-    except (OSError, ValueError):
-        pass

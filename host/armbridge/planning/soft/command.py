@@ -21,7 +21,7 @@ import numpy as np
 import typer
 
 from armbridge.errors import ArmbridgeError
-from armbridge.jsonfile import write_json
+from armbridge.jsonfile import JSON_HELP, emit_json
 
 
 @dataclass
@@ -109,7 +109,8 @@ def soft_cmd(
                                                 "[default: the scene's margin, else the pump controller's joint "
                                                 "tolerance through the chain: 4.8 mm for soft3]."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also draw the scene, the path and the waypoints to this PNG."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the planning summary as JSON."),
+    json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
+                                           help=JSON_HELP.format(what="the planning summary")),
 ) -> None:
     """Plan a soft-arm motion and write it as a plan for the pump board.
 
@@ -146,7 +147,7 @@ def soft_cmd(
                     margin=sp.clearance["margin_mm"] / 1000.0)
         console.print(f"figure: {png}")
     if json_out is not None:
-        write_json(json_out, summary)
+        emit_json(summary, json_out, "the planning summary")
     try:
         save_plan(sp.plan, out)
     except OSError as exc:
