@@ -51,9 +51,9 @@ def test_the_ma_board_boots_on_its_plant_and_hal(standin):
     assert boot[2][0] == "masr_ma" and emu.n == 6 and emu.interpreter == "cpython"
     assert isinstance(emu.plant, MaPlant) and isinstance(emu.hal, MaSimHal)
     assert emu.positions().tolist() == [0.0] * 6           # at the base, every joint 0
-    assert board_spec("masr_ma").interpreters == ("cpython",)
-    with pytest.raises(ArmbridgeError, match="'micropython' cannot run the masr_ma firmware"):
-        board(standin, interpreter="micropython")
+    assert board_spec("masr_ma").interpreters == ("cpython", "micropython")
+    with pytest.raises(ArmbridgeError, match="'simavr' cannot run the masr_ma firmware.*cpython, micropython"):
+        board(standin, interpreter="simavr")
 
 
 def test_a_move_is_tracked_truth_against_telemetry(standin):
@@ -137,7 +137,7 @@ def test_url_parameters():
     ("emu:masr_ma?slip=2:0:0.5", "DURATION > 0 s"),
     ("emu:masr_ma?missed=x", "parameter missed: missed 'x': expected a JOINT number"),
     ("emu:masr_ma?missed=0", "joints are numbered from 1"),
-    ("emu:masr_ma?interpreter=micropython", "'micropython' cannot run the masr_ma firmware; interpreters: cpython"),
+    ("emu:masr_ma?interpreter=simavr", "'simavr' cannot run the masr_ma firmware; interpreters: cpython, micropython"),
 ])
 def test_bad_url_parameters_are_one_clear_error(url, words):
     with pytest.raises(ArmbridgeError) as e:

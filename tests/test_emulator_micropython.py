@@ -119,25 +119,60 @@ def test_the_firmware_runs_in_the_micropython_interpreter(micropython):
         emu.stop()
 
 
-def test_estop_byte_turns_the_outputs_off_and_the_latch_survives_a_reset(micropython):
-    emu = EmulatedBoard("esp32", speed=0, interpreter="micropython")
-    try:
-        h = Host(emu)
-        h.request("HELLO", 5)
+# Each MicroPython board's HAL as the bridge carries it: the arm's effort rig, the paper's
+# PCA9685 rig (the firmware's own driver on the bridged I2C bus), the MASR actuator.
+BOARDS = {"esp32": "esp32", "pca9685": "esp32?servos=pca9685", "masr_ma": "masr_ma"}
+
+
+def spec_of(board: str):
+    from armbridge.emulator.registry import board_spec, rig_spec
+
+    return rig_spec(board_spec("esp32"), "pca9685") if board == "pca9685" else board_spec(board)
+
+
+def writes(hal) -> int:
+    """How many output writes the emulator's HAL has seen (efforts, set points, motor efforts)."""
+    if hasattr(hal, "loco_log"):
+        return len(hal.loco_log) + len(hal.rot_log)
+    return len(hal.positions) if hasattr(hal, "positions") else len(hal.efforts)
+
+
+def start_moving(h: Host, board: str) -> None:
+    """A long move under way (RUN, outputs on): a 2 s W on the arm's rigs; HOME and a 300 mm MV on the MA."""
+    emu = h.emu
+    if board != "masr_ma":
         free = int(h.request("STAT")[2][1])
         for i in range(free):
             assert h.request("W", i, 2000, 1571 + (300 if i % 2 == 0 else -300), -1571, 0)[1] == "OK"
         emu.run_for(0.05)
+        return
+    assert h.request("HOME", 0)[1] == "OK" and h.request("MV", 1, 300)[1] == "OK"
+    for _ in range(40):             # the watchdog (1 s) is fed by the STATs
+        emu.run_for(0.05)
+        h.request("STAT")
+        if len(emu.executed) == 1 and abs(emu.plant.v) > 0.05:
+            return
+    raise AssertionError(f"the MA did not start its MV: {emu.executed}, {h.lines[-3:]}")
+
+
+@pytest.mark.parametrize("board", sorted(BOARDS))
+def test_estop_byte_turns_the_outputs_off_and_the_latch_survives_a_reset(micropython, board):
+    emu = EmulatedBoard(spec_of(board), speed=0, interpreter="micropython")
+    try:
+        h = Host(emu)
+        h.request("HELLO", 5)
+        start_moving(h, board)
         assert emu.state == "RUN" and emu.hal.outputs_enabled
         emu.inject(b"\x98")
         h.wait(lambda line: line[1] == "EV" and line[2][1] == "ESTOP")
         assert len(emu.estop_byte_at) == 1
         latency = emu.outputs_off_at[-1] - emu.estop_byte_at[-1]
         assert 0 <= latency <= 0.002  # sim time: the board polls every millisecond
-        n_eff = len(emu.hal.efforts)
+        n_out = writes(emu.hal)
         emu.run_for(0.3)
-        assert emu.state == "ESTOP" and not emu.hal.outputs_enabled and len(emu.hal.efforts) == n_eff
-        refused = h.request("W", 99, 100, 1571, -1571, 0)
+        assert emu.state == "ESTOP" and not emu.hal.outputs_enabled and writes(emu.hal) == n_out
+        move = ("MV", 99, 100) if board == "masr_ma" else ("W", 99, 100, 1571, -1571, 0)
+        refused = h.request(*move)
         assert refused[1] == "ER" and refused[2][2] == "LATCHED"
 
         emu.reset()  # a fresh interpreter boots from the persisted memory
@@ -145,10 +180,10 @@ def test_estop_byte_turns_the_outputs_off_and_the_latch_survives_a_reset(micropy
         assert len(emu.boots) == 2 and emu.state == "ESTOP"
         assert h.request("HELLO", 5)[2][-1] == "ESTOP"  # no HELLO releases a latch
         emu.run_for(0.2)
-        assert not emu.hal.outputs_enabled and len(emu.hal.efforts) == n_eff
+        assert not emu.hal.outputs_enabled and writes(emu.hal) == n_out
         assert h.request("CLR")[1] == "OK"
         emu.run_for(0.05)
-        assert emu.state == "IDLE" and emu.hal.outputs_enabled
+        assert emu.state == "IDLE" and emu.crash is None
     finally:
         emu.stop()
 
@@ -171,16 +206,34 @@ def test_a_firmware_exception_shows_the_micropython_traceback(micropython, tmp_p
 # ---------------------------------------------------------------- the executor, in lockstep
 
 @pytest.mark.hil
-def test_a_plan_runs_every_waypoint_once_with_its_values(micropython, tmp_path, ports):
+@pytest.mark.parametrize("board", sorted(BOARDS))
+def test_a_plan_runs_every_waypoint_once_with_its_values(micropython, board, tmp_path, ports):
+    """One whole plan per MicroPython board, the executor against the firmware under the real
+    interpreter: every waypoint (the MA: every action) done once, in order, with its values."""
     from armbridge.executor.run import run_plan
 
-    plan = wave_plan(40)
-    s = run_plan(plan, "emu:esp32?interpreter=micropython&speed=0&seed=3", tmp_path / "mp.rrd", progress=False)
-    emu = ports[0].emulator
+    url = f"emu:{BOARDS[board]}" + ("&" if "?" in BOARDS[board] else "?") + "interpreter=micropython&speed=0&seed=3"
+    if board == "masr_ma":
+        from armbridge.executor.masr import masr_commands
+        from armbridge.planning.masr.plan_file import load_masr_plan
+        from test_masr_exec import assert_each_action_once, line_plan
+
+        path = line_plan(tmp_path)   # HOME, onto joint 2, turn it, 150 mm along link 2
+        s = run_plan(path, url, tmp_path / "mp.rrd", progress=False, home=True)
+        emu = ports[0].emulator
+        commands = masr_commands(load_masr_plan(path), home=True)[1]
+        assert_each_action_once(emu, commands)
+        assert len(emu.hal.hall_log) >= 2 and emu.plant.d == pytest.approx(0.35, abs=0.005)  # the goal's d
+    else:
+        plan = wave_plan(40)
+        s = run_plan(plan, url, tmp_path / "mp.rrd", progress=False)
+        emu = ports[0].emulator
+        assert_executed_once_with_values(emu, plan)
+        assert np.allclose(emu.positions(), plan.q[-1], atol=0.03)   # the plant followed
+        if board == "pca9685":   # the firmware's own driver drove the simulated chip
+            assert emu.hal.bus.transfers > 40 and emu.hal.positions
     assert emu.interpreter == "micropython" and emu.crash is None
     assert s.completed and s.final_state == "IDLE", s
-    assert (s.waypoints_done, s.waypoints_sent, s.waypoints_acked) == (40, 40, 40)
-    assert_executed_once_with_values(emu, plan)
 
 
 def reset_after(ports, n: int, stop: threading.Event) -> threading.Thread:

@@ -322,12 +322,13 @@ def test_the_rig_is_named_by_url_and_cli_and_bad_rigs_are_one_error():
     assert parse_emu_url("emu:esp32?servos=effort") == ("esp32", {})
     with pytest.raises(ArmbridgeError, match="servos.*'bogus'.*effort, pca9685"):
         parse_emu_url("emu:esp32?servos=bogus")
-    with pytest.raises(ArmbridgeError, match="pca9685 rig.*cpython"):
-        parse_emu_url("emu:esp32?servos=pca9685&interpreter=micropython")
+    spec, kw = parse_emu_url("emu:esp32?servos=pca9685&interpreter=micropython")
+    assert spec.rig == "pca9685" and kw == {"interpreter": "micropython"}
+    assert spec.interpreters == ("cpython", "micropython")   # the bridge carries its I2C bus
     app = typer.Typer()
     app.command()(emulate_cmd)
     for args, words in ((["esp32", "--servos", "bogus"], ["'bogus'", "effort, pca9685"]),
-                        (["esp32", "--servos", "pca9685", "--interpreter", "micropython"], ["pca9685", "cpython"])):
+                        (["esp32", "--servos", "pca9685", "--interpreter", "simavr"], ["simavr", "cpython, micropython"])):
         result = CliRunner().invoke(app, args)
         assert isinstance(result.exception, ArmbridgeError), result.output
         assert "\n" not in str(result.exception)

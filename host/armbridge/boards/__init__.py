@@ -102,14 +102,13 @@ register(Board(
     firmware=MicroPythonFirmware(dirs=("esp32", "common")), persist_bytes=ESP32_RTC_MEMORY,
     rigs={"effort": Rig("continuous servos driven by effort, potentiometer feedback (hal_esp32.Esp32Hal)",
                         ("cpython", "micropython")),
-          # The MicroPython bridge replays write_outputs only: this rig runs under CPython.
+          # Under MicroPython the firmware's own PCA9685 driver runs there, on the bridged I2C bus.
           "pca9685": Rig("positional hobby servos behind a PCA9685 on I2C, the paper's rig (hal_pca9685.Pca9685Hal)",
-                         ("cpython",))}))
-# The MicroPython bridge carries the arm's HAL (joint readings in, efforts out), not the
-# MA's (counts and hall edges in, loco/rot/grip out): cpython only in the emulator.
+                         ("cpython", "micropython"))}))
+# The MicroPython bridge carries the MA's HAL too (counts and hall edges in, loco/rot/grip out).
 register(Board(
     name="masr_ma", description="MASR mobile actuator, ESP32, MicroPython", identity="masr_ma", robot="masr5",
-    firmware=MicroPythonFirmware(dirs=("masr_ma", "common"), board_module="ma", interpreters=("cpython",)),
+    firmware=MicroPythonFirmware(dirs=("masr_ma", "common"), board_module="ma"),
     persist_bytes=ESP32_RTC_MEMORY))
 register(Board(
     name="arduino_pump", description="soft arm's syringe-pump board, Arduino Mega 2560, C++ in simavr",

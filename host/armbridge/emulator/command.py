@@ -50,7 +50,7 @@ def emulate_cmd(
     servos: Optional[str] = typer.Option(None, "--servos", metavar="RIG",
                                          help="The board's rig (its config SERVOS): " + _RIGS + ". effort: continuous "
                                               "servos driven by effort (default); pca9685: positional servos behind "
-                                              "a PCA9685 on I2C, the paper's rig (cpython only)."),
+                                              "a PCA9685 on I2C, the paper's rig."),
     drop: str = typer.Option("0", "--drop", metavar="R", help="Fraction of bytes dropped, [0, 1]."),
     corrupt: str = typer.Option("0", "--corrupt", metavar="R", help="Fraction of bytes with one bit flipped, [0, 1]."),
     dup: str = typer.Option("0", "--dup", metavar="R", help="Fraction of bytes sent twice, [0, 1]."),

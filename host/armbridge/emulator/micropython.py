@@ -4,15 +4,19 @@ The emulator normally imports the firmware modules into CPython, which runs
 them about nine times faster than MicroPython does. This runner boots the same
 firmware files instead in the MicroPython WebAssembly interpreter from npm
 (`@micropython/micropython-webassembly-pyscript`), run by Node
-(`mpbridge/bridge.mjs`), against the bridge HAL of `mpbridge/bridgehal.py`, so
+(`mpbridge/bridge.mjs`), against the bridge HAL of `mpbridge/bridgehal.py`
+(the arm's effort rig) or `mpbridge/bridgerigs.py` (the MASR actuator, the
+PCA9685 rig: `rig_of` picks it from the emulator's HAL), so
 that the executor and the tests meet MicroPython itself: its integers, its
 string formatting, its builtins, its memory.
 
 Lockstep, one round trip per emulator tick: `poll()` sends the emulator's clock,
-the bytes the UART delivered and the joint readings, the firmware runs one pass
+the bytes the UART delivered and the rig's sensors, the firmware runs one pass
 of its main loop there, and the answer (the firmware's HAL calls, in order: UART
-writes, outputs, outputs off, persisted memory, completed waypoints, and its
-state) is replayed on the emulator's `SimHal`, so plant, UART lanes and the
+writes, outputs, outputs off, persisted memory, completed waypoints, the rig's
+own fields, and its state) is replayed on the emulator's HAL; a question in the
+middle of a pass (an I2C register read) is answered from that HAL after the
+log before it is replayed. So plant, UART lanes and the
 board's records are the same objects as under CPython. Before each boot the
 emulator HAL's files (`hal.files`: the IK weights) are written into the
 interpreter's filesystem, where the firmware's `hal.read_file` opens them as on
@@ -182,6 +186,17 @@ class MicroPythonRunner:
         self._finalizer()
 
 
+def rig_of(hal: Any) -> str:
+    """The bridge's name for the rig of the emulator's HAL `hal` (bridgehal.make_hal):
+    "ma" (MaSimHal: counts and hall edges in, loco/rot/grip out), "pca" (PcaSimHal:
+    the firmware's PCA9685 driver on the bridged I2C bus), "arm" (SimHal: efforts)."""
+    if hasattr(hal, "wheel_count"):
+        return "ma"
+    if getattr(hal, "POSITIONAL", False):
+        return "pca"
+    return "arm"
+
+
 class MicroPythonBoard:
     """The emulator's view of a board running under MicroPython (the duck type
     of the firmware's Board: poll(), state, estop(), on_done)."""
@@ -191,13 +206,16 @@ class MicroPythonBoard:
         self.hal = hal
         self.state = "RESET"
         self.on_done: Callable[..., None] | None = None
+        self.rig = rig_of(hal)
         self._q = [0.0] * n
+        self._replay = self._handlers(hal)
         self._flash(hal)
         self._answer(self._request("B", hal.load_persist() or b""))
 
     def _flash(self, hal: Any) -> None:
         """The HAL's optional parts and its files into the fresh interpreter (F, H requests)."""
-        caps = json.dumps({"has_pen": bool(getattr(hal, "has_pen", False)), "uid": hal.uid()}).encode()
+        caps = json.dumps({"has_pen": bool(getattr(hal, "has_pen", False)), "uid": hal.uid(),
+                           "rig": self.rig}).encode()
         calls = ["H 0 0 " + caps.hex()]
         for name, data in (getattr(hal, "files", None) or {}).items():
             if not name or any(c.isspace() for c in name):
@@ -218,38 +236,81 @@ class MicroPythonBoard:
     def estop(self) -> None:
         self._answer(self._request("E", None))
 
+    def _sensors(self) -> str:
+        """The rig's sensor readings at the emulator's clock (bridgehal's SENSORS)."""
+        hal = self.hal
+        if self.rig == "ma":
+            edges = hal.hall_edges()
+            return "%d %d %d %s" % (hal.wheel_count(), hal.gear_count(), hal.hall_level(),
+                                    ",".join(map(str, edges)) or "-")
+        hal.read_positions(self._q)
+        return " ".join(map(repr, self._q))
+
     def _request(self, cmd: str, data: bytes | None) -> str:
         hal = self.hal
-        hal.read_positions(self._q)
         line = "%s %d %d %s %s" % (cmd, hal.ticks_ms(), hal.ticks_us(), data.hex() if data else "-",
-                                   " ".join(map(repr, self._q)))
-        return self.proc.call(line)
+                                   self._sensors())
+        answer = self.proc.call(line)
+        while answer.startswith("?"):   # a question mid-pass: the log so far, then the query
+            fields = answer[1:].split("\t")
+            self._apply(fields[:-1])
+            answer = self.proc.call(self._query(fields[-1]))
+        return answer
+
+    def _query(self, q: str) -> str:
+        if q[:1] == "r" and self.rig == "pca":
+            addr, reg, n = (int(x) for x in q[1:].split(","))
+            return self.hal.bridged_read(addr, reg, n).hex()
+        raise BridgeError(f"the MicroPython bridge asked {q[:40]!r}, which this rig does not answer")
+
+    def _handlers(self, hal: Any) -> dict[str, Callable[[str], None]]:
+        """Field kind -> how it is replayed on the emulator's HAL `hal` (see bridgehal.py's docstring)."""
+        def done(body: str) -> None:
+            if self.on_done is not None:
+                self.on_done(*json.loads(body))
+
+        def file(body: str) -> None:
+            name, _, data = body.partition(" ")
+            hal.write_file(name, bytes.fromhex(data))
+
+        def floats(body: str) -> list[float]:
+            return [float(x) for x in body.split(",")]
+
+        h: dict[str, Callable[[str], None]] = {
+            "T": lambda b: hal.uart_write(bytes.fromhex(b)),
+            "X": lambda b: hal.outputs_off(),
+            "P": lambda b: hal.save_persist(bytes.fromhex(b)),
+            "N": lambda b: hal.write_pen(b == "1") if hasattr(hal, "write_pen") else None,
+            "W": file,
+            "D": done,
+        }
+        if self.rig == "arm":
+            h["O"] = lambda b: hal.write_outputs(floats(b))
+        elif self.rig == "ma":
+            h.update(L=lambda b: hal.loco(float(b)), R=lambda b: hal.rot(float(b)), G=lambda b: hal.grip(b == "1"))
+        else:  # pca: the transfers drive the simulated chip; the HAL-level fields are records
+            def i2c(body: str) -> None:
+                addr, reg, data = body.split(",")
+                hal.bridged_write(int(addr), int(reg), bytes.fromhex(data))
+
+            h.update(I=i2c, Z=lambda b: hal.bridged_sleep_us(int(b)), Q=lambda b: hal.bridged_positions(floats(b)),
+                     X=lambda b: hal.bridged_off(), N=lambda b: hal.bridged_pen(b == "1"),
+                     C=lambda b: hal.bridged_calibration(*(int(x) for x in b.split(","))))
+        return h
+
+    def _apply(self, fields: list[str]) -> None:
+        """Replays the firmware's HAL calls on the emulator's HAL, in order."""
+        replay = self._replay
+        for f in fields:
+            kind, body = f[:1], f[1:]
+            if kind == "!":
+                raise FirmwareCrashed("the firmware raised under MicroPython:\n" + json.loads(body))
+            handler = replay.get(kind)
+            if handler is None:
+                raise BridgeError(f"the MicroPython bridge sent an unknown field {f[:40]!r}")
+            handler(body)
 
     def _answer(self, answer: str) -> None:
-        """Replays the firmware's HAL calls on the emulator's HAL, in order."""
         fields = answer.split("\t")
         self.state = fields[0]
-        hal = self.hal
-        for f in fields[1:]:
-            kind, body = f[:1], f[1:]
-            if kind == "T":
-                hal.uart_write(bytes.fromhex(body))
-            elif kind == "O":
-                hal.write_outputs([float(x) for x in body.split(",")])
-            elif kind == "X":
-                hal.outputs_off()
-            elif kind == "P":
-                hal.save_persist(bytes.fromhex(body))
-            elif kind == "N":
-                if hasattr(hal, "write_pen"):
-                    hal.write_pen(body == "1")
-            elif kind == "W":
-                name, _, data = body.partition(" ")
-                hal.write_file(name, bytes.fromhex(data))
-            elif kind == "D":
-                if self.on_done is not None:
-                    self.on_done(*json.loads(body))
-            elif kind == "!":
-                raise FirmwareCrashed("the firmware raised under MicroPython:\n" + json.loads(body))
-            else:
-                raise BridgeError(f"the MicroPython bridge sent an unknown field {f[:40]!r}")
+        self._apply(fields[1:])

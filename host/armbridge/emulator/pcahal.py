@@ -113,11 +113,7 @@ class PcaSimHal(SimHal):
     # the HAL -------------------------------------------------------------
     def write_positions(self, q) -> None:
         self.servos.write(q)
-        t = self.clock.t
-        if not self.outputs_enabled:
-            self.outputs_on_at.append(t)
-        self.outputs_enabled = True
-        self.positions.append((t, tuple(float(x) for x in q)))
+        self.bridged_positions(q)
 
     def write_outputs(self, efforts) -> None:
         raise ArmbridgeError("the pca9685 rig has positional servos: the board must call "
@@ -125,17 +121,45 @@ class PcaSimHal(SimHal):
 
     def outputs_off(self) -> None:
         self.servos.off()
-        if self.outputs_enabled:
-            self.outputs_off_at.append(self.clock.t)
-        self.outputs_enabled = False
+        self.bridged_off()
 
     def set_calibration(self, j0: int, us_a: int, mrad_a: int, us_b: int, mrad_b: int) -> None:
         self.servos.set_calibration(j0, us_a, mrad_a, us_b, mrad_b)
-        self.calibrations.append((self.clock.t, int(j0), int(us_a), int(mrad_a), int(us_b), int(mrad_b)))
+        self.bridged_calibration(j0, us_a, mrad_a, us_b, mrad_b)
 
     def set_lead(self, j0: int, mrad: int) -> None:
         self.servos.set_lead(j0, mrad)
 
     def write_pen(self, down: bool) -> None:
         self.servos.pen(down)
-        super().write_pen(down)
+        self.bridged_pen(down)
+
+    # the firmware's own driver under MicroPython (emulator/micropython.py) ------------
+    # There the firmware's pca9685.py and servos.py run in the interpreter: their I2C
+    # transfers and busy-waits come here in order, the HAL-level calls only as records.
+    def bridged_write(self, addr: int, reg: int, data: bytes) -> None:
+        self.bus.writeto_mem(addr, reg, data)
+
+    def bridged_read(self, addr: int, reg: int, n: int) -> bytes:
+        return self.bus.readfrom_mem(addr, reg, n)
+
+    def bridged_sleep_us(self, us: int) -> None:
+        self._busy_wait(us)
+
+    def bridged_positions(self, q) -> None:
+        t = self.clock.t
+        if not self.outputs_enabled:
+            self.outputs_on_at.append(t)
+        self.outputs_enabled = True
+        self.positions.append((t, tuple(float(x) for x in q)))
+
+    def bridged_off(self) -> None:
+        if self.outputs_enabled:
+            self.outputs_off_at.append(self.clock.t)
+        self.outputs_enabled = False
+
+    def bridged_calibration(self, j0: int, us_a: int, mrad_a: int, us_b: int, mrad_b: int) -> None:
+        self.calibrations.append((self.clock.t, int(j0), int(us_a), int(mrad_a), int(us_b), int(mrad_b)))
+
+    def bridged_pen(self, down: bool) -> None:
+        SimHal.write_pen(self, down)

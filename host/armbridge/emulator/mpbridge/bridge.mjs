@@ -6,14 +6,16 @@
 //
 // DIRs are the firmware folders in import order (e.g. firmware/esp32 then
 // firmware/common); their *.py files are copied into the interpreter's
-// filesystem, one folder each, ahead of this folder's bridgehal.py and
-// fwcost.py on sys.path. `@micropython.native` / `@micropython.viper` lines are
+// filesystem, one folder each, ahead of this folder's bridgehal.py,
+// bridgerigs.py and fwcost.py on sys.path. `@micropython.native` / `@micropython.viper` lines are
 // commented out on the way (this port has no native emitter), as in
 // tests/mpy/run_tests.mjs; nothing else is changed.
 //
 // MODE "serve": prints `READY <micropython version>`, then answers every line
 // on stdin with one line on stdout (bridgehal.step; the protocol is in
-// bridgehal.py's docstring) until stdin closes. MODE "bench:<json>": runs
+// bridgehal.py's docstring) until stdin closes. Reading and writing are
+// synchronous, so that a question in the middle of a step (jsbridge.ask: a
+// `?` line out, its answer line in) is answered before the step goes on. MODE "bench:<json>": runs
 // fwcost.py's items (mp_start(<json>), mp_run per item, mp_result) and prints
 // the JSON result as one line. What the
 // firmware prints goes to stderr. Exit status 2: it could not start.
@@ -43,18 +45,20 @@ async function main() {
   });
   // The bench's clock: time.ticks_us() of this port counts whole milliseconds.
   mp.registerJsModule("jsclock", { us: () => performance.now() * 1000 });
+  mp.registerJsModule("jsbridge", { ask: (line) => { writeLine(line); return readLine(); } });
   const FS = mp.FS;
   const paths = [];
   dirs.forEach((d, i) => {
     copyPy(FS, d, "/fw/" + i);
     paths.push("/fw/" + i);
   });
-  copyPy(FS, here, "/bridge", (n) => n === "bridgehal.py" || n === "fwcost.py");
+  copyPy(FS, here, "/bridge", (n) => ["bridgehal.py", "bridgerigs.py", "fwcost.py"].includes(n));
   paths.push("/bridge");
   mp.runPython(`
 import sys
 sys.path[:] = ${JSON.stringify(paths)}
 import bridgehal
+import bridgerigs
 bridgehal.setup(${JSON.stringify(boardModule)}, ${JSON.stringify(configModule)})
 _version = "%d.%d.%d" % sys.implementation.version[:3]
 `);
@@ -73,25 +77,60 @@ _version = "%d.%d.%d" % sys.implementation.version[:3]
   }
   if (mode !== "serve") fail("unknown mode " + mode);
   const step = mp.pyimport("bridgehal").step;
-  process.stdout.write("READY " + mp.globals.get("_version") + "\n");
-  let pending = "";
-  process.stdin.setEncoding("latin1");
-  process.stdin.on("data", (chunk) => {
-    pending += chunk;
-    let nl;
-    while ((nl = pending.indexOf("\n")) >= 0) {
+  writeLine("READY " + mp.globals.get("_version"));
+  for (;;) {
+    const line = readLine();
+    let answer;
+    try {
+      answer = step(line);
+    } catch (e) {
+      answer = "CRASHED\t!" + JSON.stringify("bridge: " + (e && e.message ? e.message : String(e)));
+    }
+    writeLine(answer);
+  }
+}
+
+// ------------------------------------------------------------ synchronous lines
+const chunk = Buffer.alloc(1 << 16);
+const nap = new Int32Array(new SharedArrayBuffer(4));
+let pending = "";
+
+function writeLine(text) {
+  const data = Buffer.from(text + "\n", "latin1");
+  let off = 0;
+  while (off < data.length) {
+    try {
+      off += fs.writeSync(1, data, off);
+    } catch (e) {
+      if (e.code !== "EAGAIN") throw e;
+      Atomics.wait(nap, 0, 0, 1);
+    }
+  }
+}
+
+// The next line of stdin (without its newline); stdin's end ends the process.
+function readLine() {
+  for (;;) {
+    const nl = pending.indexOf("\n");
+    if (nl >= 0) {
       const line = pending.slice(0, nl);
       pending = pending.slice(nl + 1);
-      let answer;
-      try {
-        answer = step(line);
-      } catch (e) {
-        answer = "CRASHED\t!" + JSON.stringify("bridge: " + (e && e.message ? e.message : String(e)));
-      }
-      process.stdout.write(answer + "\n");
+      return line;
     }
-  });
-  process.stdin.on("end", () => process.exit(0));
+    let n;
+    try {
+      n = fs.readSync(0, chunk, 0, chunk.length, null);
+    } catch (e) {
+      if (e.code === "EAGAIN") {
+        Atomics.wait(nap, 0, 0, 1);
+        continue;
+      }
+      if (e.code === "EOF") process.exit(0);
+      throw e;
+    }
+    if (n === 0) process.exit(0);
+    pending += chunk.toString("latin1", 0, n);
+  }
 }
 
 main().catch((e) => fail(e && e.stack ? e.stack : String(e)));

@@ -14,16 +14,27 @@ Request lines (one per round trip, from armbridge.emulator.micropython):
                                 interpreter's filesystem (the board's files: the IK
                                 weights); answered `OK`
     H 0 0 CAPS                  before a boot: the emulator HAL's optional parts, a
-                                JSON object in hex ({"has_pen": bool, "uid": str});
-                                answered `OK`
-    B ms us PERSIST q1 .. qn    boot: import the firmware, construct the board
-    S ms us RX q1 .. qn         one pass of the main loop: board.poll()
-    E ms us - q1 .. qn          the board's estop()
-PERSIST and RX are hex, "-" for none. The answer is one line of tab-separated
+                                JSON object in hex ({"has_pen": bool, "uid": str,
+                                "rig": "arm" | "ma" | "pca"}); answered `OK`
+    B ms us PERSIST SENSORS     boot: import the firmware, construct the HAL of the
+                                rig (make_hal) and the board
+    S ms us RX SENSORS          one pass of the main loop: board.poll()
+    E ms us - SENSORS           the board's estop()
+PERSIST and RX are hex, "-" for none. SENSORS are the rig's (its HAL's
+sense()): the joint readings q1 .. qn on the arm's rigs, `wheel gear level
+edges` on the MA (bridgerigs.py). The answer is one line of tab-separated
 fields: the board's state, then the log in order: `T<hex>` UART bytes,
 `O<e1>,..,<en>` outputs written, `X` outputs off, `P<hex>` persisted memory
-written, `N1` / `N0` pen down / up, `W<name> <hex>` a file the firmware wrote, `D<json list>` the arguments of the completion hook; and last, when
-the firmware raised, `!<json string>` its traceback.
+written, `N1` / `N0` pen down / up, `W<name> <hex>` a file the firmware wrote,
+`D<json list>` the arguments of the completion hook, the rigs' own fields
+(bridgerigs.py: `L`, `R`, `G`, `I`, `Z`, `Q`, `C`); and last, when the firmware
+raised, `!<json string>` its traceback.
+
+A question in the middle of a pass (an I2C read: the answer depends on the
+writes before it) is one line `?<the log so far, tab-separated>\t<query>`
+(the log is then no longer in the answer); the emulator replays that log,
+answers the query (`r<addr>,<reg>,<n>`: the bytes read, hex) with one line,
+and the pass goes on (`ask`; bridge.mjs's `jsbridge.ask` carries it).
 """
 
 import binascii
@@ -121,6 +132,22 @@ class BridgeHal:
     def uid(self):
         return self._uid
 
+    def sense(self, fields):
+        """This pass's sensor readings from the request (the arm's: the joint readings)."""
+        self.q = [float(x) for x in fields]
+
+    def start(self, cfg):
+        """After the clock and sensors of the boot request are set: the rig's own setup."""
+
+    def ask(self, query):
+        """A question to the emulator in the middle of a pass (see the module docstring)
+        -> the bytes of its answer. `asker` (line -> answer line) carries it: bridge.mjs's
+        jsbridge.ask under the bridge, fwcost's own in the bench."""
+        line = "?" + "\t".join(_fields(self) + [query])
+        return binascii.unhexlify(self.asker(line))
+
+    asker = None
+
     def on_done(self, *args):
         """The board's completion hook (its arguments are passed on as they are)."""
         self.ops.append((DONE, args))
@@ -144,8 +171,22 @@ def _hex(data):
     return binascii.hexlify(data).decode()
 
 
-def _drain(hal, state, error=None):
-    out = [state]
+# rig name -> its HAL class; bridgerigs.py adds its rigs, and their log fields to FIELDS
+# (kind -> function(value) -> answer field), when it is imported (bridge.mjs, fwcost.py)
+RIGS = {"arm": BridgeHal}
+FIELDS = {}  # type: dict
+
+
+def make_hal(rig, n, persist=b"", has_pen=False, uid="0"):
+    """The bridge HAL of `rig` ("arm": this module's BridgeHal; "ma", "pca": bridgerigs.py's)."""
+    if rig not in RIGS:
+        raise ValueError("the bridge carries no rig %r" % rig)
+    return RIGS[rig](n, persist, has_pen, uid)
+
+
+def _fields(hal):
+    """The log as answer fields, in order; the log is emptied."""
+    out = []
     tx = b""
     for kind, v in hal.ops:
         if kind == TX:
@@ -164,11 +205,18 @@ def _drain(hal, state, error=None):
             out.append("N1" if v else "N0")
         elif kind == FILE:
             out.append("W%s %s" % (v[0], _hex(v[1])))
-        else:
+        elif kind == DONE:
             out.append("D" + json.dumps(list(v)))
+        else:
+            out.append(FIELDS[kind](v))
     if tx:
         out.append("T" + _hex(tx))
     hal.ops = []
+    return out
+
+
+def _drain(hal, state, error=None):
+    out = [state] + _fields(hal)
     if error is not None:
         out.append("!" + json.dumps(error))
     return "\t".join(out)
@@ -197,19 +245,23 @@ def step(line):
     if cmd == "H":
         _caps = json.loads((data or b"{}").decode())
         return "OK"
-    q = [float(x) for x in parts[4:]]
-    if cmd == "B":
-        _hal = BridgeHal(len(q), data or b"", _caps.get("has_pen", False), _caps.get("uid", "0"))
     hal = _hal
-    if hal is None:
-        return "RESET\t!" + json.dumps("the bridge got %r before a boot" % cmd)
-    hal.ms = int(parts[1])
-    hal.us = int(parts[2])
-    hal.q = q
     board = _board
     try:
         if cmd == "B":
+            _board = None
             cfg = __import__(_modules[1])
+            hal = make_hal(_caps.get("rig", "arm"), cfg.N_JOINTS, data or b"", _caps.get("has_pen", False),
+                           _caps.get("uid", "0"))
+            hal.asker = _asker
+            _hal = hal
+        if hal is None:
+            return "RESET\t!" + json.dumps("the bridge got %r before a boot" % cmd)
+        hal.ms = int(parts[1])
+        hal.us = int(parts[2])
+        hal.sense(parts[4:])
+        if cmd == "B":
+            hal.start(cfg)
             board = __import__(_modules[0]).Board(hal, cfg)
             board.on_done = hal.on_done
             _board = board
@@ -224,5 +276,13 @@ def step(line):
             raise ValueError("unknown bridge request %r" % cmd)
     except Exception as e:
         _board = None
+        if hal is None:
+            return "CRASHED\t!" + json.dumps(_traceback(e))
         return _drain(hal, "CRASHED", _traceback(e))
     return _drain(hal, board.state)
+
+
+def _asker(line):
+    import jsbridge  # type: ignore[import-not-found]  # bridge.mjs registers it
+
+    return jsbridge.ask(line)
