@@ -7,7 +7,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm import dataset, fourier, refine
 from armbridge.smm.arms import get_smm_arm
 from armbridge.smm.dataset import SmmDataset
-from armbridge.smm.grid import GridSpec
+from armbridge.smm.grid import GridSpec, region_grid
 
 torch.set_num_threads(1)
 
@@ -114,3 +114,57 @@ def test_the_4r_three_branch_sliver_is_learnable_only_after_refinement():
     assert np.median(err) < 0.01                                         # K = 8 of 32: a coarse spectrum
     info = refine.summary(parts)
     assert sum(p["clusters_by_branches"].get("3", 0) for p in info) == three.size
+
+
+def test_disagree_marks_both_sides_of_a_count_change_and_wraps_periodic_axes():
+    count = np.array([[1, 1, 1, 2],
+                      [1, 1, 1, 1]])
+    assert refine.disagree(count).astype(int).tolist() == [[0, 0, 1, 1], [0, 0, 0, 1]]
+    # axis 1 periodic: the last column's 2 also meets the first column's 1
+    assert refine.disagree(count, (False, True)).astype(int).tolist() == [[1, 0, 1, 1], [0, 0, 0, 1]]
+    assert not refine.disagree(np.full((3, 1, 4), 2)).any()
+    with pytest.raises(ArmbridgeError, match="one flag per grid axis"):
+        refine.disagree(count, (True,))
+
+
+def test_4d_patches_are_tiles_with_per_axis_factors():
+    g = GridSpec((0.0, 0.0, 0.0, -4.0), (1.0, 1.0, 4.0, 4.0), (1, 1, 4, 8))
+    seeds = np.zeros(g.shape, bool)
+    seeds[0, 0, 0, 0] = seeds[0, 0, 3, 7] = True
+    # pad 3 grows them into one box (the whole grid); tiles of 2 keep only the corners' tiles
+    tiles = refine.patches(g, seeds, (1, 1, 2, 3), pad=3, tile=2)
+    assert [(t.lo, t.hi, t.shape) for t in tiles] == [((0.0, 0.0, 0.0, -4.0), (1.0, 1.0, 2.0, -2.0), (1, 1, 4, 6)),
+                                                      ((0.0, 0.0, 2.0, 2.0), (1.0, 1.0, 4.0, 4.0), (1, 1, 4, 6))]
+    assert refine.cells_of(g, tiles[1]) == (slice(0, 1), slice(0, 1), slice(2, 4), slice(6, 8))
+    assert refine.patch_sing_tol(0.01, (1, 1, 4, 4)) == pytest.approx(0.005)
+    for bad in ((1, 1, 1, 1), (2, 2), (1, 1, 2.5, 2)):
+        with pytest.raises(ArmbridgeError, match="refinement factor"):
+            refine.patches(g, seeds, bad)
+    with pytest.raises(ArmbridgeError, match="tile must be"):
+        refine.patches(g, seeds, 2, tile=0)
+
+
+def test_the_7r_grid_is_refined_where_neighbouring_cells_disagree():
+    """A tiny 7R grid over tool directions (1 x 1 x 2 x 4): the cells where neighbours disagree on the
+    branch count are refined 2x in azimuth, in tiles of 2 cells; each patch is traced (its own SMMs) and
+    replaces its coarse rows. A deadline already passed refines nothing."""
+    arm = get_smm_arm("spatial7r")
+    rg = region_grid(arm)
+    g = GridSpec(rg.lo, (rg.lo[0] + 0.05, rg.lo[1] + 0.05, np.pi, np.pi), (1, 1, 2, 4))
+    opts = dict(seeds=16, device="cpu", sing_tol=0.005, step=0.04)
+    coarse = dataset.build_dataset(arm, g, K=8, N=32, per_cell=0, batch=512, **opts)
+    seeds = refine.seeds_for(arm, coarse)
+    counts = coarse.smms.count.reshape(g.shape)
+    assert seeds.any() and (seeds >= refine.disagree(counts, (False, False, False, True))).all()
+    same, none = refine.refine(arm, coarse, (1, 1, 1, 2), pad=0, per_cell=0, tile=2, deadline=0.0, **opts)
+    assert none == [] and same is coarse.dataset
+    merged, parts = refine.refine(arm, coarse, (1, 1, 1, 2), pad=0, per_cell=0, tile=2, min_cells=1, **opts)
+    assert parts
+    for p in parts:
+        assert p.grid.shape == (1, 1, 2, 4) and p.sing_tol == pytest.approx(0.005 / np.sqrt(2))
+        assert seeds[refine.cells_of(g, p.grid)].any()
+        assert len(p.dataset.canon) == p.grid.size and set(p.dataset.cluster_branches) <= set(range(1, 9))
+    assert merged.canon.shape[0] == g.size - refine.inside([p.grid for p in parts], g.centres()).sum() + sum(
+        p.grid.size for p in parts)
+    covered = refine.inside([p.grid for p in parts], g.centres())
+    assert covered[seeds.ravel()].all()  # every cell where neighbours disagree is refined

@@ -7,7 +7,10 @@ results in shard order:
 
 * Runner() (workers 1, no ray): the serial path, in this process, one shard
   after the other.
-* Runner(workers=N), N > 1: a Ray of N CPUs started on this machine.
+* Runner(workers=N), N > 1: a Ray of N CPUs started on this machine;
+  Runner(workers=N, pool="process"): N worker processes of this machine
+  (concurrent.futures, spawned, one torch thread each), no Ray needed:
+  lighter to start, and what `bench shards --pool process` measures.
 * Runner(ray="auto" | "HOST:PORT"): the running Ray cluster
   (`ray start --head`, `ray start --address`), see docs/cluster.md.
 
@@ -51,6 +54,7 @@ ShardFn = Callable[[Mapping[str, Any], "Shard"], Mapping[str, Any]]
 OnResult = Callable[["Shard", Arrays], None]
 Stop = Callable[["Shard", Arrays], bool]
 MAX_RETRIES = 3  # Ray's retries of a task whose worker died
+POOLS = ("ray", "process")  # what Runner(workers=N > 1) starts on this machine
 
 
 @dataclass(frozen=True)
@@ -99,18 +103,33 @@ class Runner:
     workers: int = 1
     checkpoint: Path | None = None
     progress: bool = False
+    pool: str = "ray"
     _started: bool = field(default=False, init=False, repr=False)
     _remote: Any = field(default=None, init=False, repr=False)
+    _pool: Any = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.workers, int) or self.workers < 1:
             raise ArmbridgeError(f"--workers must be an integer >= 1, got {self.workers!r}")
         if self.ray is not None and not str(self.ray).strip():
             raise ArmbridgeError("--ray needs 'auto' or the cluster head's address HOST:PORT")
+        if self.pool not in POOLS:
+            raise ArmbridgeError(f"--pool must be one of {', '.join(POOLS)}, got {self.pool!r}")
 
     @property
     def backend(self) -> str:
-        return "ray" if self.ray is not None or self.workers > 1 else "serial"
+        if self.ray is not None:
+            return "ray"
+        return "serial" if self.workers == 1 else self.pool
+
+    def start(self) -> None:
+        """Start the workers now (a local Ray, or the process pool with torch imported in every
+        worker), so that a timed job does not include their start-up. Optional: map starts them."""
+        if self.backend == "ray":
+            self._connect()
+        elif self.backend == "process":
+            pool = self._processes()
+            list(pool.map(_ready, range(self.workers)))
 
     def __enter__(self) -> Runner:
         return self
@@ -119,7 +138,11 @@ class Runner:
         self.close()
 
     def close(self) -> None:
-        """Disconnect from (or stop, if this runner started it) the Ray this runner initialised."""
+        """Disconnect from (or stop, if this runner started it) the Ray this runner initialised; stop
+        its process pool."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
         if self._started:
             import ray
 
@@ -194,6 +217,9 @@ class Runner:
                         break
                     if results[i] is None:
                         finished(i, *_call(job, shards[i]))
+            elif todo and not stopped and self.backend == "process":
+                bar.cluster(f"{self.workers} local processes")
+                self._pool_map(job, shards, todo, finished, lambda: stopped)
             elif todo and not stopped:
                 self._ray_map(job, shards, todo, finished, lambda: stopped, bar)
             if stopped:
@@ -202,6 +228,49 @@ class Runner:
         if stop is None and delivered < len(shards):
             raise ArmbridgeError(f"job {job.name}: {len(shards) - delivered} shards have no result")
         return [r for r in kept if r is not None]
+
+    # ------------------------------------------------------------------ processes
+
+    def _processes(self) -> Any:
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn: a fork of a parent with torch's thread pools running can hang
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_one_thread)
+        return self._pool
+
+    def _pool_map(self, job: Job, shards: Sequence[Shard], todo: list[int],
+                  finished: Callable[[int, Arrays, dict[str, Any]], None], stopped: Callable[[], bool]) -> None:
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        pool = self._processes()
+        queue: Iterator[int] = iter(todo)
+        running: dict[Any, int] = {}
+        try:
+            while True:
+                while not stopped() and len(running) < 2 * self.workers:
+                    i = next(queue, None)
+                    if i is None:
+                        break
+                    running[pool.submit(execute, job.fn, dict(job.params), shards[i])] = i
+                if not running or stopped():
+                    break
+                ready, _ = wait(list(running), return_when=FIRST_COMPLETED)
+                for fut in ready:
+                    i = running.pop(fut)
+                    try:
+                        arrays, record = fut.result()
+                    except ArmbridgeError as e:
+                        raise type(e)(f"job {job.name}, shard {shards[i].id}: {e}") from None
+                    except Exception as e:  # noqa: BLE001 - a worker's error, re-raised with its shard named
+                        raise ArmbridgeError(f"job {job.name}, shard {shards[i].id} failed in a worker process: "
+                                             f"{type(e).__name__}: {e}") from None
+                    finished(i, arrays, record)
+        finally:
+            for fut in running:
+                fut.cancel()
 
     # ------------------------------------------------------------------ ray
 
@@ -264,6 +333,21 @@ class Runner:
         finally:
             for ref in running:
                 ray.cancel(ref, force=True)
+
+
+def _one_thread() -> None:
+    """A process-pool worker: one thread for numpy's and torch's kernels (the shards are the parallelism;
+    a second thread per worker only competes for the same cores)."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    try:
+        import torch
+    except ImportError:
+        return
+    torch.set_num_threads(1)
+
+
+def _ready(_: int) -> int:
+    return os.getpid()
 
 
 def reachable(address: str, timeout: float = 5.0) -> None:

@@ -191,7 +191,8 @@ def homotopy(clusters: Clusters, points: np.ndarray, count: np.ndarray) -> Homot
     if pts.ndim != 4 or pts.shape[0] != L or cnt.shape != (L,):
         raise ArmbridgeError(f"points must be ({L}, Bmax, N, n) and count ({L},), got {pts.shape}, {cnt.shape}")
     label = clusters.label
-    if np.any((label >= 0) & (cnt != clusters.branches[np.maximum(label, 0)])):
+    # (a grid whose clusters were all dropped as too small has no branches to index: no cell is clustered)
+    if clusters.branches.size and np.any((label >= 0) & (cnt != clusters.branches[np.maximum(label, 0)])):
         raise ArmbridgeError("every clustered cell's branch count must equal its cluster's")
     Bmax = pts.shape[1]
     slots = np.arange(Bmax)
@@ -284,8 +285,10 @@ def nearest_cluster(clusters: Clusters, cells: np.ndarray, count: np.ndarray, re
     if not reach >= 0:
         raise ArmbridgeError(f"reach must be >= 0 cells, got {reach!r}")
     grid = cell_indices(clusters.shape)
-    cell_count = np.where(clusters.label >= 0, clusters.branches[np.maximum(clusters.label, 0)], -1)
     out = np.full(cnt.shape, -1, dtype=np.int64)
+    if not clusters.branches.size:  # no cluster (all dropped as too small): nothing to label with
+        return out
+    cell_count = np.where(clusters.label >= 0, clusters.branches[np.maximum(clusters.label, 0)], -1)
     for b in np.unique(cnt):
         src = np.flatnonzero(cell_count == b)
         if src.size == 0:

@@ -34,6 +34,9 @@ from armbridge.smm.arms import SmmArm
 
 DEFAULT_SHAPES = {1: (200,), 2: (250, 400)}
 REGION_SHAPE = (3, 3, 24, 48)  # region_grid: (rho, z, polar, azimuth) cells of the 7R
+# Which axes wrap around, by grid dimension: the 7R's azimuth (its first and last cells are neighbours).
+PERIODIC = {1: (False,), 2: (False, False), 4: (False, False, False, True)}
+REGION_REFINE_TILE = 4  # coarse cells per axis of a 7R refinement patch (smm/refine.py)
 
 
 @dataclass(frozen=True)

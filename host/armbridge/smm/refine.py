@@ -28,6 +28,23 @@ refinement, one level).
    one becomes -1), so that every cluster with branches has regression rows
    and a regressor file.
 
+The 7R (four canonical coordinates: rho, z, polar, azimuth; grid.region_grid)
+takes the same steps with two changes (`seeds_for`, `patches`' tile and
+per-axis factor), not a copy of them:
+- Seeds: also every cell whose branch count differs from a face neighbour's
+  (`disagree`; azimuth wraps around, grid.PERIODIC): on the 7R the count
+  changes on a finer scale than a 7.5 degree cell of tool direction
+  (docs/smm.md, "The 7R: one region"), and most such cells are labelled
+  (nearest_cluster finds a cluster of their count nearby), so -1 labels alone
+  would miss them.
+- Patches: in 4-D the grown seeds touch one another nearly everywhere and
+  one bounding box would be the whole grid; so each box is cut into tiles of
+  at most `tile` coarse cells per axis and only the tiles holding a seed are
+  refined, with a factor per axis (e.g. 1 x 1 x 3 x 3: finer in tool
+  direction only). Patches are traced in order of how many seeds they hold,
+  and with a `deadline` the ones not started by then are left out (the
+  one-run GPU build watches its clock: scripts/smm7r_device.py).
+
 The classifier is one network over all rows, so a patch only adds rows: a
 cluster that runs across a patch's edge becomes two clusters with the same
 count, which costs nothing in the branch count and keeps each regressor's
@@ -36,18 +53,22 @@ homotopy slots consistent (they are paired within one grid only).
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Union
 
 import numpy as np
 
 from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm
 from armbridge.smm.dataset import Build, SmmDataset
-from armbridge.smm.grid import GridSpec
+from armbridge.smm.grid import PERIODIC, GridSpec
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
+
+Factor = Union[int, Sequence[int]]  # one refinement factor, or one per grid axis
 
 
 @dataclass(frozen=True)
@@ -76,6 +97,65 @@ def unlabelled(ds: SmmDataset, grid: GridSpec) -> np.ndarray:
     return mask.reshape(grid.shape)
 
 
+def disagree(count: np.ndarray, periodic: Sequence[bool] | None = None) -> np.ndarray:
+    """Boolean mask of the cells whose branch count differs from one of their 2d face neighbours'.
+
+    count has the grid's shape; periodic[i]: axis i wraps around (the 7R's
+    azimuth), so its first and last cells are neighbours.
+    """
+    c = np.asarray(count)
+    wrap = tuple(periodic) if periodic is not None else (False,) * c.ndim
+    if len(wrap) != c.ndim:
+        raise ArmbridgeError(f"periodic needs one flag per grid axis ({c.ndim}), got {len(wrap)}")
+    out = np.zeros(c.shape, dtype=bool)
+    for axis in range(c.ndim):
+        if c.shape[axis] < 2:
+            continue
+        nxt = np.roll(c, -1, axis)
+        diff = c != nxt  # cell i against i + 1 (the last against the first: dropped unless periodic)
+        if not wrap[axis]:
+            diff[(slice(None),) * axis + (-1,)] = False
+        out |= diff | np.roll(diff, 1, axis)
+    return out
+
+
+def seeds_for(arm: SmmArm, coarse: Build) -> np.ndarray:
+    """Step 1 for this arm: unlabelled cells; on a 4-D (tool-roll, 7R) grid also the cells where
+    neighbours disagree on the branch count (module doc)."""
+    mask = unlabelled(coarse.dataset, coarse.grid)
+    if len(coarse.grid.shape) == 4 and arm.tool_roll:
+        mask |= disagree(coarse.smms.count.reshape(coarse.grid.shape), PERIODIC[4])
+    return mask
+
+
+def factors(grid: GridSpec, factor: Factor) -> tuple[int, ...]:
+    """One refinement factor per grid axis, each an integer >= 1 and at least one >= 2."""
+    if isinstance(factor, (int, np.integer)):
+        if factor < 2:
+            raise ArmbridgeError(f"refinement factor must be an integer >= 2, got {factor!r}")
+        return (int(factor),) * len(grid.shape)
+    try:
+        out = tuple(factor)
+    except TypeError:
+        raise ArmbridgeError(f"refinement factor must be an integer >= 2, got {factor!r}") from None
+    if len(out) != len(grid.shape) or not all(isinstance(f, (int, np.integer)) and f >= 1 for f in out) \
+            or max(out) < 2:
+        raise ArmbridgeError(f"refinement factor must be an integer >= 2 or {len(grid.shape)} integers >= 1 "
+                             f"with one >= 2, got {factor!r}")
+    return tuple(int(f) for f in out)
+
+
+def _tiles(box: tuple[slice, ...], mask: np.ndarray, tile: int) -> list[tuple[slice, ...]]:
+    """The tiles (at most `tile` cells per axis) of a box that hold a cell of mask."""
+    ranges = [range(s.start, s.stop, tile) for s in box]
+    out = []
+    for corner in np.stack(np.meshgrid(*ranges, indexing="ij"), -1).reshape(-1, len(box)):
+        t = tuple(slice(int(a), min(int(a) + tile, s.stop)) for a, s in zip(corner, box))
+        if mask[t].any():
+            out.append(t)
+    return out
+
+
 def _overlap(a: tuple[slice, ...], b: tuple[slice, ...]) -> bool:
     return all(x.start < y.stop and y.start < x.stop for x, y in zip(a, b))
 
@@ -84,12 +164,18 @@ def _join(a: tuple[slice, ...], b: tuple[slice, ...]) -> tuple[slice, ...]:
     return tuple(slice(min(x.start, y.start), max(x.stop, y.stop)) for x, y in zip(a, b))
 
 
-def patches(grid: GridSpec, seeds: np.ndarray, factor: int, pad: int = 2) -> list[GridSpec]:
-    """Step 2: the refined grids over the seed cells (mask of grid.shape), in order of their first cell."""
+def patches(grid: GridSpec, seeds: np.ndarray, factor: Factor, pad: int = 2, tile: int | None = None
+            ) -> list[GridSpec]:
+    """Step 2: the refined grids over the seed cells (mask of grid.shape), in order of their first cell.
+
+    tile: cut every box into tiles of at most that many coarse cells per axis
+    and keep the tiles that hold a seed (the 7R; module doc).
+    """
     from scipy import ndimage  # type: ignore[import-untyped]
 
-    if not isinstance(factor, (int, np.integer)) or factor < 2:
-        raise ArmbridgeError(f"refinement factor must be an integer >= 2, got {factor!r}")
+    per_axis = np.asarray(factors(grid, factor))
+    if tile is not None and (not isinstance(tile, (int, np.integer)) or tile < 1):
+        raise ArmbridgeError(f"refinement tile must be an integer >= 1 cells, got {tile!r}")
     if not isinstance(pad, (int, np.integer)) or pad < 0:
         raise ArmbridgeError(f"refinement pad must be an integer >= 0 cells, got {pad!r}")
     mask = np.asarray(seeds, dtype=bool)
@@ -111,19 +197,23 @@ def patches(grid: GridSpec, seeds: np.ndarray, factor: int, pad: int = 2) -> lis
                     break
             if joined:
                 break
+    if tile is not None:
+        boxes = [t for b in boxes for t in _tiles(b, mask, int(tile))]
     lo, size = np.asarray(grid.lo), (np.asarray(grid.hi) - np.asarray(grid.lo)) / np.asarray(grid.shape)
     out = []
     for box in sorted(boxes, key=lambda b: tuple(s.start for s in b)):
         start = np.array([s.start for s in box])
         stop = np.array([s.stop for s in box])
         out.append(GridSpec(tuple(float(v) for v in lo + start * size), tuple(float(v) for v in lo + stop * size),
-                            tuple(int(v) for v in (stop - start) * factor)))
+                            tuple(int(v) for v in (stop - start) * per_axis)))
     return out
 
 
-def patch_sing_tol(sing_tol: float, factor: int) -> float:
-    """Step 3's flag: sing_tol ~ sqrt(cell size), so a cell `factor` times smaller takes sing_tol / sqrt(factor)."""
-    return float(sing_tol) / math.sqrt(factor)
+def patch_sing_tol(sing_tol: float, factor: Factor) -> float:
+    """Step 3's flag: sing_tol ~ sqrt(cell size), so a cell `factor` times smaller takes sing_tol / sqrt(factor)
+    (per-axis factors: the largest, the finest axis)."""
+    f = factor if isinstance(factor, (int, np.integer)) else max(factor)
+    return float(sing_tol) / math.sqrt(f)
 
 
 def inside(grids: list[GridSpec], canon: np.ndarray) -> np.ndarray:
@@ -196,7 +286,7 @@ def merge(coarse: SmmDataset, parts: list[Patch]) -> SmmDataset:
 def refine(
     arm: SmmArm,
     coarse: Build,
-    factor: int = 5,
+    factor: Factor = 5,
     pad: int = 2,
     per_cell: int = 4,
     batch: int = 2048,
@@ -205,21 +295,32 @@ def refine(
     seed: int = 0,
     exact_phase: bool = True,
     min_cells: int = 4,
+    tile: int | None = None,
+    deadline: float | None = None,
     **nullspace_options: Any,
 ) -> tuple[SmmDataset, list[Patch]]:
     """Steps 1-4 on a built coarse data set: (the merged data set, its patches).
 
     Each patch's SMMs are the sharded jobs "smm-patch-<i>" and
     "smm-patch-<i>-boundary" (armbridge.shards), traced with the coarse
-    build's IK seed `seed` and patch_sing_tol(sing_tol, factor).
+    build's IK seed `seed` and patch_sing_tol(sing_tol, factor). Seeds:
+    seeds_for (the 7R adds count disagreement). tile: patches' tiles. deadline
+    (time.monotonic()): no patch starts after it; patches run in order of
+    their seed count, most first, so the ones left out matter least.
     """
     from armbridge.smm.dataset import add_boundary, assemble
     from armbridge.smm.trace import compute_smms
 
     ds = coarse.dataset
     tol = patch_sing_tol(sing_tol, factor)
+    seeds = seeds_for(arm, coarse)
+    grids = patches(coarse.grid, seeds, factor, pad, tile)
+    held = [int(seeds[cells_of(coarse.grid, g)].sum()) for g in grids]
     parts = []
-    for i, g in enumerate(patches(coarse.grid, unlabelled(ds, coarse.grid), factor, pad)):
+    for i in sorted(range(len(grids)), key=lambda j: -held[j]):
+        if deadline is not None and time.monotonic() > deadline:
+            break
+        g = grids[i]
         smms = compute_smms(arm, g.centres(), ds.N, batch, None, runner, f"smm-patch-{i}", seed=seed, sing_tol=tol,
                             **nullspace_options)
         b = assemble(arm, g, smms, ds.K, exact_phase, min_cells)
@@ -227,6 +328,15 @@ def refine(
                          sing_tol=tol, **nullspace_options)
         parts.append(Patch(g, tol, b.dataset))
     return merge(ds, parts), parts
+
+
+def cells_of(coarse: GridSpec, patch: GridSpec) -> tuple[slice, ...]:
+    """The coarse grid's cells (index slices) a patch of it covers."""
+    lo, hi = np.asarray(coarse.lo), np.asarray(coarse.hi)
+    size = (hi - lo) / np.asarray(coarse.shape)
+    a = np.rint((np.asarray(patch.lo) - lo) / size).astype(int)
+    b = np.rint((np.asarray(patch.hi) - lo) / size).astype(int)
+    return tuple(slice(int(x), int(y)) for x, y in zip(a, b))
 
 
 def summary(parts: list[Patch]) -> list[dict[str, Any]]:

@@ -84,6 +84,7 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     from armbridge.shards import Runner
     from armbridge.smm import refine as rf
     from armbridge.smm.dataset import build_dataset
+    from armbridge.smm.grid import REGION_REFINE_TILE
 
     if path.exists():
         if log:
@@ -95,7 +96,11 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     build = build_dataset(arm, g, K=K, N=N, seed=seed, per_cell=per_cell, sing_tol=sing_tol, runner=runner)
     ds, parts = build.dataset, list[rf.Patch]()
     if refine:
-        ds, parts = rf.refine(arm, build, refine, per_cell=per_cell, runner=runner, sing_tol=sing_tol, seed=seed)
+        # The 7R: finer in tool direction only, in tiles of a few coarse cells (smm/refine.py's module doc).
+        factor: rf.Factor = (1, 1, refine, refine) if arm.tool_roll else refine
+        tile = REGION_REFINE_TILE if arm.tool_roll else None
+        ds, parts = rf.refine(arm, build, factor, per_cell=per_cell, runner=runner, sing_tol=sing_tol, seed=seed,
+                              tile=tile)
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save(path)
@@ -109,5 +114,6 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
             "grid_shape": list(g.shape), "boundary_points_per_cell": per_cell, "sing_tol": sing_tol,
             "seconds": round(seconds, 1), "seed": seed, "shards": runner.backend}
     if refine:
-        info["refine"] = {"factor": refine, "how": "armbridge.smm.refine", "patches": rf.summary(parts)}
+        info["refine"] = {"factor": list(factor) if not isinstance(factor, int) else factor, "tile": tile,
+                          "how": "armbridge.smm.refine", "patches": rf.summary(parts)}
     return ds, info

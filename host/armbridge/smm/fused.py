@@ -1,0 +1,223 @@
+"""The shape-static nullspace tracer: fixed-size batches, one host synchronisation per block of
+steps, and on CUDA each block replayed as a CUDA graph.
+
+Why: on a GPU the compacting tracer (stepping.trace) is bound by kernel
+launches (about 177 a step) and by a host synchronisation each step (the
+live count that decides when to compact), not by arithmetic: an H200 spent
+about 2 ms a step at every batch size (issue 27). Here
+
+- the batch has a fixed size B: a finished trace is masked (its q and
+  tangent frozen, it passes no seed), not removed, so every step has the same
+  shapes and no data-dependent control flow;
+- the host looks at the batch once per block of BLOCK steps (is any trace
+  live, how many): when at most half are live the batch moves to the next
+  power of two that holds them (a few sizes per wave, each its own graph);
+- nothing in a step synchronises: the linear solve is solve_ex without its
+  error check, and the singular test is a Cholesky factorisation of
+  W J J^T W - sing_tol^2 I (it fails exactly when the smallest singular value
+  of W J is below sing_tol, the module doc of nullspace), cholesky_ex
+  reporting failure in a tensor instead of raising;
+- on CUDA a block of BLOCK steps is captured once per batch size
+  (torch.cuda.CUDAGraph) and replayed: one launch per block.
+
+A trace steps exactly the arithmetic of stepping.trace (eq. 1 with eq. 6's
+sign fixed by the first step, eq. 18's J^+ dx_e in the same solve), so it
+gives the same loops: the tests compare branch counts, singular flags and
+points (within 1e-8) with the compacting path on the CPU, where the graphs
+are off. The stop, closure and stuck rules are stepping.trace's.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from armbridge.smm.stepping import SING_EVERY, STUCK, Ctx, Traces, embed, null_vector
+
+BLOCK = 16  # steps between two looks of the host (a multiple of SING_EVERY)
+MIN_BATCH = 64  # smallest batch size a wave shrinks to
+
+
+def _bucket(n_live: int) -> int:
+    return max(MIN_BATCH, 1 << max(0, n_live - 1).bit_length())
+
+
+@dataclass
+class _Block:
+    """One batch size's state (fixed tensors, updated in place) and, on CUDA, its captured graph."""
+
+    state: dict[str, torch.Tensor]
+    graph: torch.cuda.CUDAGraph | None = None
+
+
+def _run_block(ctx: Ctx, st: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int) -> None:
+    """BLOCK steps of eq. (1) on the state, in place; st["hist"][k] gets q after step k + 1.
+
+    No host synchronisation: every decision is a mask. A trace finished at
+    step t keeps fin = t and is frozen from then on.
+    """
+    n = st["q"].shape[-1]
+    near, far = n - step * step / 2, n - 9 * step * step / 2
+    q, u, t0 = st["q"], st["u"], st["t"]
+    live, left, fin = st["live"], st["left"], st["fin"]
+    closed, stopped, singular, passed = st["closed"], st["stopped"], st["singular"], st["passed"]
+    rt = st.get("rt")
+    b = q.shape[0]
+    e_last = torch.zeros(b, n, 1, dtype=q.dtype, device=q.device)
+    e_last[:, n - 1, 0] = 1
+    eye = torch.eye(ctx.w.numel(), dtype=q.dtype, device=q.device)
+    for k in range(BLOCK):
+        t = t0 + k
+        e = embed(q)
+        hit = ((st["es"] @ e[:, :, None])[..., 0] > near) & live[:, None]
+        passed = passed | hit
+        stop = (hit & st["stopper"]).any(-1)
+        dot = (st["start"] * e).sum(-1)
+        left = left | (dot < far)
+        done = left & (dot > near) & ~stop
+        stuck = ~left & (t >= STUCK)
+        finished = (stop | done | stuck) & live
+        stopped = stopped | (finished & stop)
+        closed = closed | (finished & done)
+        fin = torch.where(finished, t, fin)
+        live = live & ~finished & (t < max_steps)  # at max_steps: checked, never stepped (stepping.trace)
+        jac, err = ctx.eval(q, st["x"], rt)
+        if k % SING_EVERY == 0:  # block starts are multiples of BLOCK, so this is t % SING_EVERY == 0
+            info = torch.linalg.cholesky_ex(jac @ jac.transpose(-1, -2) - sing_tol**2 * eye).info
+            singular = singular | ((info > 0) & live)
+        rhs = torch.cat([torch.cat([err[..., None], torch.zeros_like(err[:, :1, None])], -2), e_last], -1)
+        y = torch.linalg.solve_ex(torch.cat([jac, u[:, None, :]], -2), rhs).result
+        tangent = y[..., 1] / torch.linalg.vector_norm(y[..., 1], dim=-1, keepdim=True).clamp_min(1e-300)
+        corr = y[..., 0] - (y[..., 0] * tangent).sum(-1, keepdim=True) * tangent  # J^+ dx_e
+        q = torch.where(live[:, None], q + step * tangent + corr, q)  # eq. (1)
+        u = torch.where(live[:, None], tangent, u)
+        st["hist"][k].copy_(q)
+    for name, v in (("q", q), ("u", u), ("live", live), ("left", left), ("fin", fin), ("closed", closed),
+                    ("stopped", stopped), ("singular", singular), ("passed", passed)):
+        st[name].copy_(v)
+    t0.add_(BLOCK)
+
+
+@dataclass
+class Tracer:
+    """stepping.trace's contract (nullspace._branches calls it per wave), shape-static.
+
+    graphs: capture each batch size's block as a CUDA graph (CUDA only; on
+    the CPU there is nothing to capture). `captured` counts the graphs made,
+    `blocks` the blocks run, `sizes` the batch sizes in the order used
+    (measurements for the benches and tests).
+    """
+
+    graphs: bool = False
+    captured: int = 0
+    blocks: int = 0
+    sizes: list[int] = field(default_factory=list)
+
+    def __call__(self, ctx: Ctx, x: torch.Tensor, seeds: torch.Tensor, pick: torch.Tensor, origin: torch.Tensor,
+                 step: float, sing_tol: float, max_steps: int) -> Traces:
+        n_loc, n_seed, n = seeds.shape
+        dev, dt = seeds.device, seeds.dtype
+        loc, idx = torch.nonzero(pick, as_tuple=True)
+        a_count = loc.numel()
+        rt_all = ctx.target_rotations(x)
+        # Results per trace, written when a batch shrinks and at the end.
+        length = torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev)
+        flags = {k: torch.zeros(a_count, dtype=torch.bool, device=dev) for k in ("closed", "stopped", "singular")}
+        passed = torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev)
+        q = seeds[loc, idx]
+        jac, _ = ctx.eval(q, x[loc], None if rt_all is None else rt_all[loc])
+        u = null_vector(jac)  # eq. (6) fixes the direction; later steps keep its sign
+        u = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-300)
+        full = {
+            "q": q, "u": u, "start": embed(q), "x": x[loc], "es": embed(seeds)[loc],
+            "stopper": (pick[loc] & (torch.arange(n_seed, device=dev)[None, :] < idx[:, None])) | origin[loc],
+            "left": torch.zeros(a_count, dtype=torch.bool, device=dev),
+            "live": torch.ones(a_count, dtype=torch.bool, device=dev),
+            "fin": torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev),
+            "closed": torch.zeros(a_count, dtype=torch.bool, device=dev),
+            "stopped": torch.zeros(a_count, dtype=torch.bool, device=dev),
+            "singular": torch.zeros(a_count, dtype=torch.bool, device=dev),
+            "passed": torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev),
+        }
+        if rt_all is not None:
+            full["rt"] = rt_all[loc]
+        hist: list[tuple[torch.Tensor, int, torch.Tensor]] = [(torch.arange(a_count, device=dev), 0, q[None])]
+        rows = torch.arange(a_count, device=dev)  # trace of each batch row (padding repeats finished ones)
+        live_rows = torch.arange(a_count, device=dev)  # batch rows live at the block's start
+        blk: _Block | None = None
+        t = 0
+
+        def write_back(st: dict[str, torch.Tensor], rows: torch.Tensor) -> None:
+            length[rows] = torch.minimum(st["fin"] + 1, length[rows])
+            for name, out in flags.items():
+                out[rows] |= st[name]
+            passed[rows] |= st["passed"]
+
+        while a_count and t <= max_steps:
+            n_live = live_rows.numel()  # counted at the last look (one synchronisation per block)
+            if n_live == 0:
+                break
+            size = _bucket(n_live) if blk is not None else max(a_count, 1)
+            if blk is None or size < blk.state["q"].shape[0]:
+                if blk is not None:
+                    write_back(blk.state, rows)
+                    full = blk.state
+                pad = torch.nonzero(~full["live"])[:, 0][: size - n_live] if blk is not None else live_rows[:0]
+                take = torch.cat([live_rows, pad])
+                rows = rows[take]
+                state = {k: v[take].contiguous() for k, v in full.items() if k not in ("hist", "t")}
+                state["t"] = torch.tensor(t, dtype=torch.long, device=dev)
+                state["hist"] = torch.empty(BLOCK, size, n, dtype=dt, device=dev)
+                blk = self._block(ctx, state, step, sing_tol, max_steps)
+                self.sizes.append(size)
+                live_rows = torch.arange(n_live, device=dev)
+            st = blk.state
+            if blk.graph is not None:
+                blk.graph.replay()
+            else:
+                _run_block(ctx, st, step, sing_tol, max_steps)
+            self.blocks += 1
+            hist.append((rows[live_rows], t + 1, st["hist"][:, live_rows]))  # indexing copies
+            t += BLOCK
+            live_rows = torch.nonzero(st["live"])[:, 0]  # the block's one synchronisation
+        if blk is not None:
+            write_back(blk.state, rows)
+        return _traces(loc, idx, length.clamp_max(max_steps + 1), flags, passed, hist, n_loc, n_seed, n, dt)
+
+    def _block(self, ctx: Ctx, state: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int
+               ) -> _Block:
+        """The block runner of this state: eager, or a CUDA graph captured on it (warmed up on a copy,
+        so the capture leaves the state as it was)."""
+        if not (self.graphs and state["q"].is_cuda):
+            return _Block(state)
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):
+            _run_block(ctx, {k: v.clone() for k, v in state.items()}, step, sing_tol, max_steps)
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            _run_block(ctx, state, step, sing_tol, max_steps)
+        self.captured += 1
+        return _Block(state, graph)
+
+
+def _traces(loc: torch.Tensor, idx: torch.Tensor, length: torch.Tensor, flags: dict[str, torch.Tensor],
+            passed: torch.Tensor, hist: list[tuple[torch.Tensor, int, torch.Tensor]], n_loc: int, n_seed: int,
+            n: int, dt: torch.dtype) -> Traces:
+    """stepping.trace's result from the recorded blocks: the traces that were not stopped, their points."""
+    dev = loc.device
+    closed, stopped, singular = flags["closed"], flags["stopped"], flags["singular"]
+    kept = torch.nonzero(~stopped)[:, 0]
+    slot = torch.full((loc.numel(),), -1, dtype=torch.long, device=dev)
+    slot[kept] = torch.arange(kept.numel(), device=dev)
+    k_max = int(length[kept].max()) if kept.numel() else 1
+    points = torch.full((kept.numel(), k_max, n), torch.nan, dtype=dt, device=dev)
+    for r, t0, block in hist:  # block (K, R, n): q at steps t0 .. t0 + K - 1 of the traces r
+        steps = t0 + torch.arange(block.shape[0], device=dev)
+        m = (slot[r][None, :] >= 0) & (steps[:, None] < length[r][None, :])
+        k_idx, r_idx = torch.nonzero(m, as_tuple=True)
+        points[slot[r[r_idx]], steps[k_idx]] = block[k_idx, r_idx]
+    by_loc = torch.zeros(n_loc, n_seed, dtype=torch.long, device=dev).index_add_(0, loc, passed.to(torch.long)) > 0
+    return Traces(loc=loc[kept], seed=idx[kept], points=points, length=length[kept], closed=closed[kept],
+                  singular=singular[kept] | ~closed[kept], passed=by_loc)
