@@ -130,7 +130,8 @@ def test_stats_are_table_1s_columns(plans):
             assert r.tree_size == r.stats["nodes"] > r.stats["track_nodes"]
         else:
             assert r.stats["goal_nodes"] + r.stats["random_nodes"] == r.stats["track_nodes"]
-            assert r.stats["goal_nodes"] > 0 and r.tree_size == r.stats["nodes"]
+            assert r.tree_size == r.stats["nodes"]
+            assert r.stats["goal_nodes"] > 0 or planner == "wjrrt-connect"  # its random steps may get there alone
             assert (r.stats["final_H"] is None) == (planner == "jt-rrt")
 
 

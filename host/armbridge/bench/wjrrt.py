@@ -60,7 +60,7 @@ from armbridge.errors import ArmbridgeError
 if TYPE_CHECKING:
     from armbridge.shards import Runner
 
-LABELS = {"wjrrt": "WJRRT", "jt-rrt": "JT-RRT", "birrt": "Bi-RRT", "RRTConnect": "OMPL RRTConnect",
+LABELS = {"wjrrt": "WJRRT", "jt-rrt": "JT-RRT", "birrt": "Bi-RRT", "wjrrt-connect": "WJRRT-Connect", "RRTConnect": "OMPL RRTConnect",
           "KPIECE1": "OMPL KPIECE1", "STRIDE": "OMPL STRIDE"}
 #: Table 1's count columns (means over the successful runs) and H.
 COUNTS = ("nodes", "track_nodes", "goal_nodes", "random_nodes", "obstacle_checks", "final_H")
@@ -85,6 +85,8 @@ PAPER = {
 #: The targets: WJRRT's success at least the paper's (share), median time per plan under this (s).
 TARGET_SUCCESS = {"two-arm": 1.0, "three-arm": 0.9, "seven-tube": 0.8}
 TARGET_MEDIAN_S = 0.5
+#: Issue 24 section 3 compares at every budget from this one up to T (s).
+VERSUS_FROM_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -264,6 +266,7 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
         runs = {pl: [recs[i] for recs in seeds_runs] for i, pl in enumerate(active)}
         result["scenes"][scene.name] = {
             "robot": scene.robot.name, "links": scene.robot.n, "goal_tol_m": scene.goal_tol,
+            "margin_m": scene.planning_margin,
             "goal_states": int(scene.find_goal_states().shape[0]), "iterations_budget": budget,
             "planners": {pl: {"summary": summarise(runs[pl], size.time_limit, budget if pl in OURS else None),
                               "runs": runs[pl]} for pl in active},
@@ -280,87 +283,39 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
     generated = {n for members in groups.values() for n in members}
     result["targets"] = targets({**result, "scenes": {k: v for k, v in result["scenes"].items()
                                                       if k not in generated}})
+    result["versus"] = versus(result)
     result["wall_s"] = time.perf_counter() - t0
     return result
 
 
-def _cell(v: Any, spec: str) -> str:
-    return "-" if v is None else format(v, spec)
+def versus(result: dict[str, Any], ours: str = "wjrrt-connect", peer: str = "RRTConnect") -> dict[str, Any]:
+    """Issue 24 section 3's comparison: per group of generated scenes, per other scene and over all of them,
+    `ours` against `peer` at every budget from VERSUS_FROM_S to T (success share) and in median time to
+    success (over all runs: a failure is infinitely slow), and whether every successful path of every
+    planner kept its scene's margin (clearance_min_m >= margin_m). {} when either planner did not run."""
+    if any(pl not in result["planners"] or pl in result["not_run"] for pl in (ours, peer)):
+        return {}
+    generated = _generated(result)
+    parts = {spec: g["scenes"] for spec, g in result.get("groups", {}).items()}
+    parts.update({n: [n] for n in result["scenes"] if n not in generated})
+    parts["all"] = list(result["scenes"])
+    shown = [b for b in result["budgets_s"] if b >= VERSUS_FROM_S - 1e-12]
+    out: dict[str, Any] = {"ours": ours, "peer": peer, "budgets_s": shown, "parts": {}}
+    for key, names in parts.items():
+        runs = {pl: [r for n in names for r in result["scenes"][n]["planners"][pl]["runs"]] for pl in (ours, peer)}
+        share = {pl: [success_within(runs[pl], b) for b in shown] for pl in runs}
+        med = {pl: float(np.median(time_to_success(runs[pl]))) for pl in runs}
+        out["parts"][key] = {
+            "success_at": share, "time_to_success_median_s": {pl: v if math.isfinite(v) else None
+                                                             for pl, v in med.items()},
+            "success_met": all(a >= b for a, b in zip(share[ours], share[peer])),
+            "median_met": med[ours] <= med[peer]}
+    thin = [f"{n}: {pl} seed {r['seed']}" for n, sc in result["scenes"].items() for pl, d in sc["planners"].items()
+            for r in d["runs"] if r["success"] and (r.get("clearance_min_m") or 0.0) < sc["margin_m"] - 1e-9]
+    out["clearance_below_margin"] = thin
+    out["met"] = not thin and all(p["success_met"] and p["median_met"] for p in out["parts"].values())
+    return out
 
 
 def _generated(result: dict[str, Any]) -> set[str]:
     return {n for g in result.get("groups", {}).values() for n in g["scenes"]}
-
-
-def table_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
-    """Table 1's rows (scene, planner, then COLUMNS as text), paper rows beside ours; generated scenes
-    are in group_rows instead."""
-    rows: list[tuple[str, ...]] = []
-    skip = _generated(result)
-    for name, sc in result["scenes"].items():
-        if name in skip:
-            continue
-        for pl, d in sc["planners"].items():
-            s = d["summary"]
-            it = f"{s['iterations_budget']} ({s['iterations_median']:.0f})" if s["iterations_budget"] else \
-                f"- ({s['iterations_median']:.0f})"
-            rows.append((name, LABELS[pl], f"{s['success']}/{s['runs']}", it, _cell(s["time_median_s"], ".3g"),
-                         _cell(s["nodes"], ".0f"), _cell(s["track_nodes"], ".0f"), _cell(s["goal_nodes"], ".0f"),
-                         _cell(s["random_nodes"], ".0f"), _cell(s["obstacle_checks"], ".0f"),
-                         _cell(s["final_H"], ".3g")))
-    return rows
-
-
-def group_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
-    """Per group of generated scenes and planner: scenes, success over all its runs, the median time of
-    the successful runs, time to success median / p90 (s)."""
-    rows: list[tuple[str, ...]] = []
-    for spec, g in result.get("groups", {}).items():
-        for pl, d in g["planners"].items():
-            s = d["summary"]
-            rows.append((spec, LABELS[pl], str(len(g["scenes"])), f"{s['success']}/{s['runs']}",
-                         f"{100 * s['success_rate']:.0f}", _cell(s["time_median_s"], ".3g"),
-                         f"{_cell(s['time_to_success_median_s'], '.3g')} / {_cell(s['time_to_success_p90_s'], '.3g')}"))
-    return rows
-
-
-def print_result(result: dict[str, Any], console: Any) -> None:
-    from rich.table import Table
-
-    T = result["size"]["time_limit"]
-    t = Table(title=f"armbridge bench wjrrt: Table 1 columns, {result['size']['seeds']} seeds per scene, "
-                    f"budget {T:g} s per run (counts: means over successful runs)")
-    for col in ("scene", "planner", "success", "iter. budget (median)", "time (s, median)", "nodes", "track",
-                "goal", "random", "obstacle checks", "H"):
-        t.add_column(col, justify="left" if col in ("scene", "planner") else "right")
-    for row in table_rows(result):
-        t.add_row(*row)
-    if t.row_count:
-        console.print(t)
-    if result.get("groups"):
-        g = Table(title=f"generated scenes ({result['size']['seeds']} seeds per scene, budget {T:g} s per run): "
-                        "over all runs of a group")
-        for col in ("scenes", "planner", "n", "success", "%", "time (s, median)", "time to success median / p90"):
-            g.add_column(col, justify="left" if col in ("scenes", "planner") else "right")
-        for row in group_rows(result):
-            g.add_row(*row)
-        console.print(g)
-    e = Table(title="equal time: success (%) at a budget of t s, time to success median / p90 (s)")
-    e.add_column("scene")
-    e.add_column("planner")
-    shown = [b for b in result["budgets_s"] if b >= 0.05 or b == result["budgets_s"][-1]]
-    for b in shown:
-        e.add_column(f"{b:g}", justify="right")
-    e.add_column("median / p90", justify="right")
-    skip = _generated(result)
-    for name, sc in [*[(n, sc) for n, sc in result["scenes"].items() if n not in skip],
-                     *result.get("groups", {}).items()]:
-        for pl, d in sc["planners"].items():
-            s = d["summary"]
-            e.add_row(name, LABELS[pl], *[f"{100 * s['success_at'][f'{b:g}']:.0f}" for b in shown],
-                      f"{_cell(s['time_to_success_median_s'], '.3g')} / {_cell(s['time_to_success_p90_s'], '.3g')}")
-    console.print(e)
-    for pl, why in result["not_run"].items():
-        console.print(f"not run: {LABELS[pl]}: {why}")
-    console.print("targets: " + "; ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in result["targets"].items()
-                                          if isinstance(v, bool)))

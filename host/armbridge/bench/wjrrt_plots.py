@@ -31,8 +31,9 @@ import numpy as np
 import typer
 
 from armbridge.bench.command import write_json
-from armbridge.bench.wjrrt import (FULL, LABELS, OURS, PLANNERS, QUICK, TARGET_MEDIAN_S, print_result, run,
+from armbridge.bench.wjrrt import (FULL, LABELS, OURS, PLANNERS, QUICK, TARGET_MEDIAN_S, run,
                                     time_to_success)
+from armbridge.bench.wjrrt_table import print_result
 from armbridge.planning.figure import OKABE_ITO, pyplot
 from armbridge.shards import cli as shard_options
 
@@ -40,6 +41,7 @@ STYLE: dict[str, dict[str, Any]] = {
     "wjrrt": {"color": OKABE_ITO["blue"], "marker": "o", "lw": 2.8},
     "jt-rrt": {"color": OKABE_ITO["sky"], "marker": "s", "lw": 2.2},
     "birrt": {"color": OKABE_ITO["green"], "marker": "^", "lw": 1.7},
+    "wjrrt-connect": {"color": OKABE_ITO["black"], "marker": "*", "lw": 2.4},
     "RRTConnect": {"color": OKABE_ITO["vermillion"], "marker": "D", "lw": 1.5},
     "KPIECE1": {"color": OKABE_ITO["orange"], "marker": "v", "lw": 1.5},
     "STRIDE": {"color": OKABE_ITO["purple"], "marker": "P", "lw": 1.5},
@@ -230,9 +232,9 @@ def wjrrt_cmd(
     save_scenes: Optional[Path] = typer.Option(None, "--save-scenes",
                                                help="Also write every generated scene as a scene file into this "
                                                     "folder (NAME.json; --scenes takes them back)."),
-    planners: str = typer.Option("wjrrt,jt-rrt,birrt,RRTConnect,KPIECE1,STRIDE", "--planners",
-                                 help="Comma-separated: ours (wjrrt, jt-rrt, birrt) and OMPL's (RRTConnect, "
-                                      "KPIECE1, STRIDE)."),
+    planners: str = typer.Option("wjrrt,jt-rrt,birrt,wjrrt-connect,RRTConnect,KPIECE1,STRIDE", "--planners",
+                                 help="Comma-separated: ours (wjrrt, jt-rrt, birrt, wjrrt-connect) and OMPL's "
+                                      "(RRTConnect, KPIECE1, STRIDE)."),
     time_limit: float = typer.Option(None, "--time-limit", min=0.001,
                                      help="Wall-clock budget T per run, every planner (s; full run: 2)."),
     iterations: int = typer.Option(None, "--iterations", min=1,
@@ -247,8 +249,9 @@ def wjrrt_cmd(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show the shards' progress bar."),
 ) -> None:
     """Table 1 of the WJRRT paper (success, iterations, time, nodes, track / goal / random nodes,
-    obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT and OMPL's RRTConnect, KPIECE1, STRIDE on the
-    same scenes and checker, every run with the same time budget; success against the budget.
+    obstacle checks, H) for WJRRT, JT-RRT, Bi-RRT, WJRRT-Connect and OMPL's RRTConnect, KPIECE1,
+    STRIDE on the same scenes and checker, every run with the same time budget; success against the
+    budget, and WJRRT-Connect against RRTConnect at every budget from 0.05 s (issue 24 section 3).
 
     Scenes: fixed ones, scene files and generated ones (random:3:corridor:0-9: ten scenes, summarised
     together as well). Every planner runs once on a tiny scene first, so numba's compilation falls on

@@ -11,7 +11,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-OURS = ("wjrrt", "jt-rrt", "birrt")
+OURS = ("wjrrt", "jt-rrt", "birrt", "wjrrt-connect")
 OMPL = ("RRTConnect", "KPIECE1", "STRIDE")
 PLANNERS = OURS + OMPL
 #: Planners warmed up in this process (warm_up).

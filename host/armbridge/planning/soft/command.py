@@ -97,7 +97,7 @@ def soft_cmd(
                                                "three-arm, seven-tube, horn, or a generated one: "
                                                "random:LINKS:KIND:SEED (e.g. random:3:corridor:7)."),
     out: Path = typer.Option(..., "--out", help="Plan file to write (armbridge-plan JSON; `armbridge run` runs it)."),
-    planner: str = typer.Option("wjrrt", "--planner", help="wjrrt, jt-rrt or birrt."),
+    planner: str = typer.Option("wjrrt", "--planner", help="wjrrt, jt-rrt, birrt or wjrrt-connect."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same plan)."),
     iterations: Optional[int] = typer.Option(None, "--iterations", "-n",
                                              help="Planner iterations [default: the scene's params.iterations]."),

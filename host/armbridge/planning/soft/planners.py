@@ -24,12 +24,12 @@ import numpy as np
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.base import PlanResult
 from armbridge.planning.smoothing import shortcut
-from armbridge.planning.soft import birrt, jacobian_rrt
+from armbridge.planning.soft import birrt, connect, jacobian_rrt
 from armbridge.planning.soft.margin import ClearanceObjective, check_margin
 from armbridge.planning.soft.scene import Scene
 from armbridge.planning.soft.space import EDGE_RES
 
-PLANNERS = ("wjrrt", "jt-rrt", "birrt")
+PLANNERS = ("wjrrt", "jt-rrt", "birrt", "wjrrt-connect")
 #: Iterations when neither the scene nor the call gives any.
 ITERATIONS = 1000
 
@@ -42,6 +42,8 @@ def accepted(planner: str) -> tuple[str, ...]:
         return tuple(k for k in jacobian_rrt.DEFAULTS if k not in jacobian_rrt._WEIGHTED)
     if planner == "wjrrt":
         return tuple(jacobian_rrt.DEFAULTS)
+    if planner == "wjrrt-connect":
+        return tuple(connect.DEFAULTS)
     raise ArmbridgeError(f"unknown soft planner {planner!r} (known: {', '.join(PLANNERS)})")
 
 
@@ -54,13 +56,16 @@ def plan(scene: Scene, planner: str = "wjrrt", *, seed: int = 0, iterations: Opt
     for key in overrides:
         if key not in keys:
             raise ArmbridgeError(f"{planner}: unknown parameter {key!r} (it takes: {', '.join(keys)})")
-    params = {k: v for k, v in scene.params.items() if k in keys}
+    params = {k: v for k, v in scene.params.items() if k in keys and not (planner == "wjrrt-connect"
+                                                                          and k in connect.OWN)}
     params.update(overrides)
     iters = int(iterations if iterations is not None else scene.params.get("iterations", ITERATIONS))
     margin = scene.planning_margin if margin is None else check_margin(margin)
     problem = scene.problem(res, margin=margin)
     if planner == "birrt":
         result = birrt.solve(problem, iterations=iters, seed=seed, time_limit=time_limit, **params)
+    elif planner == "wjrrt-connect":
+        result = connect.solve(problem, iterations=iters, seed=seed, time_limit=time_limit, **params)
     else:
         result = jacobian_rrt.solve(problem, variant=planner, iterations=iters, seed=seed, time_limit=time_limit,
                                     **params)
