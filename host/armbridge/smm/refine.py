@@ -64,6 +64,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm
 from armbridge.smm.dataset import Build, SmmDataset
 from armbridge.smm.grid import PERIODIC, GridSpec
+from armbridge.smm.manifold import SmmSet
 
 if TYPE_CHECKING:
     from armbridge.shards import Runner
@@ -304,9 +305,11 @@ def refine(
     Each patch's SMMs are the sharded jobs "smm-patch-<i>" and
     "smm-patch-<i>-boundary" (armbridge.shards), traced with the coarse
     build's IK seed `seed` and patch_sing_tol(sing_tol, factor). Seeds:
-    seeds_for (the 7R adds count disagreement). tile: patches' tiles. deadline
-    (time.monotonic()): no patch starts after it; patches run in order of
-    their seed count, most first, so the ones left out matter least.
+    seeds_for (the 7R adds count disagreement). tile: patches' tiles. Patches
+    run in order of their seed count, most first, as many together as fit in
+    `batch` locations (one tracer call: the GPU's batch); deadline
+    (time.monotonic()): no group starts after it, so the patches left out
+    are those that matter least.
     """
     from armbridge.smm.dataset import add_boundary, assemble
     from armbridge.smm.trace import compute_smms
@@ -316,17 +319,27 @@ def refine(
     seeds = seeds_for(arm, coarse)
     grids = patches(coarse.grid, seeds, factor, pad, tile)
     held = [int(seeds[cells_of(coarse.grid, g)].sum()) for g in grids]
+    order = sorted(range(len(grids)), key=lambda j: -held[j])
     parts = []
-    for i in sorted(range(len(grids)), key=lambda j: -held[j]):
+    while order:
         if deadline is not None and time.monotonic() > deadline:
             break
-        g = grids[i]
-        smms = compute_smms(arm, g.centres(), ds.N, batch, None, runner, f"smm-patch-{i}", seed=seed, sing_tol=tol,
-                            **nullspace_options)
-        b = assemble(arm, g, smms, ds.K, exact_phase, min_cells)
-        b = add_boundary(arm, b, per_cell, batch, None, seed=seed, runner=runner, job=f"smm-patch-{i}-boundary",
-                         sing_tol=tol, **nullspace_options)
-        parts.append(Patch(g, tol, b.dataset))
+        # Patches traced together up to `batch` locations: one tracer call (a GPU's batch) for many small ones.
+        group = [order.pop(0)]
+        while order and sum(grids[j].size for j in group) + grids[order[0]].size <= batch:
+            group.append(order.pop(0))
+        centres = [grids[j].centres() for j in group]
+        smms = compute_smms(arm, np.concatenate(centres), ds.N, batch, None, runner, f"smm-patch-{group[0]}",
+                            seed=seed, sing_tol=tol, **nullspace_options)
+        start = 0
+        for j, c in zip(group, centres):
+            g, rows = grids[j], slice(start, start + len(c))
+            start += len(c)
+            b = assemble(arm, g, SmmSet(smms.points[rows], smms.count[rows], smms.singular[rows]), ds.K,
+                         exact_phase, min_cells)
+            b = add_boundary(arm, b, per_cell, batch, None, seed=seed, runner=runner, job=f"smm-patch-{j}-boundary",
+                             sing_tol=tol, **nullspace_options)
+            parts.append(Patch(g, tol, b.dataset))
     return merge(ds, parts), parts
 
 
