@@ -21,8 +21,8 @@ import shapely
 from armbridge.errors import ArmbridgeError
 from armbridge.planning.smoothing import shortcut
 from armbridge.planning.soft import planners
-from armbridge.planning.soft.margin import (CLEARANCE_RES, ClearanceObjective, check_margin, execution_margin,
-                                            joint_tolerance)
+from armbridge.planning.margin import CLEARANCE_RES, check_margin
+from armbridge.planning.soft.margin import ClearanceObjective, execution_margin, joint_tolerance
 from armbridge.planning.soft.random_scene import random_scene
 from armbridge.planning.soft.scene import fixed_scene, scene_from_dict
 from armbridge.robots.catalog import get_robot

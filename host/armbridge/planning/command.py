@@ -91,13 +91,24 @@ def masr_cmd(
     n_near: int = typer.Option(7, "--neighbours", help="N_n, neighbours for Connect and RewireTree."),
     step: float = typer.Option(16.0, "--step", help="Steer's maximum step delta, in s of eq. (8)."),
     ik: str = typer.Option("auto", "--ik", help="Goal IK: auto (shipped IK-NN, else dls), dls, or a model card."),
+    margin: Optional[float] = typer.Option(
+        None, "--margin", metavar="MM",
+        help="Clearance (mm) every link keeps from every obstacle beyond half its width [default: the "
+             "environment's \"margin\", else 0]; the MA's own execution bound is reported beside the plan's "
+             "least clearance."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also draw the environment and path to this PNG."),
     json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
                                            help=JSON_HELP.format(what="the planning summary")),
 ) -> None:
-    """Plan a MASR path (masr paper, Alg. 1-2), write it as a plan file with the MA's actions."""
+    """Plan a MASR path (masr paper, Alg. 1-2), write it as a plan file with the MA's actions.
+
+    The summary and the plan report the clearance planned for (margin_mm) and the path's least
+    clearance along the motion convention (clearance_min_mm) beside how far the arm can stray from it
+    with every joint at the firmware's tolerance (execution_bound_mm; planning/masr/margin.py)."""
+    from armbridge.planning.margin import check_margin
     from armbridge.planning.masr import rrt_star
     from armbridge.planning.masr.environment import load_environment
+    from armbridge.planning.masr.margin import execution_margin, path_clearance
     from armbridge.planning.masr.plan_file import save_masr_plan
 
     console = Console()
@@ -106,17 +117,28 @@ def masr_cmd(
     note = compile_note("masr")
     if note is not None:
         console.print(note, style="dim")
+    extra = None if margin is None else check_margin(margin / 1000.0, "--margin")
     environment = load_environment(env)
+    extra = environment.margin if extra is None else extra
+    checker = environment.planning_checker(margin=extra)
+    if not bool(checker.free(environment.start)):
+        raise ArmbridgeError(f"{environment.name}: the start comes within {extra * 1000:g} mm of an obstacle (the "
+                             "clearance margin); plan with a smaller --margin; no plan written")
     p_c = pc if planner == "masr-rrt*" else 0.0
     goal_ik, ik_desc = (None, "none") if p_c == 0 else resolve_goal_ik(environment, ik)
     with console.status(f"{planner}: {iterations} iterations on {environment.name} ..."):
         result = rrt_star.plan(environment, planner=planner, iterations=iterations, goal_ik=goal_ik, p_c=p_c,
-                               goal_bias=goal_bias, n_near=n_near, step=step, seed=seed)
+                               goal_bias=goal_bias, n_near=n_near, step=step, seed=seed, checker=checker)
     summary = result.summary()
-    summary.update({"environment": environment.name, "ik": ik_desc, "iterations_per_s": iterations / result.time_s})
+    bound = execution_margin(environment.arm)
+    least = path_clearance(environment, result.path) if result.path is not None else None
+    summary.update({"environment": environment.name, "ik": ik_desc, "iterations_per_s": iterations / result.time_s,
+                    "margin_mm": extra * 1000.0, "clearance_min_mm": None if least is None else least * 1000.0,
+                    "execution_bound_mm": bound * 1000.0})
     table = Table(title=f"{planner} on {environment.name}", show_header=False)
     for key in ("success", "cost_s", "waypoints", "first_solution_iteration", "iterations", "time_s",
-                "iterations_per_s", "tree_size", "goal_nodes", "ik_calls", "ik"):
+                "iterations_per_s", "tree_size", "goal_nodes", "ik_calls", "ik", "margin_mm", "clearance_min_mm",
+                "execution_bound_mm"):
         v = summary[key]
         table.add_row(key, f"{v:.3f}" if isinstance(v, float) else str(v))
     console.print(table)
@@ -133,9 +155,14 @@ def masr_cmd(
     prov = {"tool": "armbridge plan masr", "planner": planner, "environment": environment.name,
             "environment_file": str(environment.source) if environment.source else None,
             "iterations": iterations, "seed": seed, "p_c": p_c, "goal_bias": result.settings["goal_bias"],
-            "n_near": n_near, "step_s": step, "ik": ik_desc, "planning_time_s": round(result.time_s, 4)}
+            "n_near": n_near, "step_s": step, "ik": ik_desc, "planning_time_s": round(result.time_s, 4),
+            "margin_mm": extra * 1000.0, "clearance_min_mm": round(least * 1000.0, 3) if least is not None else None}
     save_masr_plan(environment, result.path, out, provenance=prov)
     console.print(f"plan: {out} ({result.path.shape[0]} waypoints, tau = {result.cost:.2f} s)")
+    if least is not None and least < bound:
+        console.print(f"note: the path passes {least * 1000:.1f} mm from an obstacle; with every joint at the "
+                      f"firmware's tolerance the arm can stray {bound * 1000:.2f} mm (--margin "
+                      f"{bound * 1000:.2f} keeps that clearance)", style="yellow")
 
 
 plan_app.command("soft")(soft_cmd)  # the soft arm's: planning/soft/command.py

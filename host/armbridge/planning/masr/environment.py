@@ -27,7 +27,8 @@ from armbridge.jsonfile import read_json
 from armbridge.ik import masr_dls
 from armbridge.ik.masr_dls import E_P, E_PHI  # the goal tolerances of section V-A
 from armbridge.planning.base import Problem
-from armbridge.planning.envfile import Ctx, fmt, header, obstacle, vector
+from armbridge.planning.envfile import Ctx, fmt, header, number, obstacle, vector
+from armbridge.planning.margin import check_margin
 from armbridge.planning.masr.collision import SWEEP_RES, CollisionChecker
 from armbridge.planning.masr.space import MasrChecker, MasrGoal, MasrSpace
 from armbridge.robots.catalog import get_masr, is_registered
@@ -39,7 +40,8 @@ VERSION = 1
 ENV_DIR = Path(__file__).with_name("envs")
 FIXED = ("E1", "E2", "E3")
 
-_TOP = ("format", "version", "name", "description", "robot", "obstacles", "start", "goal", "known_path", "provenance")
+_TOP = ("format", "version", "name", "description", "robot", "obstacles", "margin", "start", "goal", "known_path",
+        "provenance")
 _GOAL = ("pose", "q", "e_p", "e_phi")
 
 
@@ -66,6 +68,7 @@ class Environment:
     description: str = ""
     known_path: Optional[np.ndarray] = None
     provenance: dict = field(default_factory=dict)
+    margin: float = 0.0  # m kept beyond half the link width when planning (planning/masr/margin.py)
     source: Optional[Path] = None
     _checkers: dict = field(default_factory=dict, repr=False)
 
@@ -76,12 +79,21 @@ class Environment:
             self._checkers[key] = CollisionChecker.create(self.arm, self.obstacles, margin=margin, sweep_res=key[0])
         return self._checkers[key]
 
+    def planning_checker(self, sweep_res: Optional[float] = None, margin: Optional[float] = None
+                         ) -> CollisionChecker:
+        """The checker plans are made with: obstacles inflated by half the link width plus `margin` (m;
+        default this environment's `margin`, 0 unless its file or `plan masr --margin` says)."""
+        extra = self.margin if margin is None else check_margin(margin)
+        if extra == 0.0:
+            return self.checker(sweep_res)
+        return self.checker(sweep_res, margin=0.5 * self.arm.link_width + extra)
+
     def problem(self, *, sweep_res: Optional[float] = None, steer: str = "linear",
                 goal_rect_width: Optional[float] = None, checker: Any = None) -> Problem:
         """This environment as a planning problem (planning.base): MasrSpace (with `steer`), MasrChecker
-        (this environment's checker at `sweep_res`, or the given CollisionChecker / MasrChecker), the
-        start, MasrGoal (OnGoal's rectangle `goal_rect_width`, default e_p) and goal_q as goal_states."""
-        chk = checker if checker is not None else self.checker(sweep_res=sweep_res)
+        (this environment's planning checker at `sweep_res`, or the given CollisionChecker / MasrChecker),
+        the start, MasrGoal (OnGoal's rectangle `goal_rect_width`, default e_p) and goal_q as goal_states."""
+        chk = checker if checker is not None else self.planning_checker(sweep_res=sweep_res)
         if isinstance(chk, CollisionChecker):
             chk = MasrChecker(chk)
         n = self.arm.n
@@ -112,6 +124,8 @@ class Environment:
             d["description"] = self.description
         d["robot"] = robot
         d["obstacles"] = [[[float(x), float(y)] for x, y in p] for p in self.obstacles]
+        if self.margin:
+            d["margin"] = float(self.margin)
         d["start"] = [float(v) for v in self.start]
         d["goal"] = goal
         if self.known_path is not None:
@@ -181,6 +195,13 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         raise ctx.err("obstacles must be a list of polygons")
     obstacles = [obstacle(p, i, ctx) for i, p in enumerate(obs)]
     checker = CollisionChecker.create(arm, obstacles)
+    margin = 0.0
+    if "margin" in doc:
+        value = number(doc["margin"], "margin (m)", ctx)
+        try:
+            margin = check_margin(value, "margin")
+        except ArmbridgeError as exc:
+            raise ctx.err(str(exc)) from None
 
     start = vector(doc["start"], n + 1, "start", ctx)
     why = _describe_q(arm, start)
@@ -253,7 +274,7 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         raise ctx.err("provenance must be an object")
     env = Environment(name=name, arm=arm, obstacles=obstacles, start=start, goal_pose=pose, goal_q=goal_q,
                       e_p=e_p, e_phi=e_phi, description=description, known_path=known, provenance=dict(prov),
-                      source=Path(source) if source is not None else None)
+                      source=Path(source) if source is not None else None, margin=margin)
     env._checkers[(SWEEP_RES, None)] = checker
     return env
 

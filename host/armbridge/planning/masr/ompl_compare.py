@@ -58,7 +58,7 @@ def goal_states(env: Any, count: int = 64, seed: int = 0) -> np.ndarray:
     """Collision-free goal configurations for OMPL's goal sampling: env.goal_q first, then numeric IK's."""
     from armbridge.planning.masr.environment import find_goal_configs
 
-    good, free, _, _ = find_goal_configs(env.arm, env.goal_pose, env.checker(), e_p=env.e_p, e_phi=env.e_phi,
+    good, free, _, _ = find_goal_configs(env.arm, env.goal_pose, env.planning_checker(), e_p=env.e_p, e_phi=env.e_phi,
                                          starts=max(count, 16), seed=seed,
                                          extra_starts=env.goal_q if env.goal_q is not None else None)
     samples = good[free]

@@ -54,7 +54,8 @@ def plan_for_pump(env: Any, planner: str = "wjrrt", *, seed: int = 0, iterations
     """Load the scene (a file, a fixed scene's name or random:LINKS:KIND:SEED), plan keeping the clearance
     margin (m; default: the scene's planning margin), pick and time the pump waypoints."""
     from armbridge.planning.soft import waypoints as W
-    from armbridge.planning.soft.margin import ClearanceObjective, check_margin
+    from armbridge.planning.margin import check_margin
+    from armbridge.planning.soft.margin import ClearanceObjective
     from armbridge.planning.soft.ik import onto_goal
     from armbridge.planning.soft.planners import PLANNERS, plan
     from armbridge.planning.soft.plan_file import soft_plan

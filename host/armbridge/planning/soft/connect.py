@@ -298,7 +298,6 @@ def solve(problem: Problem, *, iterations: int = 1000, seed: int = 0, time_limit
         _add(Q, parent, kind, count, 1, r, -1, GOAL_ROOT)
     st = np.zeros(4, dtype=np.int64)
     relax = 1.0
-    checks0 = chk.checks
     _seed(int(seed) % (2 ** 32))
     t0 = time.perf_counter()
     tipd[0] = _tip_d(start, G, W[0], X_G)

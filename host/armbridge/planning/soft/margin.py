@@ -45,14 +45,9 @@ from typing import Any, Optional
 import numpy as np
 from numba import njit
 
-from armbridge.errors import ArmbridgeError
+from armbridge.planning.margin import CLEARANCE_RES, chain_margin
 from armbridge.planning.polygons import chain_points, obstacle_clearance
-from armbridge.planning.soft.space import motion_bounds
 
-#: The largest margin a scene or --margin may ask for (m).
-MARGIN_MAX_M = 0.05
-#: Point motion between the states at which ClearanceObjective measures an edge (m).
-CLEARANCE_RES = 0.0002
 
 
 @lru_cache(maxsize=None)
@@ -66,25 +61,9 @@ def joint_tolerance() -> float:
 
 def execution_margin(lengths: Any, joint_error: Optional[float] = None) -> float:
     """The largest displacement of any point of a chain of link `lengths` (m; or a robot) when every joint
-    is off by at most `joint_error` (rad; default joint_tolerance()): space.motion_bounds's B_{n-1} for
-    dq = (e, ..., e) (module doc), m."""
-    if joint_error is None:
-        joint_error = joint_tolerance()
-    L = np.ascontiguousarray(getattr(lengths, "link_lengths", lengths), dtype=float)
-    if not (joint_error >= 0 and math.isfinite(joint_error)):
-        raise ArmbridgeError(f"joint error must be a finite number >= 0 rad, got {joint_error}")
-    n = L.size
-    B, S = np.empty(n), np.zeros((n, n))
-    motion_bounds(np.full(n, float(joint_error)), L, B, S)
-    return float(B.max(initial=0.0))
-
-
-def check_margin(margin: float, where: str = "margin") -> float:
-    """margin (m) if it is in [0, MARGIN_MAX_M], else one ArmbridgeError naming the range in mm."""
-    m = float(margin)
-    if not (math.isfinite(m) and 0.0 <= m <= MARGIN_MAX_M):
-        raise ArmbridgeError(f"{where} {m * 1000:g} mm is outside [0, {MARGIN_MAX_M * 1000:g}] mm")
-    return m
+    is off by at most `joint_error` (rad; default joint_tolerance()): planning.margin.chain_margin, which
+    is space.motion_bounds's B_{n-1} for dq = (e, ..., e) (module doc), m."""
+    return chain_margin(lengths, joint_tolerance() if joint_error is None else joint_error)
 
 
 @njit(cache=True)

@@ -35,7 +35,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.planning import ompl_bridge
 from armbridge.planning.base import PlanResult, Problem
 from armbridge.planning.ext import stride
-from armbridge.planning.soft.margin import check_margin
+from armbridge.planning.margin import check_margin
 from armbridge.planning.soft.space import EDGE_RES
 
 #: The OMPL planners of the soft-arm benchmark (bench wjrrt).

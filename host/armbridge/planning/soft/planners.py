@@ -25,7 +25,8 @@ from armbridge.errors import ArmbridgeError
 from armbridge.planning.base import PlanResult
 from armbridge.planning.smoothing import shortcut
 from armbridge.planning.soft import birrt, connect, jacobian_rrt
-from armbridge.planning.soft.margin import ClearanceObjective, check_margin
+from armbridge.planning.margin import check_margin
+from armbridge.planning.soft.margin import ClearanceObjective
 from armbridge.planning.soft.scene import Scene
 from armbridge.planning.soft.space import EDGE_RES
 

@@ -31,7 +31,8 @@ from armbridge.jsonfile import read_json
 from armbridge.planning.base import Problem
 from armbridge.planning.envfile import Ctx, fmt, header, number, obstacle, vector
 from armbridge.planning.soft.ik import goal_configs
-from armbridge.planning.soft.margin import MARGIN_MAX_M, execution_margin
+from armbridge.planning.margin import MARGIN_MAX_M
+from armbridge.planning.soft.margin import execution_margin
 from armbridge.planning.soft.space import EDGE_RES, FREE, LIMITS, ChainChecker, ChainSpace
 from armbridge.robots.catalog import get_robot, is_registered, robot_from_dict, robot_to_dict
 from armbridge.robots.planar import PlanarChain
