@@ -148,6 +148,7 @@ def bench_tracer(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> 
     ref, t_ref, _ = timed(small)
     got, t_got, tr = timed(small, tracer=fused.Tracer(graphs=cuda))
     out["check_fused_vs_compact"] = _agree(ref, got)
+    out["capture_error"] = tr.capture_error
     cpu_x = small[: s["bench_check"]]
     cpu = nullspace.compute(arm, cpu_x, chunk=len(cpu_x), **{**opts, "device": "cpu"})
     out["check_device_vs_cpu"] = _agree(cpu, _take(got, len(cpu_x)))
@@ -184,6 +185,15 @@ def _agree(a: Any, b: Any) -> dict[str, Any]:
             np.isfinite(a.points).any() else None}
 
 
+def _engine(tracer: dict[str, Any] | None, cuda: bool) -> dict[str, Any]:
+    """The tracer the data is built with: fused with CUDA graphs where the check on this device agreed
+    with the compacting tracer and the capture worked, fused eager where only that agreed, else compact."""
+    check = (tracer or {}).get("check_fused_vs_compact", {})
+    if not (check.get("same_counts") and check.get("same_singular")):
+        return {"engine": "compact", "graphs": False}
+    return {"engine": "fused", "graphs": cuda and not (tracer or {}).get("capture_error")}
+
+
 def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> Any:
     """The coarse grid's data set, refined where neighbouring cells disagree until the data deadline."""
     import numpy as np
@@ -191,8 +201,9 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
     from armbridge.smm import refine as rf
     from armbridge.smm.dataset import build_dataset
 
-    opts = dict(seeds=s["seeds"], step=s["step"], sing_tol=0.005, device=str(dev), engine="fused",
-                chunk=s["chunk"])
+    opts = dict(seeds=s["seeds"], step=s["step"], sing_tol=0.005, device=str(dev), chunk=s["chunk"],
+                **_engine(run.results.get("tracer"), dev.type == "cuda"))
+    run.results["data_engine"] = {k: opts[k] for k in ("engine", "graphs")}
     t = time.monotonic()
     coarse = build_dataset(arm, grid, K=s["K"], N=s["N"], batch=s["batch"], per_cell=0, min_cells=s["min_cells"],
                            **opts)
@@ -220,6 +231,20 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
     return ds
 
 
+def _fit_size(s: dict[str, Any], ds: Any) -> tuple[int, ...]:
+    """Regressor hidden layers, narrowed until the packed model fits MAX_MODEL_FILES files: int8 weights,
+    float32 biases, scales and output means (smm/packed.py)."""
+    n_out = [int(b) * 7 * int(ds.K) * 2 for b in ds.cluster_branches if b > 0]
+    hidden = tuple(s["reg_hidden"])
+    while True:
+        widths = (4,) + hidden
+        inner = sum(a * b + 9 * b for a, b in zip(widths[:-1], widths[1:]))
+        need = sum(inner + hidden[-1] * o + 13 * o for o in n_out)
+        if need <= 0.9 * MAX_MODEL_FILES * FILE_BYTES or hidden[0] <= 16:
+            return hidden
+        hidden = tuple(max(16, int(h * 0.85)) for h in hidden)
+
+
 def train_model(run: Run, s: dict[str, Any], ds: Any, dev: Any) -> Any:
     """The classifier and regressors, their steps scaled so training ends by 85 % of the budget."""
     import torch
@@ -229,21 +254,23 @@ def train_model(run: Run, s: dict[str, Any], ds: Any, dev: Any) -> Any:
     from armbridge.train.smm_fit import SmmTrainConfig, steps_for, train
 
     train_rows, test_rows = split(ds.label, 0.1, 0)
+    s = {**s, "reg_hidden": _fit_size(s, ds)}
     # seconds per step of the largest network, measured here (launch-bound on a GPU: about the same for all)
     probe = nets.mlp(4, s["reg_hidden"], 7 * 2 * s["K"] * 3).to(dev)
     opt = torch.optim.AdamW(probe.parameters(), 1e-3)
     x = torch.rand(s["train_batch"], 4, device=dev)
-    for i in range(25):
+    t = time.perf_counter()
+    for i in range(45):  # a step as smm_fit._fit takes it: lr set, forward, backward, step, the loss read back
         if i == 5:
-            if dev.type == "cuda":
-                torch.cuda.synchronize()
             t = time.perf_counter()
-        opt.zero_grad()
-        probe(x).square().mean().backward()
+        for g in opt.param_groups:
+            g["lr"] = 1e-3
+        loss = probe(x).square().sum(-1).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
         opt.step()
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-    per_step = (time.perf_counter() - t) / 20 * 1.3  # the loop's own overhead besides
+        float(loss.detach())
+    per_step = (time.perf_counter() - t) / 40 * 1.2  # and the epochs' own work besides
     left = run.at(0.85) - time.monotonic()
     rows = [int((ds.label[train_rows] >= 0).sum())] + [int((ds.cluster[train_rows] == c).sum())
                                                        for c in range(ds.cluster_branches.size)
@@ -325,7 +352,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--grid", type=int, nargs=4, default=(3, 3, 24, 48), metavar=("RHO", "Z", "POLAR", "AZIMUTH"))
     p.add_argument("--K", type=int, default=24, help="Fourier components kept (the model's size grows with K)")
-    p.add_argument("--chunk", type=int, default=4096, help="locations per tracer batch")
+    p.add_argument("--chunk", type=int, default=8192, help="locations per tracer batch (and per group of patches)")
+    p.add_argument("--bench-locations", type=int, nargs="+", default=None, metavar="N",
+                   help="tracer batch sizes to time (default 256 1024 4096)")
+    p.add_argument("--random-locations", type=int, default=None, help="random locations measured (default 2000)")
     args = p.parse_args(argv)
     if not args.out:
         p.error("--out (or $OUT) is needed")
@@ -340,6 +370,11 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     dev = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     s = _settings(args)
+    if args.bench_locations:
+        s["bench_locations"] = tuple(args.bench_locations)
+        s["bench_check"] = min(s["bench_check"], min(args.bench_locations))
+    if args.random_locations:
+        s["random_locations"] = args.random_locations
     run.results.update({"settings": {k: list(v) if isinstance(v, tuple) else v for k, v in s.items()},
                         "budget_s": args.budget, "device": torch.cuda.get_device_name(dev) if dev.type == "cuda"
                         else f"cpu ({os.cpu_count()} cores)", "versions": {"python": platform.python_version(),

@@ -94,3 +94,35 @@ def test_pack_keeps_the_networks_within_int8_rounding_and_splits_files(tmp_path)
     (tmp_path / "model.json").write_text("{}")
     with pytest.raises(Exception, match="format None"):
         packed.unpack(tmp_path)
+
+
+def _script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("smm7r_device", ROOT / "scripts" / "smm7r_device.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_data_tracer_is_the_fastest_that_agreed_and_the_model_is_narrowed_to_fit():
+    from types import SimpleNamespace
+
+    dev = _script()
+    agreed = {"check_fused_vs_compact": {"same_counts": True, "same_singular": True}, "capture_error": None}
+    assert dev._engine(agreed, cuda=True) == {"engine": "fused", "graphs": True}
+    assert dev._engine({**agreed, "capture_error": "RuntimeError: no"}, cuda=True) == {"engine": "fused",
+                                                                                      "graphs": False}
+    assert dev._engine(agreed, cuda=False)["graphs"] is False
+    differed = {"check_fused_vs_compact": {"same_counts": False, "same_singular": True}}
+    assert dev._engine(differed, cuda=True)["engine"] == "compact" and dev._engine(None, True)["engine"] == "compact"
+    s = {"reg_hidden": (150,) * 6}
+    small = SimpleNamespace(cluster_branches=np.array([0, 2, 3]), K=24)
+    assert dev._fit_size(s, small) == (150,) * 6
+    big = SimpleNamespace(cluster_branches=np.array([6] * 600), K=40)  # 600 six-branch clusters at K = 40
+    hidden = dev._fit_size(s, big)
+    assert len(hidden) == 6 and hidden[0] < 150
+    n_out = 6 * 7 * 40 * 2
+    widths = (4,) + hidden
+    params = 600 * (sum(a * b for a, b in zip(widths[:-1], widths[1:])) + hidden[-1] * n_out)
+    assert params <= dev.MAX_MODEL_FILES * dev.FILE_BYTES  # int8: a byte a weight

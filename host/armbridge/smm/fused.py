@@ -103,12 +103,14 @@ class Tracer:
     """stepping.trace's contract (nullspace._branches calls it per wave), shape-static.
 
     graphs: capture each batch size's block as a CUDA graph (CUDA only; on
-    the CPU there is nothing to capture). `captured` counts the graphs made,
+    the CPU there is nothing to capture; a capture that fails turns them off,
+    capture_error says why). `captured` counts the graphs made,
     `blocks` the blocks run, `sizes` the batch sizes in the order used
     (measurements for the benches and tests).
     """
 
     graphs: bool = False
+    capture_error: str | None = None  # why graphs were turned off (a capture failed), if they were
     captured: int = 0
     blocks: int = 0
     sizes: list[int] = field(default_factory=list)
@@ -196,8 +198,13 @@ class Tracer:
             _run_block(ctx, {k: v.clone() for k, v in state.items()}, step, sing_tol, max_steps)
         torch.cuda.current_stream().wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
-            _run_block(ctx, state, step, sing_tol, max_steps)
+        try:
+            with torch.cuda.graph(graph):
+                _run_block(ctx, state, step, sing_tol, max_steps)
+        except RuntimeError as e:  # an op that cannot be captured (a library's batched kernel): run eager
+            self.graphs, self.capture_error = False, f"{type(e).__name__}: {str(e).splitlines()[0]}"
+            torch.cuda.synchronize()
+            return _Block(state)
         self.captured += 1
         return _Block(state, graph)
 
