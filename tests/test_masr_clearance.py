@@ -137,3 +137,17 @@ def test_a_margin_out_of_range_is_one_line_and_writes_nothing(tmp_path):
     assert "error: --margin 80 mm is outside [0, 50] mm" in r.stdout + r.stderr
     assert "Traceback" not in r.stdout + r.stderr
     assert not (tmp_path / "p.json").exists()
+
+
+def test_bench_masr_plan_margin_part_keeps_every_margin():
+    from armbridge.bench.masr_margin import FACTORS, margins
+
+    env = fixed_environment("E1")
+    m = margins(1, resolve_goal_ik(env)[0])
+    assert m["execution_bound_mm"] == pytest.approx(execution_margin(env.arm) * 1000)
+    for name, rows in m["environments"].items():
+        assert [r["factor"] for r in rows] == list(FACTORS)
+        assert rows[0]["success"] == 1, name  # the paper's check solves E1-E3
+        for r in rows:
+            if r["success"]:
+                assert r["least_clearance_mm"] >= r["margin_mm"] - 1e-6, (name, r)

@@ -19,6 +19,8 @@
 * OMPL: OMPL's RRT* (PyPI `ompl`, planning.masr.ompl_compare, objective eq. 8, our
   collision checker) for 1,000 iterations on E1-E3: time per 1,000 iterations
   and the eq. (7) cost of its path, beside ours at 1,000 iterations.
+* Margin (`--parts margin`, not in the default set): MASR-RRT* on E1-E3 with
+  clearance margins up to 1.6 x the MA's execution bound (bench.masr_margin).
 """
 from __future__ import annotations
 
@@ -222,6 +224,10 @@ def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = 
         result["fig7"] = fig7(size, card, progress, runner)
     if "fig5" in parts:
         result["fig5"] = fig5(size, card, progress, runner)
+    if "margin" in parts:
+        from armbridge.bench.masr_margin import margins
+
+        result["margin"] = margins(max(size.timing_runs, 1), goal_ik(card), progress)
     result["target_masr_not_worse"] = masr_not_worse(result)
     result["wall_s"] = time.perf_counter() - t0
     return result
@@ -251,7 +257,9 @@ def masr_plan_cmd(
     fig7_iterations: int = typer.Option(None, "--fig7-iterations", help="Fig. 7 iterations per trial (full: 12000)."),
     timing_runs: int = typer.Option(None, "--timing-runs", help="Runs of 1,000 iterations per planner and environment."),
     ompl_runs: int = typer.Option(None, "--ompl-runs", help="OMPL RRT* runs per environment (0: skip)."),
-    parts: str = typer.Option("timing,ompl,fig7,fig5", "--parts", help="Which parts to run (comma-separated)."),
+    parts: str = typer.Option("timing,ompl,fig7,fig5", "--parts",
+                              help="Which parts to run (comma-separated): timing, ompl, fig7, fig5, margin (clearance "
+                                   "margins on E1-E3, --timing-runs seeds each)."),
     card: Path = typer.Option(None, "--card", help="Goal IK model card [default: models/onnx/masr5-iknn-card.json]."),
     json_out: Path = typer.Option(Path("runs/bench-masr-plan.json"), "--json", help="Where to write the results ('-': stdout)."),
     png_dir: Path = typer.Option(None, "--png-dir", help="Also write Fig. 5 / Fig. 7 plots (PNG) here."),
@@ -326,6 +334,10 @@ def masr_plan_cmd(
                 t.add_row(env, str(row["iterations"]),
                           *[f"{row[pl]['below_p15']:.0%} / {row[pl]['below_p25']:.0%}" for pl in pls])
         console.print(t)
+    if "margin" in result:
+        from armbridge.bench.masr_margin import table
+
+        console.print(table(result))
     tgt = result["target_masr_not_worse"]
     console.print(f"MASR-RRT* (p_c 0.6) at least as good as RRT* at every iteration count: "
                   f"{'met' if tgt['met'] else 'MISSED: ' + ', '.join(tgt['violations'][:10])}")
