@@ -300,25 +300,44 @@ def test_the_hosts_estop_stops_a_moving_board(micropython, ports):
 # ---------------------------------------------------------------- the cost bench
 
 def test_bench_firmware_measures_every_item_in_both_interpreters(micropython, tmp_path):
+    """Every MicroPython board (the esp32 on both rigs, the MA): each item answered as it
+    must be in both interpreters, the heap per poll, the live heap and its headroom."""
+    from armbridge.bench import firmware_cost
     from armbridge.emulator.mpbridge import fwcost
 
     out = tmp_path / "bench.json"
     proc = subprocess.run([str(ARMBRIDGE), "bench", "firmware", "--reps", "30", "--json", str(out)],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    r = json.loads(out.read_text())
-    for who in ("micropython", "cpython"):
-        res = r[who]
-        for group, names in (("lines", fwcost.LINES), ("ticks", tuple(fwcost.TICKS)), ("codec", fwcost.CODEC)):
-            assert set(res[group]) == set(names)
-            for name, st in res[group].items():
-                assert st["n"] == 30 and st["answers"] == {fwcost.EXPECT[name]: 30}, (who, name, st)
-                assert st["median_us"] <= st["p99_us"]
-        assert res["ticks"]["idle"]["state"] == "IDLE" and res["ticks"]["RUN"]["state"] == "RUN"
-        b = r["tick_budget"][who]
-        assert b["w_lines_per_tick"] == 3.0
-        assert b["w_us_per_tick"] == pytest.approx(3 * res["lines"]["W"]["median_us"], abs=0.1)
-    assert r["micropython"]["interpreter"].startswith("MicroPython")
-    assert r["micropython"]["lines"]["W"]["alloc_bytes"] > 0  # the heap a W line costs
-    assert r["micropython"]["heap_live_after_bench"] > 0
-    assert "W lines/s" in proc.stdout
+    doc = json.loads(out.read_text())
+    assert set(doc["boards"]) == {"esp32", "esp32 pca9685", "masr_ma"}
+    assert doc["chip_free_heap_bytes"] == firmware_cost.CHIP_FREE_HEAP and "mem_free" in doc["chip_free_heap_source"]
+    for key, r in doc["boards"].items():
+        verb = "MV" if key == "masr_ma" else "W"
+        names = fwcost.items("ma" if key == "masr_ma" else "arm")
+        for who in ("micropython", "cpython"):
+            res = r[who]
+            assert set(res["lines"]) | set(res["ticks"]) | set(res["codec"]) == set(names)
+            for group in ("lines", "ticks", "codec"):
+                for name, st in res[group].items():
+                    assert st["n"] == 30 and st["answers"] == {fwcost.EXPECT[name]: 30}, (key, who, name, st)
+                    assert st["median_us"] <= st["p99_us"]
+            assert res["ticks"]["idle"]["state"] == "IDLE" and res["ticks"]["RUN"]["state"] == "RUN"
+            b = r["tick_budget"][who]
+            assert b["w_lines_per_tick"] == 3.0
+            assert b["w_us_per_tick"] == pytest.approx(3 * res["lines"][verb]["median_us"], abs=0.1)
+        mp, m = r["micropython"], r["memory"]
+        assert mp["interpreter"].startswith("MicroPython")
+        assert mp["lines"][verb]["alloc_bytes"] > 0  # the heap a waypoint line costs
+        assert m["alloc_per_tick_bytes"] == max(st["alloc_bytes"] for st in mp["ticks"].values()) > 0
+        assert 20_000 < m["live_heap_after_boot_bytes"] <= m["live_heap_after_run_bytes"] < mp["heap_live_after_bench"]
+        assert m["headroom_bytes"] == doc["chip_free_heap_bytes"] - m["live_heap_after_run_bytes"]
+    assert "W lines/s" in proc.stdout and "MV lines/s" in proc.stdout and "headroom" in proc.stdout
+
+
+def test_bench_firmware_names_its_boards_in_one_line(tmp_path):
+    proc = subprocess.run([str(ARMBRIDGE), "bench", "firmware", "--device", "arduino_pump", "--json", "-"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    err = proc.stderr.strip().splitlines()
+    assert len(err) == 1 and "--device masr_ma" in err[0] and "--servos pca9685" in err[0], err

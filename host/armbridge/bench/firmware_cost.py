@@ -38,21 +38,45 @@ from armbridge.resources import firmware_dir
 REPS = 2000
 QUICK_REPS = 200
 LINES_PER_S = 300        # the waypoint rate the link must sustain (issue 9)
-BENCH_HEAP = 64 << 20    # room for a whole item without a collection (see fwcost.py)
+BENCH_HEAP_BASE = 4 << 20   # MicroPython heap: room for a whole item without a collection (see fwcost.py),
+BENCH_HEAP_PER_REP = 8 << 10  # and no more (gc.mem_alloc() around each poll walks the whole heap's table)
+# What the firmware's live heap is compared with: the Python heap an ESP32 without
+# PSRAM gives MicroPython, "around 100KB" on a "simple" esp32 (MicroPython's ESP32
+# port documentation, "Controlling the Python heap size"; gc.mem_free() at boot of
+# an ESP32_GENERIC build). Since 1.21 the heap can grow into the IDF's free blocks,
+# so this is the floor a board can count on, not a chip measured here.
+CHIP_FREE_HEAP = 100_000
+CHIP_FREE_HEAP_SOURCE = ("ESP32 without PSRAM, MicroPython's ESP32_GENERIC build: gc.mem_free() at boot, "
+                         "'around 100KB' (MicroPython docs, esp32 quickref 'Controlling the Python heap size'); "
+                         "not measured on a chip here")
+#: every MicroPython board and rig the bench runs ("all"): key -> (board, rig, the bridge's rig HAL)
+TARGETS = {"esp32": ("esp32", "effort", "arm"), "esp32 pca9685": ("esp32", "pca9685", "pca"),
+           "masr_ma": ("masr_ma", "effort", "ma")}
 
 
-def _firmware(device: str) -> tuple[MicroPythonFirmware, list[Path]]:
+def target(device: str, servos: str | None = None) -> str:
+    """The TARGETS key of `--device DEVICE [--servos RIG]`; one ArmbridgeError naming them otherwise."""
+    key = device if not servos or (device == "esp32" and servos == "effort") else f"{device} {servos}"
+    if key not in TARGETS:
+        raise ArmbridgeError(f"bench firmware: no MicroPython board {key!r}; boards: "
+                             + ", ".join(f"--device {k.replace(' ', ' --servos ')}" for k in TARGETS) + ", --device all")
+    return key
+
+
+def _firmware(key: str) -> tuple[MicroPythonFirmware, list[Path], str]:
+    device, _, rig = TARGETS[key]
     spec = board(device)
     fw = spec.firmware
     if not isinstance(fw, MicroPythonFirmware):
         raise ArmbridgeError(f"the {spec.name} board's firmware is not MicroPython")
-    return fw, [firmware_dir() / d for d in fw.dirs]
+    return fw, [firmware_dir() / d for d in fw.dirs], rig
 
 
-def under_micropython(device: str = "esp32", reps: int = REPS, timeout: float = 900.0) -> dict[str, Any]:
-    fw, dirs = _firmware(device)
-    argv = [find_node(), str(bridge_script()), str(find_micropython()), str(BENCH_HEAP), fw.board_module,
-            fw.config_module, "bench:" + json.dumps({"reps": reps}), *map(str, dirs)]
+def under_micropython(key: str = "esp32", reps: int = REPS, timeout: float = 900.0) -> dict[str, Any]:
+    fw, dirs, rig = _firmware(key)
+    argv = [find_node(), str(bridge_script()), str(find_micropython()),
+            str(BENCH_HEAP_BASE + BENCH_HEAP_PER_REP * reps), fw.board_module,
+            fw.config_module, "bench:" + json.dumps({"reps": reps, "rig": rig}), *map(str, dirs)]
     try:
         proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -66,13 +90,14 @@ def under_micropython(device: str = "esp32", reps: int = REPS, timeout: float = 
     return result
 
 
-def under_cpython(device: str = "esp32", reps: int = REPS) -> dict[str, Any]:
+def under_cpython(key: str = "esp32", reps: int = REPS) -> dict[str, Any]:
     import platform
 
-    fw, dirs = _firmware(device)
-    mods = load_firmware(dirs, (fw.config_module, fw.board_module, "proto", "protodef"))
+    fw, dirs, rig = _firmware(key)
+    extra = ("pca9685", "servos") if rig == "pca" else ()
+    mods = load_firmware(dirs, (fw.config_module, fw.board_module, "proto", "protodef") + extra)
     items = fwcost.start(mods[fw.board_module].Board, mods[fw.config_module], mods["proto"],
-                         mods["protodef"].PROTOCOL_VERSION, lambda: time.perf_counter_ns() / 1000.0, reps)
+                         mods["protodef"].PROTOCOL_VERSION, lambda: time.perf_counter_ns() / 1000.0, reps, rig, mods)
     for name in items:
         gc.collect()
         fwcost.run(name)
@@ -94,11 +119,16 @@ def check(r: dict[str, Any]) -> None:
                                      "this firmware")
 
 
+def waypoint_verb(r: dict[str, Any]) -> str:
+    """W on the arm's rigs, MV on the MA."""
+    return "MV" if "MV" in r["lines"] else "W"
+
+
 def tick_budget(r: dict[str, Any], period_ms: int, lines_per_s: int = LINES_PER_S) -> dict[str, Any]:
-    """The share of one control period that `lines_per_s` W lines take, alone and
-    with the control tick (RUN with telemetry), from the medians."""
+    """The share of one control period that `lines_per_s` waypoint lines (W; the MA's MV)
+    take, alone and with the control tick (RUN with telemetry), from the medians."""
     per_tick = lines_per_s * period_ms / 1000.0
-    w = r["lines"]["W"]["median_us"]
+    w = r["lines"][waypoint_verb(r)]["median_us"]
     tick = r["ticks"]["RUN + telemetry"]["median_us"]
     period_us = period_ms * 1000.0
     return {
@@ -111,22 +141,40 @@ def tick_budget(r: dict[str, Any], period_ms: int, lines_per_s: int = LINES_PER_
     }
 
 
-def run(device: str = "esp32", reps: int = REPS, progress=lambda text: None) -> dict[str, Any]:
-    """Both interpreters -> a JSON-ready dict (docs/benchmarks.md)."""
-    fw, dirs = _firmware(device)
+def memory(mp: dict[str, Any], chip_free: int = CHIP_FREE_HEAP) -> dict[str, Any]:
+    """Per board under MicroPython: the heap a control tick allocates (the most of the
+    three tick items), the firmware's live heap after boot and after the run (less
+    the bridge's own modules), and the headroom against the chip's free heap."""
+    alloc_tick = max(int(st.get("alloc_bytes", 0)) for st in mp["ticks"].values())
+    live = int(mp["heap"]["after_run"])
+    return {"alloc_per_tick_bytes": alloc_tick, "live_heap_after_boot_bytes": int(mp["heap"]["after_boot"]),
+            "live_heap_after_run_bytes": live, "chip_free_heap_bytes": chip_free,
+            "headroom_bytes": chip_free - live, "chip_free_heap_source": CHIP_FREE_HEAP_SOURCE}
+
+
+def run_all(keys: list[str], reps: int = REPS, progress=lambda text: None) -> dict[str, Any]:
+    """Every board of `keys` (TARGETS) in both interpreters -> a JSON-ready dict (docs/benchmarks.md)."""
+    return {"reps": reps, "chip_free_heap_bytes": CHIP_FREE_HEAP, "chip_free_heap_source": CHIP_FREE_HEAP_SOURCE,
+            "boards": {k: run(k, reps, progress) for k in keys}}
+
+
+def run(key: str = "esp32", reps: int = REPS, progress=lambda text: None) -> dict[str, Any]:
+    """One board (a TARGETS key) in both interpreters -> a JSON-ready dict."""
+    fw, dirs, _ = _firmware(key)
     period_ms = int(load_firmware(dirs, (fw.config_module,))[fw.config_module].PERIOD_MS)
-    progress(f"MicroPython (WebAssembly), {reps} repetitions per item")
-    mp = under_micropython(device, reps)
-    progress(f"CPython, {reps} repetitions per item")
-    cp = under_cpython(device, reps)
+    progress(f"{key}: MicroPython (WebAssembly), {reps} repetitions per item")
+    mp = under_micropython(key, reps)
+    progress(f"{key}: CPython, {reps} repetitions per item")
+    cp = under_cpython(key, reps)
     ratio = {}
     for group in ("lines", "ticks", "codec"):
         for name, st in mp[group].items():
             base = cp[group][name]["median_us"]
             ratio[name] = round(st["median_us"] / base, 1) if base > 0 else None
     return {
-        "device": device,
+        "device": key,
         "reps": reps,
+        "memory": memory(mp),
         "micropython": mp,
         "cpython": cp,
         "median_ratio_micropython_over_cpython": ratio,
@@ -135,7 +183,7 @@ def run(device: str = "esp32", reps: int = REPS, progress=lambda text: None) -> 
 
 
 def print_result(r: dict[str, Any], console: Any) -> None:
-    """The tables of `armbridge bench firmware` (rich console)."""
+    """The tables of one board (rich console)."""
     from rich.table import Table
 
     mp, cp = r["micropython"], r["cpython"]
@@ -150,27 +198,56 @@ def print_result(r: dict[str, Any], console: Any) -> None:
                           str(st.get("alloc_bytes", "-")), f"{cp[group][name]['median_us']:.1f}",
                           f"{r['median_ratio_micropython_over_cpython'][name]:.1f}x")
     console.print(table)
+    verb = waypoint_verb(mp)
     for who in ("micropython", "cpython"):
         b = r["tick_budget"][who]
-        console.print(f"{r[who]['interpreter']}: {b['lines_per_s']} W lines/s = {b['w_lines_per_tick']:g} per "
+        console.print(f"{r[who]['interpreter']}: {b['lines_per_s']} {verb} lines/s = {b['w_lines_per_tick']:g} per "
                       f"{b['period_ms']} ms tick: {b['w_us_per_tick']:.0f} us, {b['w_share_of_tick']:.1%} of the "
                       f"tick; with the control tick (RUN + telemetry) {b['with_tick_share']:.1%}")
-    console.print(f"live heap under MicroPython after the bench: {mp['heap_live_after_bench']} bytes")
+
+
+def print_summary(r: dict[str, Any], console: Any) -> None:
+    """One row per board: time per line and tick, allocation per tick, live heap, headroom."""
+    from rich.table import Table
+
+    table = Table(title=f"the firmware under MicroPython, per board ({r['reps']} repetitions)",
+                  caption=f"headroom: against {r['chip_free_heap_bytes']:,} bytes free, {r['chip_free_heap_source']}")
+    for col in ("board", "waypoint line us", "RUN + telemetry tick us", "alloc per tick B", "live heap after boot B",
+                "live heap after run B", "headroom B"):
+        table.add_column(col, justify="left" if col == "board" else "right")
+    for key, b in r["boards"].items():
+        mp, m = b["micropython"], b["memory"]
+        verb = waypoint_verb(mp)
+        table.add_row(key, f"{verb} {mp['lines'][verb]['median_us']:.1f}",
+                      f"{mp['ticks']['RUN + telemetry']['median_us']:.1f}", f"{m['alloc_per_tick_bytes']:,}",
+                      f"{m['live_heap_after_boot_bytes']:,}", f"{m['live_heap_after_run_bytes']:,}",
+                      f"{m['headroom_bytes']:,}")
+    console.print(table)
 
 
 def firmware_cmd(
     quick: bool = typer.Option(False, "--quick", help="Reduced size (CI): 200 repetitions per item."),
     reps: int = typer.Option(None, "--reps", min=10, help="Repetitions per item (full run: 2000)."),
-    device: str = typer.Option("esp32", "--device", help="A MicroPython board of the emulator."),
+    device: str = typer.Option("all", "--device",
+                               help="A MicroPython board of the emulator (esp32, masr_ma), or all of them, "
+                                    "the esp32's PCA9685 rig included (default)."),
+    servos: str = typer.Option(None, "--servos", metavar="RIG", help="The esp32's rig: effort (default) or pca9685."),
     json_out: Path = typer.Option(Path("runs/bench-firmware.json"), "--json", help="Where to write the results ('-': stdout)."),
 ) -> None:
     """The firmware's cost per received line (each verb) and per control tick under
-    the real MicroPython interpreter (WebAssembly, by Node) and under CPython."""
+    the real MicroPython interpreter (WebAssembly, by Node) and under CPython, per
+    board: heap allocated per poll, the live heap after a run and its headroom
+    against an ESP32's free MicroPython heap."""
     from rich.console import Console
 
+    if device == "all" and servos:
+        raise ArmbridgeError("bench firmware: --servos needs --device esp32")
+    keys = list(TARGETS) if device == "all" else [target(device, servos)]
     console = Console()
     n = reps if reps is not None else (QUICK_REPS if quick else REPS)
-    result = run(device, n, progress=lambda text: console.print(f"[dim]bench firmware: {text}[/]"))
+    result = run_all(keys, n, progress=lambda text: console.print(f"[dim]bench firmware: {text}[/]"))
     write_json(result, json_out)
-    print_result(result, console)
+    for b in result["boards"].values():
+        print_result(b, console)
+    print_summary(result, console)
     console.print(f"wrote {json_out}")

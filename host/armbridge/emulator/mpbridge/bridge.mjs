@@ -66,13 +66,21 @@ _version = "%d.%d.%d" % sys.implementation.version[:3]
     // One call per item, a collection between them: this port collects
     // garbage only when control is back in JS, so within a call the heap
     // just grows (give it room: HEAP_BYTES).
+    // The heap is measured in calls of their own, after a collection there
+    // (inside a call the garbage of that call is not collected yet).
     const fwcost = mp.pyimport("fwcost");
+    const mark = (what) => mp.runPython(`import gc; gc.collect(); import fwcost; fwcost.heap_mark("${what}")`);
+    mark("base");
     const items = JSON.parse(fwcost.mp_start(mode.slice(6)));
+    mark("after_boot");
+    const measured = { lines: {}, ticks: {}, codec: {} };
     for (const name of items) {
       mp.runPython("import gc; gc.collect()");
-      fwcost.mp_run(name);
+      const [group, n, st] = JSON.parse(fwcost.mp_run(name));
+      measured[group][n] = st;
     }
-    process.stdout.write(fwcost.mp_result() + "\n");
+    mark("after_run");
+    process.stdout.write(JSON.stringify(Object.assign(JSON.parse(fwcost.mp_result()), measured)) + "\n");
     return;
   }
   if (mode !== "serve") fail("unknown mode " + mode);

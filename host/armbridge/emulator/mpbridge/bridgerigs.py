@@ -101,6 +101,7 @@ class PcaBridgeHal(bridgehal.BridgeHal):
     """The PCA9685 rig's HAL over the bridge (see the module docstring)."""
 
     POSITIONAL = True
+    firmware = None   # {"pca9685": module, "servos": module} where they are not importable (CPython's bench)
 
     def __init__(self, n, persist=b"", has_pen=False, uid="0"):
         bridgehal.BridgeHal.__init__(self, n, persist, False, uid)
@@ -109,8 +110,12 @@ class PcaBridgeHal(bridgehal.BridgeHal):
 
     def start(self, cfg):
         """The firmware's driver and servo bank on the bridged bus, as the chip's HAL builds them."""
-        from pca9685 import Pca9685  # type: ignore[import-not-found]
-        from servos import ServoBank  # type: ignore[import-not-found]
+        if self.firmware is not None:
+            Pca9685 = self.firmware["pca9685"].Pca9685
+            ServoBank = self.firmware["servos"].ServoBank
+        else:
+            from pca9685 import Pca9685  # type: ignore[import-not-found]
+            from servos import ServoBank  # type: ignore[import-not-found]
 
         pca = Pca9685(self.i2c, cfg.PCA9685_ADDR, cfg.SERVO_FREQ_HZ, sleep_us=self.sleep_us)
         self.servos = ServoBank(pca, cfg)
@@ -144,6 +149,37 @@ class PcaBridgeHal(bridgehal.BridgeHal):
     def write_pen(self, down):
         self.servos.pen(down)
         self.ops.append((bridgehal.PEN, bool(down)))
+
+
+class RegisterFile:
+    """For fwcost.py's bench, which has no emulator to ask: a bus on which every
+    device keeps the bytes written to it (auto-incrementing, as the PCA9685 with
+    MODE1.AI) and reads them back. `ask` is a BridgeHal.asker."""
+
+    def __init__(self):
+        self.regs = {}
+
+    def ask(self, line):
+        fields = line[1:].split("\t")
+        for f in fields[:-1]:
+            if f[:1] == "I":
+                addr, reg, data = f[1:].split(",")
+                mem = self._mem(int(addr))
+                reg = int(reg)
+                for b in bridgehal.binascii.unhexlify(data):
+                    mem[reg & 0xFF] = b
+                    reg += 1
+        q = fields[-1]
+        if q[:1] != "r":
+            raise ValueError("the bench's bus cannot answer %r" % q)
+        addr, reg, n = [int(x) for x in q[1:].split(",")]
+        mem = self._mem(addr)
+        return bridgehal._hex(bytes([mem[(reg + k) & 0xFF] for k in range(n)]))
+
+    def _mem(self, addr):
+        if addr not in self.regs:
+            self.regs[addr] = bytearray(256)
+        return self.regs[addr]
 
 
 bridgehal.RIGS["ma"] = MaBridgeHal

@@ -19,11 +19,13 @@ import gc
 
 try:
     import bridgehal  # type: ignore[import-not-found]
-except ImportError:  # CPython: the package's module
-    from armbridge.emulator.mpbridge import bridgehal
+    import bridgerigs  # type: ignore[import-not-found]
+except ImportError:  # CPython: the package's modules
+    from armbridge.emulator.mpbridge import bridgehal, bridgerigs
 
 # The answer each item must get (fwcost measures nothing else).
-EXPECT = {"W": "OK", "PING": "OK", "STAT": "OK", "HOLD": "OK", "RESUME": "OK", "RATE": "OK", "LIM": "OK",
+EXPECT = {"W": "OK", "MV": "OK", "crc32 of a MV line": "int", "decode MV": "MV", "parse_command MV": "list",
+          "PING": "OK", "STAT": "OK", "HOLD": "OK", "RESUME": "OK", "RATE": "OK", "LIM": "OK",
           "HELLO": "OK", "CRC error": "ER 2", "ER SEQ": "ER 7", "idle": "-", "RUN": "-", "RUN + telemetry": "T",
           "crc32 of a W line": "int", "decode W": "W", "parse_command W": "list", "encode an OK reply": "bytes"}
 LINES = ("W", "PING", "STAT", "HOLD", "RESUME", "RATE", "LIM", "HELLO", "CRC error", "ER SEQ")
@@ -31,6 +33,20 @@ TICKS = {"idle": (0, False), "RUN": (0, True), "RUN + telemetry": (100, True)}  
 CODEC_INNER = 20
 CODEC = ("crc32 of a W line", "decode W", "parse_command W", "encode an OK reply")
 ITEMS = LINES + tuple(TICKS) + CODEC
+MA_LINK = 2                # the MA boots homed on link 2 (joint 2 at r_2), ...
+MA_FROM_MM = 50            # ... this far along it, and moves between r_2 + 40 and r_2 + 160 mm
+MA_VMAX_MM_S = 2           # slowly (SETLIM): one RUN item is one move, whatever reps is (up to 6,000)
+
+
+def items(rig="arm"):
+    """The items for a rig: the MA queues its moves with MV, the arm with W."""
+    if rig == "ma":
+        return tuple([_ma_name(x) for x in ITEMS])
+    return ITEMS
+
+
+def _ma_name(name):
+    return "MV" if name == "W" else name.replace(" W", " MV")
 
 
 def _stats(xs, overhead):
@@ -70,49 +86,91 @@ class _Host:
 
 
 class Bench:
-    def __init__(self, board_cls, cfg, proto, version, clock, reps):
+    def __init__(self, board_cls, cfg, proto, version, clock, reps, rig="arm", modules=None):
         self.clock = clock
         self.reps = reps
         self.cfg = cfg
+        self.rig = rig
         self.n = cfg.N_JOINTS
         self.period = cfg.PERIOD_MS
-        self.mid = [(lo + hi) // 2 for lo, hi in cfg.LIMITS_MRAD]
-        hal = bridgehal.BridgeHal(self.n)
+        persist = b""
+        if rig == "ma":
+            self.verb = "MV"
+            r = sum(cfg.LINK_LENGTHS_MM[:MA_LINK - 1])
+            self.ma_span = (r + 40, r + 160)
+            self.ma_0 = float(r + MA_FROM_MM)
+            self.ma_mm = self.ma_0               # the MA's true d; the wheel counts from boot
+            self.ma_u = 0.0
+            persist = ("AB2 1 1 - - - - 0,%d,%d,0,%s" % (MA_LINK, MA_FROM_MM * 1000,
+                                                          ",".join(["0"] * (self.n - 1)))).encode()
+        else:
+            self.verb = "W"
+            self.mid = [(lo + hi) // 2 for lo, hi in cfg.LIMITS_MRAD]
+        hal = bridgehal.make_hal(rig, self.n, persist)
+        hal.asker = bridgerigs.RegisterFile().ask
+        hal.firmware = modules
         hal.ms = 100000
         hal.us = hal.ms * 1000
-        hal.q = [m / 1000.0 for m in self.mid]
+        if rig != "ma":
+            hal.q = [m / 1000.0 for m in self.mid]
+        hal.start(cfg)
         self.hal = hal
         self.board = board_cls(hal, cfg)
         self.board.on_done = hal.on_done
         self.host = _Host(proto, version)
         self.wid = 0
+        self.clock_alloc = 0
+        self.clock_alloc = self._clock_alloc()
         self._poll(None)  # the first control tick is due at boot
         self.send(self.host.hello(True))
         self.send(self.host.line("RATE", (0,)))
+        if rig == "ma":
+            span = cfg.LIMITS[-1]
+            self.send(self.host.line("SETLIM", (self.n, span[0], span[1], MA_VMAX_MM_S)))
         self.oh = self.overhead()  # the median cost of reading the clock, us
 
     # ------------------------------------------------------------ plumbing
 
     def _poll(self, data):
+        """One poll -> (us, bytes allocated, the HAL's log)."""
         hal = self.hal
         hal.rx = data
         clock = self.clock
+        a0 = _alloc()   # outside the timed span: gc.mem_alloc() walks the whole heap's table
         t0 = clock()
         self.board.poll()
         t1 = clock()
+        a1 = _alloc()
         ops = hal.ops
         hal.ops = []
-        return t1 - t0, ops
+        if self.rig == "ma":
+            for k, v in ops:
+                if k == bridgerigs.LOCO:
+                    self.ma_u = v
+        return t1 - t0, a1 - a0 - self.clock_alloc, ops
+
+    def _clock_alloc(self):
+        """What reading the clock twice allocates (a float each under MicroPython):
+        taken off every poll's allocation."""
+        clock = self.clock
+        a0 = _alloc()
+        t0 = clock()
+        t1 = clock()
+        a1 = _alloc()
+        return a1 - a0 if t1 >= t0 else 0
 
     def send(self, data):
         """One line, untimed -> the board's reply line(s) (bytes)."""
-        ops = self._poll(data)[1]
+        ops = self._poll(data)[2]
         return b"".join([v for k, v in ops if k == bridgehal.TX])
-
 
     def advance(self):
         self.hal.ms += self.period
         self.hal.us = self.hal.ms * 1000
+        if self.rig == "ma":  # the wheel: speed = effort / LOCO_KFF, no slip, no magnet on the way
+            c = self.cfg
+            self.ma_mm += self.ma_u / c.LOCO_KFF * self.period / 1000.0
+            self.hal.wheel = int(round((self.ma_mm - self.ma_0) / c.WHEEL_MM_PER_COUNT))
 
     def new_session(self, rate=0):
         """Empty queue, IDLE, telemetry rate `rate` (untimed)."""
@@ -120,8 +178,12 @@ class Bench:
         self.send(self.host.line("RATE", (rate,)))
 
     def w_line(self, dur, offset):
+        """A waypoint line: W to mid-range + offset over dur; the MA: MV to the far end of its span."""
         wid = self.wid
         self.wid = (self.wid + 1) & 0xFFFF
+        if self.rig == "ma":
+            lo, hi = self.ma_span
+            return self.host.line("MV", [wid, hi if self.ma_mm < (lo + hi) / 2 else lo])
         return self.host.line("W", [wid, dur] + [m + offset for m in self.mid])
 
     def overhead(self):
@@ -145,16 +207,17 @@ class Bench:
         answers = {}
         poll = self._poll
         tx = bridgehal.TX
-        alloc0 = _alloc()
+        alloc = 0
         for i in range(self.reps):
             if before is not None:
                 before(i)
-            dt, ops = poll(make(i))
+            dt, da, ops = poll(make(i))
             xs.append(dt)
+            alloc += da
             out = [v for k, v in ops if k == tx]
             a = _answer(out[0]) if out else "-"
             answers[a] = answers.get(a, 0) + 1
-        return xs, (_alloc() - alloc0) / self.reps, answers
+        return xs, alloc / self.reps, answers
 
     def series_fn(self, fn, inner=CODEC_INNER):
         """Times `reps` samples of `inner` calls fn(i) -> like series(), per call
@@ -177,7 +240,8 @@ class Bench:
         return xs, (_alloc() - alloc0) / (self.reps * inner), answers
 
     def codec_item(self, name):
-        """The codec's share of a W line: firmware/common/proto.py alone."""
+        """The codec's share of a W line (the MA's: an MV line): firmware/common/proto.py alone."""
+        name = name.replace(" MV", " W")
         proto = self.host.proto
         line = self.w_line(1000, 10)
         body = line[:line.rfind(b"*")]
@@ -194,7 +258,7 @@ class Bench:
         raise ValueError("unknown item %r" % name)
 
     def run_item(self, name):
-        if name in CODEC:
+        if name.replace(" MV", " W") in CODEC:
             return self.codec_item(name)
         host = self.host
         qsize = self.cfg.QSIZE
@@ -214,7 +278,7 @@ class Bench:
                 self.advance()
 
             return self.series(lambda i: None, tick)
-        if name == "W":
+        if name == self.verb:
             def drain(i):
                 if i % (qsize - 1) == 0:
                     self.new_session()
@@ -268,32 +332,39 @@ def _alloc():
 
 _bench = None
 _result: dict = {}
+_heap: dict = {}
 
 
-def start(board_cls, cfg, proto, version, clock, reps):
-    """A board booted for the bench -> the names of the items to run()."""
+def start(board_cls, cfg, proto, version, clock, reps, rig="arm", modules=None):
+    """A board booted for the bench -> the names of the items to run(). modules: the
+    firmware's modules by name where they cannot be imported (CPython)."""
     global _bench, _result
-    _bench = Bench(board_cls, cfg, proto, version, clock, reps)
-    _result = {"reps": reps, "clock_overhead_us": round(_bench.oh, 3), "lines": {}, "ticks": {}, "codec": {}}
-    return ITEMS
+    _bench = Bench(board_cls, cfg, proto, version, clock, reps, rig, modules)
+    _result = {"reps": reps, "rig": rig, "clock_overhead_us": round(_bench.oh, 3), "lines": {}, "ticks": {},
+               "codec": {}}
+    return items(rig)
 
 
-def run(name):
-    """One item (its own call from the host, so that garbage is collected between
-    items; the WebAssembly port collects only when control is back in JS)."""
+def measure(name):
+    """One item -> (its group, its stats)."""
     b = _bench
     xs, alloc, answers = b.run_item(name)
-    st = _stats(xs, 0.0 if name in CODEC else b.oh)
+    codec = name.replace(" MV", " W") in CODEC
+    st = _stats(xs, 0.0 if codec else b.oh)
     st["answers"] = answers
     if alloc:
         st["alloc_bytes"] = round(alloc)
     if name in TICKS:
         st["state"] = b.board.state
-        _result["ticks"][name] = st
-    elif name in CODEC:
-        _result["codec"][name] = st
-    else:
-        _result["lines"][name] = st
+        return "ticks", st
+    return ("codec" if codec else "lines"), st
+
+
+def run(name):
+    """One item (its own call from the host, so that garbage is collected between
+    items; the WebAssembly port collects only when control is back in JS)."""
+    group, st = measure(name)
+    _result[group][name] = st
 
 
 def result():
@@ -302,32 +373,45 @@ def result():
 
 # ---------------------------------------------------------------- MicroPython entry (bridge.mjs)
 
+def heap_mark(what):
+    """The heap in use now (bridge.mjs calls it after a collection, in a call of its own):
+    `base` with the bridge's modules loaded, before the firmware is imported;
+    `after_boot`, `after_run`: less `base`, the firmware's (and the bench's few objects)."""
+    used = gc.mem_alloc()
+    _heap[what] = used if what == "base" else used - _heap["base"]
+    if what == "after_run":
+        _result["heap_live_after_bench"] = used
+
+
 def mp_start(params):
-    """params: JSON {"reps": N} -> JSON list of item names."""
+    """params: JSON {"reps": N, "rig": R} -> JSON list of item names."""
     import json
 
     import jsclock  # type: ignore[import-not-found]
 
+    p = json.loads(params)
     cfg = __import__(bridgehal._modules[1])
     board_mod = __import__(bridgehal._modules[0])
     proto = __import__("proto")
     protodef = __import__("protodef")
-    gc.collect()
-    imported = gc.mem_alloc()
-    items = start(board_mod.Board, cfg, proto, protodef.PROTOCOL_VERSION, jsclock.us, int(json.loads(params)["reps"]))
-    _result["heap_after_import"] = imported
-    return json.dumps(list(items))
+    names = start(board_mod.Board, cfg, proto, protodef.PROTOCOL_VERSION, jsclock.us, int(p["reps"]),
+                  p.get("rig", "arm"))
+    return json.dumps(list(names))
 
 
 def mp_run(name):
-    run(name)
+    """One item -> JSON [group, name, stats]; kept by bridge.mjs, not in this heap."""
+    import json
+
+    group, st = measure(name)
+    return json.dumps([group, name, st])
 
 
 def mp_result():
+    """The heap marks (heap_mark) and what the interpreter is."""
     import json
     import sys
 
-    gc.collect()
-    _result["heap_live_after_bench"] = gc.mem_alloc()
+    _result["heap"] = _heap
     _result["interpreter"] = "MicroPython %d.%d.%d (WebAssembly)" % sys.implementation.version[:3]
     return json.dumps(_result)
