@@ -33,7 +33,8 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_MODEL_FILES = 6  # + results.json + model.json: 8 files at most come back
-FILE_BYTES = 15 * 2**20
+FILE_BYTES = 15 * 2**20  # a file comes back up to 16 MiB
+MODEL_BYTES = 56 * 2**20  # and 64 MiB in all: the model's share
 
 
 def _array_api_compat() -> str:
@@ -232,15 +233,15 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
 
 
 def _fit_size(s: dict[str, Any], ds: Any) -> tuple[int, ...]:
-    """Regressor hidden layers, narrowed until the packed model fits MAX_MODEL_FILES files: int8 weights,
-    float32 biases, scales and output means (smm/packed.py)."""
+    """Regressor hidden layers, narrowed until the packed model fits MODEL_BYTES: int8 weights, float32
+    biases, scales and output means (smm/packed.py)."""
     n_out = [int(b) * 7 * int(ds.K) * 2 for b in ds.cluster_branches if b > 0]
     hidden = tuple(s["reg_hidden"])
     while True:
         widths = (4,) + hidden
         inner = sum(a * b + 9 * b for a, b in zip(widths[:-1], widths[1:]))
         need = sum(inner + hidden[-1] * o + 13 * o for o in n_out)
-        if need <= 0.9 * MAX_MODEL_FILES * FILE_BYTES or hidden[0] <= 16:
+        if need <= 0.9 * MODEL_BYTES or hidden[0] <= 16:
             return hidden
         hidden = tuple(max(16, int(h * 0.85)) for h in hidden)
 
@@ -309,10 +310,12 @@ def measure_model(run: Run, s: dict[str, Any], arm: Any, grid: Any, ds: Any, tra
                         {"robot": arm.name, "lo": trained.classifier.lo.tolist(), "K": int(ds.K), "N": int(ds.N),
                          "cluster_branches": [int(b) for b in ds.cluster_branches],
                          "grid": run.results.get("data", {}).get("grid")}, run.out, max_bytes=FILE_BYTES)
-    if len(files) - 1 > MAX_MODEL_FILES:
+    size = sum(f.stat().st_size for f in files)
+    if len(files) - 1 > MAX_MODEL_FILES or size > MODEL_BYTES:
         for f in files:
             f.unlink()
-        raise RuntimeError(f"the packed model needs {len(files) - 1} files (> {MAX_MODEL_FILES}); not kept")
+        raise RuntimeError(f"the packed model needs {len(files) - 1} files, {size} bytes (at most {MAX_MODEL_FILES}, "
+                           f"{MODEL_BYTES}); not kept")
     run.results["model"] = {"files": {f.name: f.stat().st_size for f in files},
                             "bytes": sum(f.stat().st_size for f in files), "format": packed.FORMAT}
     run.write()

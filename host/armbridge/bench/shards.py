@@ -134,6 +134,9 @@ def shards_cmd(
         console.print(f"{r['workers']} worker(s): {r['wall_s']:.1f} s wall, shards' nullspace {r['shard_seconds_sum']:.1f} s, "
                       f"efficiency {eff}, load {r['load_average_1min_before']:.1f} -> {r['load_average_1min']:.1f}, "
                       f"identical {r['identical_to_first']}")
+    if result["parallel_efficiency_all_cores"] is not None:
+        console.print(f"parallel efficiency on all {result['machine']['cores']} cores (speed-up / cores): "
+                      f"{result['parallel_efficiency_all_cores']:.2f}")
     projection = result["projection_paper_7r_grid"]
     if projection:
         days = projection["days_on_n_workers"]

@@ -201,7 +201,7 @@ class Tracer:
         try:
             with torch.cuda.graph(graph):
                 _run_block(ctx, state, step, sing_tol, max_steps)
-        except RuntimeError as e:  # an op that cannot be captured (a library's batched kernel): run eager
+        except Exception as e:  # noqa: BLE001 - an op that cannot be captured (a batched solver): run eager
             self.graphs, self.capture_error = False, f"{type(e).__name__}: {str(e).splitlines()[0]}"
             torch.cuda.synchronize()
             return _Block(state)
