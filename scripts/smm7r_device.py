@@ -150,6 +150,7 @@ def bench_tracer(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> 
     got, t_got, tr = timed(small, tracer=fused.Tracer(graphs=cuda))
     out["check_fused_vs_compact"] = _agree(ref, got)
     out["capture_error"] = tr.capture_error
+    out["block_sync_free"], out["block_sync_error"] = tr.sync_free, tr.sync_error
     cpu_x = small[: s["bench_check"]]
     cpu = nullspace.compute(arm, cpu_x, chunk=len(cpu_x), **{**opts, "device": "cpu"})
     out["check_device_vs_cpu"] = _agree(cpu, _take(got, len(cpu_x)))

@@ -111,6 +111,8 @@ class Tracer:
 
     graphs: bool = False
     capture_error: str | None = None  # why graphs were turned off (a capture failed), if they were
+    sync_free: bool | None = None  # CUDA: a block ran with no host synchronisation (checked once)
+    sync_error: str | None = None
     captured: int = 0
     blocks: int = 0
     sizes: list[int] = field(default_factory=list)
@@ -174,6 +176,8 @@ class Tracer:
                 self.sizes.append(size)
                 live_rows = torch.arange(n_live, device=dev)
             st = blk.state
+            if self.sync_free is None and st["q"].is_cuda:
+                self._check_sync(ctx, st, step, sing_tol, max_steps)
             if blk.graph is not None:
                 blk.graph.replay()
             else:
@@ -185,6 +189,20 @@ class Tracer:
         if blk is not None:
             write_back(blk.state, rows)
         return _traces(loc, idx, length.clamp_max(max_steps + 1), flags, passed, hist, n_loc, n_seed, n, dt)
+
+    def _check_sync(self, ctx: Ctx, st: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int
+                    ) -> None:
+        """Whether a block runs without a host synchronisation: one block on a copy of the state with
+        torch's sync debug mode set to raise (sets sync_free, and sync_error on failure)."""
+        mode = torch.cuda.get_sync_debug_mode()
+        torch.cuda.set_sync_debug_mode("error")
+        try:
+            _run_block(ctx, {k: v.clone() for k, v in st.items()}, step, sing_tol, max_steps)
+            self.sync_free = True
+        except RuntimeError as e:
+            self.sync_free, self.sync_error = False, str(e).splitlines()[0]
+        finally:
+            torch.cuda.set_sync_debug_mode(mode)
 
     def _block(self, ctx: Ctx, state: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int
                ) -> _Block:
