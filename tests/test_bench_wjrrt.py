@@ -154,8 +154,25 @@ def test_figures(result, tmp_path):
         styles = {line.get_gid(): line.get_linestyle() for line in ax.get_lines()}
         assert styles["wjrrt"] == "-" and styles["RRTConnect"] != "-"
     paths = plots(result, tmp_path)
-    assert [p.name for p in paths] == ["wjrrt-success.png", "wjrrt-time.png"]
+    assert [p.name for p in paths] == ["wjrrt-success.png", "wjrrt-time.png", "wjrrt-clearance.png"]
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_the_clearance_histogram_counts_every_successful_path_above_its_margin(result):
+    from armbridge.bench.wjrrt_plots import clearance_excess, clearance_figure
+
+    excess = clearance_excess(result)
+    for pl in result["planners"]:
+        runs = [(r, sc["margin_m"]) for sc in result["scenes"].values() for r in sc["planners"][pl]["runs"]]
+        assert len(excess[pl]) == sum(r["success"] for r, _ in runs) > 0, pl
+        assert sorted(excess[pl]) == pytest.approx(sorted(1000 * (r["clearance_min_m"] - m) for r, m in runs
+                                                          if r["success"]))
+        assert min(excess[pl]) >= 0.0, pl  # every path kept its margin
+    labels = [t.get_text() for t in clearance_figure(result).legends[0].get_texts()]
+    assert labels == [f"{wjrrt.LABELS[pl]} ({len(excess[pl])} paths)" for pl in result["planners"]]
+    old = {**result, "scenes": {n: {k: v for k, v in sc.items() if k != "margin_m"}
+                                for n, sc in result["scenes"].items()}}
+    assert clearance_excess(old) is None and clearance_figure(old) is None
 
 
 def test_cli_on_a_shipped_scene(tmp_path):

@@ -135,7 +135,7 @@ def success_figure(result: dict[str, Any]) -> Any:
         log_seconds_axis(ax, lo, T, mark=T)
         ax.set_ylim(-3, 103)
         ax.set_xlabel("time budget per query t (s)")
-        ax.set_title(f"{name} ({sc['links']} links, {len(next(iter(sc['planners'].values()))['runs'])} seeds)",
+        ax.set_title(f"{name} ({sc['links']} links, {len(next(iter(sc['planners'].values()))['runs'])} runs)",
                      fontsize=9)
     for r in range(rows):
         axes[r][0].set_ylabel("queries solved within t (%)")
@@ -192,6 +192,50 @@ def time_figure(result: dict[str, Any]) -> Any:
     return fig
 
 
+def clearance_excess(result: dict[str, Any]) -> Optional[dict[str, list[float]]]:
+    """Per planner, how far each successful path's least clearance lies above the margin its scene was
+    planned for (mm); None when the scenes carry no margins (a result from before they did)."""
+    excess: dict[str, list[float]] = {pl: [] for pl in _order(result)}
+    for sc in result["scenes"].values():
+        if "margin_m" not in sc:
+            return None
+        for pl, d in sc["planners"].items():
+            excess[pl] += [1000.0 * (r["clearance_min_m"] - sc["margin_m"]) for r in d["runs"]
+                           if r["success"] and r.get("clearance_min_m") is not None]
+    return excess
+
+
+def clearance_figure(result: dict[str, Any]) -> Any:
+    """Histogram of clearance_excess (log bins; every scene's runs together, one step line per planner);
+    None without margins or paths."""
+    plt = pyplot()
+    planners = _order(result)
+    excess = clearance_excess(result)
+    if excess is None:
+        return None
+    values = [v for vs in excess.values() for v in vs]
+    if not values:
+        return None
+    lo = max(min(max(v, 1e-4) for v in values), 1e-4)
+    hi = max(max(values), lo * 10)
+    bins = np.logspace(np.log10(lo) - 0.05, np.log10(hi) + 0.05, 40)
+    fig, ax = plt.subplots(figsize=(7.2, 3.8), layout="constrained")
+    for pl in planners:
+        if excess[pl]:
+            s = line_style(pl)
+            ax.hist(np.maximum(excess[pl], lo), bins=bins, histtype="step", color=s["color"], lw=s["lw"],
+                    ls=s["ls"], label=f"{LABELS[pl]} ({len(excess[pl])} paths)")
+    from matplotlib.ticker import FuncFormatter
+
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_xlabel("least clearance of the path above its margin (mm; 0 would be on the margin)")
+    ax.set_ylabel("successful paths")
+    ax.set_title("every link's surface to every obstacle, over the whole path (sampled 0.2 mm apart)", fontsize=9)
+    fig.legend(loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    return fig
+
+
 def by_group(result: dict[str, Any]) -> dict[str, Any]:
     """The result with each group of generated scenes as one scene (its scenes' runs together), so the
     figures keep a panel per fixed scene or file and get one per group, not one per generated scene."""
@@ -208,13 +252,18 @@ def by_group(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def plots(result: dict[str, Any], png_dir: Path) -> list[Path]:
-    """Write wjrrt-success.png and wjrrt-time.png into png_dir (a group of generated scenes: one panel)."""
-    result = by_group(result)
+    """Write wjrrt-success.png, wjrrt-time.png (a group of generated scenes: one panel) and, where the
+    scenes carry their margins, wjrrt-clearance.png into png_dir."""
+    raw, result = result, by_group(result)
     plt = pyplot()
     png_dir.mkdir(parents=True, exist_ok=True)
     out = []
-    for name, make in (("wjrrt-success.png", success_figure), ("wjrrt-time.png", time_figure)):
-        fig = make(result)
+    for name, make in (("wjrrt-success.png", lambda: success_figure(result)),
+                       ("wjrrt-time.png", lambda: time_figure(result)),
+                       ("wjrrt-clearance.png", lambda: clearance_figure(raw))):
+        fig = make()
+        if fig is None:
+            continue
         p = png_dir / name
         fig.savefig(p, dpi=130)
         plt.close(fig)
