@@ -110,9 +110,10 @@ class PlanResult:
 #: The modules whose numba kernels a robot's planners call (`compile_note`).
 KERNELS: dict[str, tuple[str, ...]] = {
     "masr": ("armbridge.robots.masr_kernels", "armbridge.planning.masr.kernels", "armbridge.planning.masr.collision",
-             "armbridge.planning.tree", "armbridge.ik.masr_dls"),
+             "armbridge.planning.masr.margin", "armbridge.planning.tree", "armbridge.ik.masr_dls"),
     "soft": ("armbridge.planning.tree", "armbridge.planning.polygons", "armbridge.planning.soft.space",
-             "armbridge.planning.soft.jtstep", "armbridge.planning.soft.jacobian_rrt", "armbridge.planning.soft.ik",
+             "armbridge.planning.soft.jtstep", "armbridge.planning.soft.jacobian_rrt", "armbridge.planning.soft.connect",
+             "armbridge.planning.soft.ik",
              "armbridge.planning.soft.margin", "armbridge.planning.soft.waypoints"),
 }
 
