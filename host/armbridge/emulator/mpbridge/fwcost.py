@@ -31,6 +31,7 @@ EXPECT = {"W": "OK", "MV": "OK", "crc32 of a MV line": "int", "decode MV": "MV",
 LINES = ("W", "PING", "STAT", "HOLD", "RESUME", "RATE", "LIM", "HELLO", "CRC error", "ER SEQ")
 TICKS = {"idle": (0, False), "RUN": (0, True), "RUN + telemetry": (100, True)}  # (rate, moving)
 CODEC_INNER = 20
+ALLOC_SAMPLES = 100        # polls of each item whose allocation is counted (gc.mem_alloc() walks the whole heap)
 CODEC = ("crc32 of a W line", "decode W", "parse_command W", "encode an OK reply")
 ITEMS = LINES + tuple(TICKS) + CODEC
 MA_LINK = 2                # the MA boots homed on link 2 (joint 2 at r_2), ...
@@ -101,7 +102,7 @@ class Bench:
             self.ma_0 = float(r + MA_FROM_MM)
             self.ma_mm = self.ma_0               # the MA's true d; the wheel counts from boot
             self.ma_u = 0.0
-            persist = ("AB2 1 1 - - - - 0,%d,%d,0,%s" % (MA_LINK, MA_FROM_MM * 1000,
+            persist = ("AB2 0 0 - - - - 0,%d,%d,0,%s" % (MA_LINK, MA_FROM_MM * 1000,
                                                           ",".join(["0"] * (self.n - 1)))).encode()
         else:
             self.verb = "W"
@@ -131,16 +132,16 @@ class Bench:
 
     # ------------------------------------------------------------ plumbing
 
-    def _poll(self, data):
-        """One poll -> (us, bytes allocated, the HAL's log)."""
+    def _poll(self, data, count=True):
+        """One poll -> (us, bytes allocated (0 unless count), the HAL's log)."""
         hal = self.hal
         hal.rx = data
         clock = self.clock
-        a0 = _alloc()   # outside the timed span: gc.mem_alloc() walks the whole heap's table
+        a0 = _alloc() if count else 0   # outside the timed span: gc.mem_alloc() walks the heap's table
         t0 = clock()
         self.board.poll()
         t1 = clock()
-        a1 = _alloc()
+        a1 = _alloc() if count else self.clock_alloc
         ops = hal.ops
         hal.ops = []
         if self.rig == "ma":
@@ -161,7 +162,7 @@ class Bench:
 
     def send(self, data):
         """One line, untimed -> the board's reply line(s) (bytes)."""
-        ops = self._poll(data)[2]
+        ops = self._poll(data, False)[2]
         return b"".join([v for k, v in ops if k == bridgehal.TX])
 
     def advance(self):
@@ -208,16 +209,17 @@ class Bench:
         poll = self._poll
         tx = bridgehal.TX
         alloc = 0
+        samples = min(self.reps, ALLOC_SAMPLES)
         for i in range(self.reps):
             if before is not None:
                 before(i)
-            dt, da, ops = poll(make(i))
+            dt, da, ops = poll(make(i), i < samples)
             xs.append(dt)
             alloc += da
             out = [v for k, v in ops if k == tx]
             a = _answer(out[0]) if out else "-"
             answers[a] = answers.get(a, 0) + 1
-        return xs, alloc / self.reps, answers
+        return xs, alloc / samples, answers
 
     def series_fn(self, fn, inner=CODEC_INNER):
         """Times `reps` samples of `inner` calls fn(i) -> like series(), per call
