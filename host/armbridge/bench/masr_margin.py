@@ -20,9 +20,8 @@ ITERATIONS = 1000
 
 
 def margins(runs: int, goal_ik: Callable, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    from armbridge.bench.masr_plan import FIXED
     from armbridge.planning.masr import rrt_star
-    from armbridge.planning.masr.environment import fixed_environment
+    from armbridge.planning.masr.environment import FIXED, fixed_environment
     from armbridge.planning.masr.margin import execution_margin, path_clearance
 
     out: dict[str, Any] = {"iterations": ITERATIONS, "runs": runs, "p_c": 0.6, "environments": {}}

@@ -15,7 +15,8 @@ from typing import Optional
 import typer
 from rich.console import Console
 
-from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, estop_note, run_plan
+from armbridge.executor.estop import estop_note
+from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, run_plan
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
 from armbridge.jsonfile import JSON_HELP, detach, emit_json
 from armbridge.link.ports import auto_port

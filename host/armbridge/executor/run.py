@@ -15,7 +15,8 @@ other failure while the arm may move also sends the e-stop byte (unless the
 board has stopped itself) and waits the same way, closes the recording, and
 raises `RunFailed`, which carries the Summary (`error`, `final_state`, and
 `fault` for a FAULT). The one line says whether the board confirmed the e-stop
-(`estop_confirmed`) or not within ESTOP_CONFIRM_S.
+(`estop_confirmed`) or not within estop.ESTOP_CONFIRM_S (executor/estop.py; what a run
+prepares before it streams is executor/prepare.py).
 """
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ import numpy as np
 from armbridge.errors import ArmbridgeError, BoardFailure
 from armbridge.executor.calcheck import CalibrationMismatch
 from armbridge.executor.client import LATCHED_STATES, BoardClient
+from armbridge.executor.estop import fail_run, stop_run
+from armbridge.executor.prepare import PEN_MODES, cartesian_rows, check_board_ik, pen_flags, safety_filter
 from armbridge.executor.settle import resting, still
 from armbridge.executor.signals import holding, stop_on_signals
 from armbridge.executor.summary import (JointTracking, Summary, fill, fill_settle, goal_check, held_between,
@@ -36,7 +39,6 @@ from armbridge.plans.format import Plan, load_plan, validate
 
 RATE_MIN, RATE_MAX = 1, 100
 SETTLE_WAIT_S = 3.0  # board time the run waits, after the last DONE, for a board with a dead band to come to rest
-ESTOP_CONFIRM_S = 0.5  # board time the run waits, after sending the e-stop, for the board to report ESTOP
 
 __all__ = ["RATE_MAX", "RATE_MIN", "JointTracking", "RunFailed", "Summary", "plan_error", "run_plan"]
 
@@ -182,21 +184,21 @@ def run_plan(
         try:
             with open_session(port_url, robot, latched="clear" if clear else "refuse", rate_hz=rate_hz,
                               session=session, calibration=calibration, on_telemetry=on_telemetry, on_event=on_event, on_error=on_error,
-                              on_stop=lambda c, stop: _stop(c, summary, rec, stop)) as c:
+                              on_stop=lambda c, stop: stop_run(c, summary, rec, stop)) as c:
                 client = c
                 assert c.info is not None  # open_session yields a connected client
                 summary.fw, summary.fw_version = c.info.fw, c.info.version
                 summary.calibration = c.calibration.to_json() if c.calibration is not None else None
                 if cartesian:
-                    _check_board_ik(c)
-                pen_flags = _pen_flags(c, plan, pen, summary)
+                    check_board_ik(c)
+                flags = pen_flags(c, plan, pen, summary)
                 band = c.settle_tolerance(robot.dof)  # None: the board has no dead band
                 bar = pause.bar = _progress_bar(plan, console) if progress else None
                 try:
                     with pause.keys(c):  # space or p: HOLD / RESUME at the streaming loop's next turn
                         c.execute(durs_ms, rows, on_progress=bar.update if bar else None, timeout=timeout,
-                                  verb=verb, pen=pen_flags, commands=commands)
-                    if pen_flags is not None:
+                                  verb=verb, pen=flags, commands=commands)
+                    if flags is not None:
                         c.command("PEN", 0)  # the drawing is done: lift the pen
                     # Let the last samples (the arm settling on the final waypoint) arrive.
                     c.drain(min(0.2, 2.0 / rate_hz))  # on the client clock (board time scale)
@@ -204,10 +206,10 @@ def run_plan(
                         c.drain(SETTLE_WAIT_S, until=lambda: resting(samples, plan.q[-1], band[0]) and still(samples))
                     summary.final_state = c.stat()[0]
                 except KeyboardInterrupt as stop:  # Ctrl-C, SIGTERM, SIGHUP
-                    _stop(c, summary, rec, stop)
+                    stop_run(c, summary, rec, stop)
                 except BaseException as exc:
                     failure = exc
-                    _fail(c, summary, rec, exc)
+                    fail_run(c, summary, rec, exc)
                 finally:
                     if bar is not None:
                         bar.stop()
@@ -269,85 +271,6 @@ def run_plan(
     return summary
 
 
-PEN_MODES = ("auto", "on", "off")
-
-
-def safety_filter(plan: Plan) -> tuple[Plan, dict | None]:
-    """The discrete CBF (ik/cbf_filter.py) on what a drawing streams, whoever made
-    the plan (issue 23 section 3: the barrier acts on the commands, not only on
-    the plan): a plan with pen flags for the 3R drawing arm gets its waypoints
-    filtered onto the safe disc less the margin its pen needs (the margin its
-    drawing recorded, else `margin_for` its fastest pen-down segment). A plan
-    `armbridge draw` made is filtered already and filtering twice is filtering
-    once, so it streams as it is; a hand-written one that leaves the disc is
-    pulled in, and its summary reports the executed pen against the disc.
-    -> (the plan to stream, the filter's report or None)."""
-    from armbridge.robots.planar import PlanarChain
-
-    if plan.pen is None or plan.robot.name != "arm3r" or not isinstance(plan.robot, PlanarChain):
-        return plan, None
-    from dataclasses import replace
-
-    from armbridge.ik.cbf_filter import filter_joints
-    from armbridge.ik.region import margin_for, safe_region
-
-    robot = plan.robot
-    margin = (plan.provenance.get("drawing") or {}).get("margin")
-    if not isinstance(margin, (int, float)):
-        xy = np.asarray(robot.ee_point(plan.q))[:, :2]
-        seg = np.hypot(*np.diff(xy, axis=0).T) / np.asarray(plan.durations[1:], float)
-        down = np.asarray(plan.pen[1:], bool)
-        margin = margin_for(float(seg[down].max(initial=0.0)))
-    reg = safe_region(robot)
-    q, report = filter_joints(robot, reg, plan.q, float(margin))
-    drawing = dict(plan.provenance.get("drawing") or {})
-    drawing.setdefault("safe_region", {"center": list(reg.center), "radius": reg.radius})  # the summary reports it
-    plan = replace(plan, q=q, provenance={**plan.provenance, "drawing": drawing})
-    return plan, {**report.to_dict(), "margin_m": float(margin)}
-
-
-def cartesian_rows(plan: Plan) -> list[list[int]]:
-    """The plan's waypoints as X arguments: the tip's x, y (um) and theta = the sum
-    of the joint angles (mrad, unwrapped) by FK. Only a planar chain has them."""
-    robot = plan.robot
-    if not hasattr(robot, "ee_point") or getattr(robot, "kind", "planar") != "planar":
-        raise ArmbridgeError(f"--cartesian needs a planar arm; the plan's robot {robot.name!r} is not one")
-    xy = np.asarray(robot.ee_point(plan.q), dtype=float).reshape(-1, 2)
-    theta = plan.q.sum(axis=1)
-    rows = np.column_stack([np.rint(xy * 1e6), np.rint(theta * 1e3)]).astype(int)
-    return rows.tolist()
-
-
-def _check_board_ik(client: BoardClient) -> None:
-    """--cartesian needs a board that solves X itself. Asked with an X far outside any
-    arm's safe region, which moves nothing: REACH says the board has its IK, VERB that
-    it has none (no weights on its filesystem, or a firmware without the verb)."""
-    ans = client.ask("X", 0, 1, -1000000, -1000000, 0)
-    if isinstance(ans, P.Er) and ans.code == P.REACH:
-        return
-    if isinstance(ans, P.Er) and ans.code == P.VERB:
-        raise ArmbridgeError("--cartesian: the board cannot solve Cartesian waypoints (it refused X with VERB: "
-                             "no IK weights on its filesystem, or a firmware without the board IK)")
-    raise ArmbridgeError(f"--cartesian: the board answered a probe X outside its safe region with {ans}; "
-                         "expected REACH")
-
-
-def _pen_flags(client: BoardClient, plan: Plan, mode: str, summary: Summary) -> list[int] | None:
-    """The pen flags to stream as PEN lines, or None (no flags, no servo, or --pen off).
-    Asking the board `PEN 0` lifts the pen before the first move: harmless, and the answer
-    says whether it has the servo."""
-    if plan.pen is None:
-        return None
-    if mode != "off" and client.can("PEN", 0):
-        summary.pen = "servo"
-        return [int(x) for x in plan.pen]
-    if mode == "on":
-        raise ArmbridgeError("the board has no pen-lift servo (it refused PEN with VERB); "
-                             "run with --pen auto or off to draw with pen-up moves only marked")
-    summary.pen = "marked"
-    return None
-
-
 def _recording(rrd: Path, robot, plan: Plan, masr, kind: str):
     """The run's recording; the views of the board kind's own columns (the MA's series, the
     pump's syringe positions) beside the arm, and a MASR plan's obstacles or a soft plan's scene
@@ -398,71 +321,6 @@ def _progress_bar(plan: Plan, console):
                 pass  # the terminal is gone (SIGHUP)
 
     return _Bar()
-
-
-def _estop(client: BoardClient, summary: Summary, rec=None, why: str | None = None) -> None:
-    """The e-stop, then a bounded wait (ESTOP_CONFIRM_S of board time) for the board to
-    report ESTOP (its `EV ESTOP` or a telemetry line; over Modbus its status register),
-    as a G-code sender waits for the controller's alarm report: the host keeps reading
-    meanwhile (a board in lockstep with its host, the emulator at speed 0, only takes
-    the byte in while it is read), the recording gets the event, and the run says
-    whether the board confirmed the stop instead of hoping the byte landed. Every stop
-    and failure of every board's run takes this one path (`_stop`, `_fail`). `why`:
-    logged to the recording's errors as the byte goes out ("stopped by SIGINT, e-stop
-    sent"), and the outcome after the wait."""
-    try:
-        client.estop()
-        summary.estop_sent = True
-    except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
-        pass
-    if rec is not None and why is not None:
-        rec.error(None, f"{why}, " + ("e-stop sent" if summary.estop_sent else "e-stop could not be sent"), "error")
-    if not summary.estop_sent:
-        return
-    try:
-        client.drain(ESTOP_CONFIRM_S, until=lambda: client.state == "ESTOP", resync=False)
-    except (Exception, KeyboardInterrupt):  # noqa: BLE001 - the port went away; a signal: the byte is sent
-        pass
-    summary.estop_confirmed = client.state == "ESTOP"
-    if not summary.estop_confirmed:
-        try:
-            client.estop()  # once more: the board may have been booting when the first came
-        except Exception:  # noqa: BLE001 - the port may be gone; the board's watchdog stops the arm
-            pass
-    if rec is not None and why is not None:
-        rec.error(None, estop_note(summary), "info" if summary.estop_confirmed else "error")
-
-
-def estop_note(summary: Summary) -> str:
-    """What became of the e-stop, as the run's messages say it."""
-    if summary.estop_confirmed:
-        return "e-stop sent and confirmed by the board"
-    if summary.estop_sent:
-        return f"e-stop sent, not confirmed by the board within {ESTOP_CONFIRM_S * 1000:.0f} ms"
-    return "e-stop could not be sent"
-
-
-def _stop(client: BoardClient, summary: Summary, rec, stop: KeyboardInterrupt) -> None:
-    """A stop signal mid-run: the e-stop byte at once and its confirmation awaited, so
-    the recording holds the ESTOP event and the last samples."""
-    summary.stopped_by_user = True
-    summary.stopped_by = getattr(stop, "name", "SIGINT")
-    _estop(client, summary, rec, f"stopped by {summary.stopped_by}")
-    summary.final_state = client.state
-
-
-def _fail(client: BoardClient, summary: Summary, rec, exc: BaseException) -> None:
-    """Any other failure while the arm may move: e-stop unless the board stopped itself."""
-    if client.state not in LATCHED_STATES:
-        _estop(client, summary)
-    summary.error = str(exc) or type(exc).__name__
-    if summary.estop_sent and isinstance(exc, ArmbridgeError):
-        check = "" if summary.estop_confirmed else "check the arm; "
-        summary.error += f"; {estop_note(summary)} ({check}the next run needs --clear)"
-    summary.final_state = client.state
-    summary.fault = client.fault_reason
-    if rec is not None:
-        rec.error(None, f"run failed: {summary.error}", "error")
 
 
 def _goal(plan: Plan, masr, summary: Summary, samples) -> dict | None:

@@ -76,7 +76,7 @@ class Summary:
     stopped_by_user: bool = False
     stopped_by: str | None = None  # SIGINT, SIGTERM or SIGHUP
     estop_sent: bool = False
-    estop_confirmed: bool = False  # the board reported ESTOP within run.ESTOP_CONFIRM_S of the e-stop
+    estop_confirmed: bool = False  # the board reported ESTOP within estop.ESTOP_CONFIRM_S of the e-stop
     error: str | None = None
     fault: str | None = None  # a latched FAULT: the joint and the reason, from the board's event
     fw: str | None = None

@@ -99,7 +99,12 @@ def run_avrdude(target: AvrTarget, port: str, hexfile: Path, label: str,
     # avrdude on a port that went away can spin for ever: it gets AVRDUDE_S, and never outlives
     # this call (a stop signal or an exception kills it on the way out)
     expired: list[bool] = []
-    timer = threading.Timer(AVRDUDE_S, lambda: (expired.append(True), proc.kill()))
+
+    def expire() -> None:
+        expired.append(True)
+        proc.kill()
+
+    timer = threading.Timer(AVRDUDE_S, expire)
     timer.start()
     try:
         for line in proc.stdout:
