@@ -224,6 +224,12 @@ def test_a_plan_runs_every_waypoint_once_with_its_values(micropython, board, tmp
         commands = masr_commands(load_masr_plan(path), home=True)[1]
         assert_each_action_once(emu, commands)
         assert len(emu.hal.hall_log) >= 2 and emu.plant.d == pytest.approx(0.35, abs=0.005)  # the goal's d
+        # the same plan and seed under CPython: the same run, bit for bit (the bridge hands the firmware
+        # the same counts and hall edges at the same clock, and replays its efforts exactly)
+        run_plan(path, url.replace("micropython", "cpython"), tmp_path / "cp.rrd", progress=False, home=True)
+        cp = ports[1].emulator
+        assert cp.interpreter == "cpython" and cp.executed == emu.executed
+        assert cp.plant.q.tolist() == emu.plant.q.tolist() and list(cp.hal.hall_log) == list(emu.hal.hall_log)
     else:
         plan = wave_plan(40)
         s = run_plan(plan, url, tmp_path / "mp.rrd", progress=False)
