@@ -23,7 +23,8 @@ from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient
 from armbridge.executor.stream import Stream
 from armbridge.link.boardclock import BoardClock
-from armbridge.executor.run import Summary, plan_error, run_plan
+from armbridge.executor.run import Summary, run_plan
+from armbridge.executor.tracking import plan_error
 from armbridge.link.protocol import to_milli
 from armbridge.plans.format import make_plan, save_plan
 from armbridge.robots import ARM3R, PlanarChain

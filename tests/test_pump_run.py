@@ -27,7 +27,7 @@ if not Path("/usr/include/simavr/sim_avr.h").is_file():
 from armbridge.executor.client import BoardClient  # noqa: E402
 from armbridge.executor.handshake import HELLO_INTERVAL_S  # noqa: E402
 from armbridge.executor.run import run_plan  # noqa: E402
-from armbridge.executor.summary import settle_times  # noqa: E402
+from armbridge.executor.tracking import settle_times  # noqa: E402
 from armbridge.link import protocol as P  # noqa: E402
 from armbridge.link.transport import open_port  # noqa: E402
 from armbridge.plans.format import make_plan  # noqa: E402

@@ -458,7 +458,8 @@ def test_a_completed_run_that_missed_its_goal_exits_3(monkeypatch, tmp_path):
     from rich.console import Console
 
     import armbridge.executor.command as cmd
-    from armbridge.executor.summary import Summary, goal_check
+    from armbridge.executor.summary import Summary
+    from armbridge.executor.tracking import goal_check
 
     def fake_run(distance_m):
         def run_plan(*a, **kw):

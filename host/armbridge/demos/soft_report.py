@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from armbridge.executor.summary import settle_table
+from armbridge.executor.tracking import settle_table
 
 
 @dataclass

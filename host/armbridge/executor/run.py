@@ -32,8 +32,8 @@ from armbridge.executor.estop import fail_run, stop_run
 from armbridge.executor.prepare import PEN_MODES, cartesian_rows, check_board_ik, pen_flags, safety_filter
 from armbridge.executor.settle import resting, still
 from armbridge.executor.signals import holding, stop_on_signals
-from armbridge.executor.summary import (JointTracking, Summary, fill, fill_settle, goal_check, held_between,
-                                        plan_error)
+from armbridge.executor.summary import JointTracking, Summary
+from armbridge.executor.tracking import fill, fill_settle, goal_check, held_between, plan_error
 from armbridge.link import protocol as P
 from armbridge.plans.format import Plan, load_plan, validate
 
