@@ -9,9 +9,11 @@ about 2 ms a step at every batch size (issue 27). Here
 - the batch has a fixed size B: a finished trace is masked (its q and
   tangent frozen, it passes no seed), not removed, so every step has the same
   shapes and no data-dependent control flow;
-- the host looks at the batch once per block of BLOCK steps (is any trace
-  live, how many): when at most half are live the batch moves to the next
-  power of two that holds them (a few sizes per wave, each its own graph);
+- batch sizes are powers of two (at least MIN_BATCH on CUDA), the rows past the
+  traces dead from the start; the host looks at the batch once per block of
+  BLOCK steps (is any trace live, how many): when at most half are live the
+  batch moves to the next smaller power of two that holds them (a few sizes
+  per wave, each its own graph, reused by the next waves and chunks);
 - nothing in a step synchronises: the linear solve is solve_ex without its
   error check, and the singular test is a Cholesky factorisation of
   W J J^T W - sing_tol^2 I (it fails exactly when the smallest singular value
@@ -35,11 +37,12 @@ import torch
 from armbridge.smm.stepping import SING_EVERY, STUCK, Ctx, Traces, embed, null_vector
 
 BLOCK = 16  # steps between two looks of the host (a multiple of SING_EVERY)
-MIN_BATCH = 64  # smallest batch size a wave shrinks to
+MIN_BATCH = 64  # smallest batch size on CUDA (fewer sizes, fewer graphs; on the CPU a dead row costs its ops)
 
 
-def _bucket(n_live: int) -> int:
-    return max(MIN_BATCH, 1 << max(0, n_live - 1).bit_length())
+def _bucket(n_live: int, floor: int) -> int:
+    """The power of two that holds n_live rows, at least floor."""
+    return max(floor, 1 << max(0, n_live - 1).bit_length())
 
 
 @dataclass
@@ -47,6 +50,7 @@ class _Block:
     """One batch size's state (fixed tensors, updated in place) and, on CUDA, its captured graph."""
 
     state: dict[str, torch.Tensor]
+    size: int
     graph: torch.cuda.CUDAGraph | None = None
 
 
@@ -116,6 +120,7 @@ class Tracer:
     captured: int = 0
     blocks: int = 0
     sizes: list[int] = field(default_factory=list)
+    _graphs: dict[tuple[object, ...], tuple[Ctx, _Block]] = field(default_factory=dict, repr=False)
 
     def __call__(self, ctx: Ctx, x: torch.Tensor, seeds: torch.Tensor, pick: torch.Tensor, origin: torch.Tensor,
                  step: float, sing_tol: float, max_steps: int) -> Traces:
@@ -123,11 +128,16 @@ class Tracer:
         dev, dt = seeds.device, seeds.dtype
         loc, idx = torch.nonzero(pick, as_tuple=True)
         a_count = loc.numel()
+        if a_count == 0:
+            return _traces(loc, idx, loc, {k: loc.bool() for k in ("closed", "stopped", "singular")},
+                           torch.zeros(0, n_seed, dtype=torch.bool, device=dev), [], n_loc, n_seed, n, dt)
         rt_all = ctx.target_rotations(x)
-        # Results per trace, written when a batch shrinks and at the end.
-        length = torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev)
-        flags = {k: torch.zeros(a_count, dtype=torch.bool, device=dev) for k in ("closed", "stopped", "singular")}
-        passed = torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev)
+        # Results per trace, written when a batch shrinks and at the end; the last entry, `sink`, takes the
+        # padding rows' (a batch is a power of two; its rows past the traces are dead and written there).
+        sink = a_count
+        length = torch.full((a_count + 1,), max_steps + 1, dtype=torch.long, device=dev)
+        flags = {k: torch.zeros(a_count + 1, dtype=torch.bool, device=dev) for k in ("closed", "stopped", "singular")}
+        passed = torch.zeros(a_count + 1, n_seed, dtype=torch.bool, device=dev)
         q = seeds[loc, idx]
         jac, _ = ctx.eval(q, x[loc], None if rt_all is None else rt_all[loc])
         u = null_vector(jac)  # eq. (6) fixes the direction; later steps keep its sign
@@ -146,33 +156,33 @@ class Tracer:
         if rt_all is not None:
             full["rt"] = rt_all[loc]
         hist: list[tuple[torch.Tensor, int, torch.Tensor]] = [(torch.arange(a_count, device=dev), 0, q[None])]
-        rows = torch.arange(a_count, device=dev)  # trace of each batch row (padding repeats finished ones)
-        live_rows = torch.arange(a_count, device=dev)  # batch rows live at the block's start
+        rows = torch.arange(a_count, device=dev)  # trace of each row of `full` (sink: padding)
+        live_rows = torch.arange(a_count, device=dev)  # rows of `full` live at the block's start
         blk: _Block | None = None
         t = 0
 
         def write_back(st: dict[str, torch.Tensor], rows: torch.Tensor) -> None:
+            # real traces appear once in rows, so these scatters have no duplicate index but the sink's
             length[rows] = torch.minimum(st["fin"] + 1, length[rows])
             for name, out in flags.items():
                 out[rows] |= st[name]
             passed[rows] |= st["passed"]
 
-        while a_count and t <= max_steps:
+        while t <= max_steps:
             n_live = live_rows.numel()  # counted at the last look (one synchronisation per block)
             if n_live == 0:
                 break
-            size = _bucket(n_live) if blk is not None else max(a_count, 1)
-            if blk is None or size < blk.state["q"].shape[0]:
+            size = _bucket(n_live, MIN_BATCH if dev.type == "cuda" else 1)
+            if blk is None or size < blk.size:
                 if blk is not None:
                     write_back(blk.state, rows)
                     full = blk.state
-                pad = torch.nonzero(~full["live"])[:, 0][: size - n_live] if blk is not None else live_rows[:0]
-                take = torch.cat([live_rows, pad])
-                rows = rows[take]
-                state = {k: v[take].contiguous() for k, v in full.items() if k not in ("hist", "t")}
-                state["t"] = torch.tensor(t, dtype=torch.long, device=dev)
-                state["hist"] = torch.empty(BLOCK, size, n, dtype=dt, device=dev)
-                blk = self._block(ctx, state, step, sing_tol, max_steps)
+                # live rows first, then padding: rows of the source (frozen, numerically sane) written to the sink
+                src = torch.cat([live_rows, live_rows[:1].expand(size - n_live)])
+                rows = torch.cat([rows[live_rows], torch.full((size - n_live,), sink, dtype=torch.long, device=dev)])
+                state = {k: v[src] for k, v in full.items() if k not in ("hist", "t")}
+                state["live"][n_live:] = False
+                blk = self._block(ctx, state, t, step, sing_tol, max_steps)
                 self.sizes.append(size)
                 live_rows = torch.arange(n_live, device=dev)
             st = blk.state
@@ -188,7 +198,8 @@ class Tracer:
             live_rows = torch.nonzero(st["live"])[:, 0]  # the block's one synchronisation
         if blk is not None:
             write_back(blk.state, rows)
-        return _traces(loc, idx, length.clamp_max(max_steps + 1), flags, passed, hist, n_loc, n_seed, n, dt)
+        return _traces(loc, idx, length[:a_count].clamp_max(max_steps + 1), {k: v[:a_count] for k, v in flags.items()},
+                       passed[:a_count], hist, n_loc, n_seed, n, dt)
 
     def _check_sync(self, ctx: Ctx, st: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int
                     ) -> None:
@@ -204,12 +215,24 @@ class Tracer:
         finally:
             torch.cuda.set_sync_debug_mode(mode)
 
-    def _block(self, ctx: Ctx, state: dict[str, torch.Tensor], step: float, sing_tol: float, max_steps: int
-               ) -> _Block:
-        """The block runner of this state: eager, or a CUDA graph captured on it (warmed up on a copy,
-        so the capture leaves the state as it was)."""
+    def _block(self, ctx: Ctx, state: dict[str, torch.Tensor], t: int, step: float, sing_tol: float,
+               max_steps: int) -> _Block:
+        """The block runner of this state at step t: eager, or a CUDA graph. A graph captured for this batch
+        size (and arm, seeds per location, step settings) is reused across waves and chunks, its buffers
+        loaded with the state; a new one is warmed up on a copy first, so the capture leaves the state as
+        it was."""
+        state["t"] = torch.tensor(t, dtype=torch.long, device=state["q"].device)
+        size, n = state["q"].shape
+        state["hist"] = torch.empty(BLOCK, size, n, dtype=state["q"].dtype, device=state["q"].device)
         if not (self.graphs and state["q"].is_cuda):
-            return _Block(state)
+            return _Block(state, size)
+        key = (size, tuple((k, tuple(v.shape)) for k, v in sorted(state.items())), step, sing_tol, max_steps)
+        cached = self._graphs.get(key)
+        if cached is not None and cached[0] is ctx:
+            blk = cached[1]
+            for k, v in state.items():
+                blk.state[k].copy_(v)
+            return blk
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(side):
@@ -221,10 +244,12 @@ class Tracer:
                 _run_block(ctx, state, step, sing_tol, max_steps)
         except Exception as e:  # noqa: BLE001 - an op that cannot be captured (a batched solver): run eager
             self.graphs, self.capture_error = False, f"{type(e).__name__}: {str(e).splitlines()[0]}"
+            self._graphs.clear()
             torch.cuda.synchronize()
-            return _Block(state)
+            return _Block(state, size)
         self.captured += 1
-        return _Block(state, graph)
+        self._graphs[key] = (ctx, _Block(state, size, graph))
+        return self._graphs[key][1]
 
 
 def _traces(loc: torch.Tensor, idx: torch.Tensor, length: torch.Tensor, flags: dict[str, torch.Tensor],
