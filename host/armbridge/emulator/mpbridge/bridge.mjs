@@ -78,6 +78,7 @@ _version = "%d.%d.%d" % sys.implementation.version[:3]
       mp.runPython("import gc; gc.collect()");
       const [group, n, st] = JSON.parse(fwcost.mp_run(name));
       measured[group][n] = st;
+      mp.runPython("import gc; gc.collect(); import fwcost; fwcost.heap_mark_item()");
     }
     mark("after_run");
     process.stdout.write(JSON.stringify(Object.assign(JSON.parse(fwcost.mp_result()), measured)) + "\n");

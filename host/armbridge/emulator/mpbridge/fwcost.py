@@ -51,15 +51,20 @@ def _ma_name(name):
 
 
 def _stats(xs, overhead):
-    xs = sorted([x - overhead for x in xs])
-    n = len(xs)
-    return {
+    """The stats of xs (us), less overhead. Both lists are emptied after: the collector is
+    conservative, and a stale pointer to a list must not keep its floats in the live heap."""
+    ys = sorted([x - overhead for x in xs])
+    n = len(ys)
+    st = {
         "n": n,
-        "min_us": round(xs[0], 2),  # the least disturbed by other processes
-        "median_us": round(xs[n // 2], 2),
-        "p99_us": round(xs[min(n - 1, (n * 99) // 100)], 2),
-        "mean_us": round(sum(xs) / n, 2),
+        "min_us": round(ys[0], 2),  # the least disturbed by other processes
+        "median_us": round(ys[n // 2], 2),
+        "p99_us": round(ys[min(n - 1, (n * 99) // 100)], 2),
+        "mean_us": round(sum(ys) / n, 2),
     }
+    ys.clear()
+    xs.clear()
+    return st
 
 
 class _Host:
@@ -335,6 +340,8 @@ def _alloc():
 _bench = None
 _result: dict = {}
 _heap: dict = {}
+_heap_items: list = []
+_bench_items: tuple = ()
 
 
 def start(board_cls, cfg, proto, version, clock, reps, rig="arm", modules=None):
@@ -385,6 +392,12 @@ def heap_mark(what):
         _result["heap_live_after_bench"] = used
 
 
+def heap_mark_item():
+    """heap_mark after each item, in item order (no name: a string in the call's source
+    would be interned for good and counted in the live heap)."""
+    _heap_items.append(gc.mem_alloc() - _heap["base"])
+
+
 def mp_start(params):
     """params: JSON {"reps": N, "rig": R} -> JSON list of item names."""
     import json
@@ -396,9 +409,10 @@ def mp_start(params):
     board_mod = __import__(bridgehal._modules[0])
     proto = __import__("proto")
     protodef = __import__("protodef")
-    names = start(board_mod.Board, cfg, proto, protodef.PROTOCOL_VERSION, jsclock.us, int(p["reps"]),
-                  p.get("rig", "arm"))
-    return json.dumps(list(names))
+    global _bench_items
+    _bench_items = start(board_mod.Board, cfg, proto, protodef.PROTOCOL_VERSION, jsclock.us, int(p["reps"]),
+                         p.get("rig", "arm"))
+    return json.dumps(list(_bench_items))
 
 
 def mp_run(name):
@@ -414,6 +428,7 @@ def mp_result():
     import json
     import sys
 
+    _heap["after_each_item"] = dict(zip(_bench_items, _heap_items))
     _result["heap"] = _heap
     _result["interpreter"] = "MicroPython %d.%d.%d (WebAssembly)" % sys.implementation.version[:3]
     return json.dumps(_result)
