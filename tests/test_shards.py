@@ -179,7 +179,7 @@ def test_wjrrt_sweep_on_ray_equals_serial_and_resumes(cluster, tmp_path):
     # T only guards against a hang: every run here ends by success or its iteration budget in well under a
     # second, so the records do not depend on the machine's speed (test_bench_wjrrt.py, T)
     size, scenes, planners = wjrrt.WjrrtBenchSize(seeds=3, time_limit=60.0), ("two-arm", "three-arm"), \
-        ("wjrrt", "jt-rrt", "birrt", "RRTConnect")
+        ("wjrrt", "jt-rrt", "birrt", "wjrrt-connect", "RRTConnect")
     serial = wjrrt.run(size, scenes, planners)
     on_ray = wjrrt.run(size, scenes, planners, runner=Runner(ray=cluster, checkpoint=tmp_path))
     assert (serial["shards"], on_ray["shards"]) == ("serial", "ray")

@@ -14,10 +14,13 @@ while staying the paper's algorithm. This planner is that:
   accepted when every link keeps more than d_min (eq. 7), W_s > C1 (eq. 20),
   W_d < C2 (eq. 21), H (eq. 9-10) falls and the edge is certified free;
   steps chain while they are accepted.
-* Adaptive weights: when `goal_tries` goal extensions in a row add nothing
-  (the goal extension stalls, the paper's failure mode in narrow passages),
-  d_min and C1 are halved (lambda too): the weights that keep the tip away
-  from obstacles in the open relax where the goal lies in a gap.
+* Adaptive weights: when `goal_tries` goal extensions in a row bring the
+  start tree's closest tip no nearer X_G (by dx / 2; the goal extension
+  stalls, the paper's failure mode in narrow passages), d_min, C1 and
+  lambda are halved, and P_G with them down to GOAL_FLOOR of it: the weights
+  that keep the tip away from obstacles in the open relax where the goal
+  lies in a gap, and a goal extension that walks into a dead end (OMPL's
+  horn) stops costing a fifth of the iterations.
 * Both ends (RRT-Connect, Kuffner and LaValle 2000): the random extension
   alternates between the start tree and a goal tree rooted at the problem's
   goal configurations (the scene's goal_q and the tip descent of ik.py);
@@ -138,7 +141,7 @@ def _add(Q, parent, kind, count, y, q, par, k):
 
 
 @njit(cache=True)
-def _connect(Q, parent, kind, count, tipd, y, target, step, goal, tol, G, W, st):
+def _connect(Q, parent, kind, count, tipd, y, target, step, goal, tol, G, W, st, fs):
     """CONNECT: tree y steps towards target until it arrives or is blocked -> (last node or -1, status):
     MEET when it arrived, TIP when a start-tree node came within tol of X_G, else RUNNING."""
     cap = Q.shape[1]
@@ -153,6 +156,7 @@ def _connect(Q, parent, kind, count, tipd, y, target, step, goal, tol, G, W, st)
         last = _add(Q, parent, kind, count, y, qnew, near, RANDOM)
         if y == 0:
             tipd[last] = _tip_d(qnew, G, W[0], goal)
+            fs[1] = min(fs[1], tipd[last])
             if tipd[last] <= tol:
                 return last, TIP
         if arrived:
@@ -161,7 +165,7 @@ def _connect(Q, parent, kind, count, tipd, y, target, step, goal, tol, G, W, st)
 
 
 @njit(cache=True)
-def _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, relax, st):
+def _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, relax, st, fs):
     """extend_Towards_Goal (Algorithm 3, module doc) on the start tree -> the last node added or -1."""
     k, dx, tries, C1, C2, lam, d_min = p[1], p[2], p[4], p[5], p[6], p[7], p[8]
     pts, cl, J, qp, qn, u = W[0], W[2], W[6], W[7], W[8], W[10]
@@ -186,6 +190,7 @@ def _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, relax
         h_best = h
         last = _add(Q, parent, kind, count, 0, qn, c if last < 0 else last, GOAL)
         tipd[last] = d
+        fs[1] = min(fs[1], d)
         qc = Q[0, last]
         if d <= tol:
             break
@@ -195,31 +200,35 @@ def _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, relax
 
 
 @njit(cache=True)
-def _grow(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, st, relax, two, iters):
-    """At most `iters` iterations of the module doc's loop -> (status, start-tree node, goal-tree node, relax).
-    st: [side, stall, checks, iterations]; FULL when the arrays need to grow first."""
+def _grow(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, st, fs, two, iters):
+    """At most `iters` iterations of the module doc's loop -> (status, start-tree node, goal-tree node).
+    st: [side, stall, checks, iterations]; fs: [relax, the start tree's closest tip distance to X_G];
+    FULL when the arrays need to grow first."""
     cap, n = Q.shape[1], Q.shape[2]
-    p_goal, step, tries = p[0], p[3], p[4]
+    p_goal, dx, step, tries = p[0], p[2], p[3], p[4]
     lo, hi, qr, qnew = G[3], G[4], W[1], W[9]
     for _ in range(iters):
         if count[0] + MAX_SERIES + 2 > cap or count[1] + 2 > cap:
-            return FULL, -1, -1, relax
+            return FULL, -1, -1
         st[3] += 1
-        if np.random.random() < p_goal * max(relax, GOAL_FLOOR):
-            v = _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, relax, st)
-            if v < 0:
+        if np.random.random() < p_goal * max(fs[0], GOAL_FLOOR):
+            before = fs[1]
+            v = _towards_goal(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, fs[0], st, fs)
+            if fs[1] < before - 0.5 * dx:  # the tree's closest tip came nearer: the goal extension works
+                st[1] = 0
+            else:
                 st[1] += 1
                 if st[1] >= tries:
-                    relax *= 0.5
+                    fs[0] *= 0.5
                     st[1] = 0
+            if v < 0:
                 continue
-            st[1] = 0
             if tipd[v] <= tol:
-                return TIP, v, -1, relax
+                return TIP, v, -1
             if two:
-                b, s = _connect(Q, parent, kind, count, tipd, 1, Q[0, v].copy(), step, goal, tol, G, W, st)
+                b, s = _connect(Q, parent, kind, count, tipd, 1, Q[0, v].copy(), step, goal, tol, G, W, st, fs)
                 if s == MEET:
-                    return MEET, v, b, relax
+                    return MEET, v, b
             continue
         for j in range(n):
             qr[j] = lo[j] + np.random.random() * (hi[j] - lo[j])
@@ -233,15 +242,16 @@ def _grow(Q, parent, kind, count, tipd, fails, goal, tol, G, W, p, st, relax, tw
         a = _add(Q, parent, kind, count, x, qnew, near, RANDOM)
         if x == 0:
             tipd[a] = _tip_d(Q[0, a], G, W[0], goal)
+            fs[1] = min(fs[1], tipd[a])
             if tipd[a] <= tol:
-                return TIP, a, -1, relax
+                return TIP, a, -1
         if two:
-            b, s = _connect(Q, parent, kind, count, tipd, 1 - x, Q[x, a].copy(), step, goal, tol, G, W, st)
+            b, s = _connect(Q, parent, kind, count, tipd, 1 - x, Q[x, a].copy(), step, goal, tol, G, W, st, fs)
             if s == TIP:
-                return TIP, b, -1, relax
+                return TIP, b, -1
             if s == MEET:
-                return (MEET, a, b, relax) if x == 0 else (MEET, b, a, relax)
-    return RUNNING, -1, -1, relax
+                return (MEET, a, b) if x == 0 else (MEET, b, a)
+    return RUNNING, -1, -1
 
 
 def _settings(problem: Problem, params: dict[str, Any]) -> dict[str, Any]:
@@ -297,14 +307,14 @@ def solve(problem: Problem, *, iterations: int = 1000, seed: int = 0, time_limit
     for r in roots:
         _add(Q, parent, kind, count, 1, r, -1, GOAL_ROOT)
     st = np.zeros(4, dtype=np.int64)
-    relax = 1.0
+    fs = np.array([1.0, math.inf])  # relax, the start tree's closest tip distance
     _seed(int(seed) % (2 ** 32))
     t0 = time.perf_counter()
-    tipd[0] = _tip_d(start, G, W[0], X_G)
+    tipd[0] = fs[1] = _tip_d(start, G, W[0], X_G)
     status, a, b = (TIP, 0, -1) if tipd[0] <= tol else (RUNNING, -1, -1)
     while status == RUNNING and st[3] < iterations and (time_limit is None or time.perf_counter() - t0 < time_limit):
-        status, a, b, relax = _grow(Q, parent, kind, count, tipd, fails, X_G, tol, G, W, p, st, relax, two,
-                                    min(CHUNK, iterations - int(st[3])))
+        status, a, b = _grow(Q, parent, kind, count, tipd, fails, X_G, tol, G, W, p, st, fs, two,
+                             min(CHUNK, iterations - int(st[3])))
         if status == FULL:
             cap *= 2
             Q = np.concatenate([Q, np.zeros_like(Q)], axis=1)
@@ -314,6 +324,7 @@ def solve(problem: Problem, *, iterations: int = 1000, seed: int = 0, time_limit
             fails = np.concatenate([fails, np.zeros_like(fails)])
             status = RUNNING
     elapsed = time.perf_counter() - t0
+    relax = float(fs[0])
     checks = int(st[2]) + 1
     chk.checks += checks
     path, idx, tail = None, [], []
