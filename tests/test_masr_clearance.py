@@ -151,3 +151,11 @@ def test_bench_masr_plan_margin_part_keeps_every_margin():
         for r in rows:
             if r["success"]:
                 assert r["least_clearance_mm"] >= r["margin_mm"] - 1e-6, (name, r)
+
+
+def test_a_margin_that_leaves_no_path_says_so_and_writes_nothing(tmp_path):
+    r = _plan(tmp_path, "--margin", "50", "--iterations", "100")
+    assert r.returncode != 0 and "Traceback" not in r.stdout + r.stderr
+    assert "found no path to the goal of E1 in 100 iterations" in r.stdout + r.stderr
+    assert "or a smaller --margin" in r.stdout + r.stderr
+    assert not (tmp_path / "p.json").exists()

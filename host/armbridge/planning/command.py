@@ -150,8 +150,9 @@ def masr_cmd(
     if json_out is not None:
         emit_json(summary, json_out, "the planning summary")
     if result.path is None:
+        hint = "more --iterations or another --seed" + (", or a smaller --margin" if extra > 0 else "")
         raise ArmbridgeError(f"{planner} found no path to the goal of {environment.name} in {iterations} iterations "
-                             "(try more --iterations or another --seed); no plan written")
+                             f"(try {hint}); no plan written")
     prov = {"tool": "armbridge plan masr", "planner": planner, "environment": environment.name,
             "environment_file": str(environment.source) if environment.source else None,
             "iterations": iterations, "seed": seed, "p_c": p_c, "goal_bias": result.settings["goal_bias"],
