@@ -1,7 +1,7 @@
 """The MicroPython side of `--interpreter micropython` (docs/emulator.md).
 
 Not imported by the emulator itself: `bridge.mjs` (a Node script) loads the
-MicroPython WebAssembly interpreter, copies the firmware folders and the three
+MicroPython WebAssembly interpreter, copies the firmware folders and the
 MicroPython modules of this folder into its filesystem and serves the lockstep
 line protocol of `armbridge.emulator.micropython`:
 
@@ -12,5 +12,6 @@ line protocol of `armbridge.emulator.micropython`:
   actuator's (counts and hall edges in, loco/rot/grip out) and the PCA9685
   rig's (the firmware's own driver on a bridged I2C bus).
 * `fwcost.py`: the firmware cost measurement (`armbridge bench firmware`); it
-  runs unchanged under MicroPython and under CPython, for comparison.
+  runs unchanged under MicroPython and under CPython, for comparison;
+  `fwcost_mp.py` is its entry under MicroPython (bridge.mjs, with the heap marks).
 """

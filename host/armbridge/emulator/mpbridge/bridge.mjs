@@ -7,7 +7,7 @@
 // DIRs are the firmware folders in import order (e.g. firmware/esp32 then
 // firmware/common); their *.py files are copied into the interpreter's
 // filesystem, one folder each, ahead of this folder's bridgehal.py,
-// bridgerigs.py and fwcost.py on sys.path. `@micropython.native` / `@micropython.viper` lines are
+// bridgerigs.py, fwcost.py and fwcost_mp.py on sys.path. `@micropython.native` / `@micropython.viper` lines are
 // commented out on the way (this port has no native emitter), as in
 // tests/mpy/run_tests.mjs; nothing else is changed.
 //
@@ -16,7 +16,8 @@
 // bridgehal.py's docstring) until stdin closes. Reading and writing are
 // synchronous, so that a question in the middle of a step (jsbridge.ask: a
 // `?` line out, its answer line in) is answered before the step goes on. MODE "bench:<json>": runs
-// fwcost.py's items (mp_start(<json>), mp_run per item, mp_result) and prints
+// fwcost.py's items through fwcost_mp.py (mp_start(<json>), mp_run per item,
+// heap marks between them, mp_result) and prints
 // the JSON result as one line. What the
 // firmware prints goes to stderr. Exit status 2: it could not start.
 
@@ -52,7 +53,7 @@ async function main() {
     copyPy(FS, d, "/fw/" + i);
     paths.push("/fw/" + i);
   });
-  copyPy(FS, here, "/bridge", (n) => ["bridgehal.py", "bridgerigs.py", "fwcost.py"].includes(n));
+  copyPy(FS, here, "/bridge", (n) => ["bridgehal.py", "bridgerigs.py", "fwcost.py", "fwcost_mp.py"].includes(n));
   paths.push("/bridge");
   mp.runPython(`
 import sys
@@ -68,8 +69,8 @@ _version = "%d.%d.%d" % sys.implementation.version[:3]
     // just grows (give it room: HEAP_BYTES).
     // The heap is measured in calls of their own, after a collection there
     // (inside a call the garbage of that call is not collected yet).
-    const fwcost = mp.pyimport("fwcost");
-    const mark = (what) => mp.runPython(`import gc; gc.collect(); import fwcost; fwcost.heap_mark("${what}")`);
+    const fwcost = mp.pyimport("fwcost_mp");
+    const mark = (what) => mp.runPython(`import gc; gc.collect(); import fwcost_mp; fwcost_mp.heap_mark("${what}")`);
     mark("base");
     const items = JSON.parse(fwcost.mp_start(mode.slice(6)));
     mark("after_boot");
@@ -78,7 +79,7 @@ _version = "%d.%d.%d" % sys.implementation.version[:3]
       mp.runPython("import gc; gc.collect()");
       const [group, n, st] = JSON.parse(fwcost.mp_run(name));
       measured[group][n] = st;
-      mp.runPython("import gc; gc.collect(); import fwcost; fwcost.heap_mark_item()");
+      mp.runPython("import gc; gc.collect(); import fwcost_mp; fwcost_mp.heap_mark_item()");
     }
     mark("after_run");
     process.stdout.write(JSON.stringify(Object.assign(JSON.parse(fwcost.mp_result()), measured)) + "\n");
