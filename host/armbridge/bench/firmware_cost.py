@@ -250,4 +250,5 @@ def firmware_cmd(
     for b in result["boards"].values():
         print_result(b, console)
     print_summary(result, console)
-    console.print(f"wrote {json_out}")
+    if str(json_out) != "-":
+        console.print(f"wrote {json_out}")
