@@ -1,5 +1,6 @@
-"""The MASR actuator's chip HAL (firmware/masr_ma/hal_ma.py) under the real
-MicroPython interpreter.
+"""The chip HALs the emulator's bridge stands in for, under the real
+MicroPython interpreter: the MASR actuator's (firmware/masr_ma/hal_ma.py) and
+the PCA9685 rig's (firmware/esp32/hal_pca9685.py).
 
 The emulator's bridge hands the MA firmware its sensors at the HAL's level
 (wheel and gear counts, the hall edges: emulator/mpbridge/bridgerigs.py), so
@@ -9,8 +10,11 @@ for this test with the ESP32 port's names (Pin with irq, PWM, Encoder, UART,
 RTC): the hall interrupt's ring of latched wheel counts (in order, the oldest
 dropped on an overrun, and no allocation in the handler: a hard IRQ on the
 chip may not allocate), the encoders, the motor drivers' duty and direction,
-the gripper's pulse and outputs_off. Without Node or the package it skips, or
-fails under ARMBRIDGE_REQUIRE_HIL=1.
+the gripper's pulse and outputs_off. And the PCA9685 rig's HAL, on an I2C bus
+of that module that keeps what is written, sends the chip the same transfers as
+the bridge's PcaBridgeHal (bridgerigs.py) for the same calls: the bridge wires
+the firmware's driver and servo bank as the chip's HAL does. Without Node or
+the package these skip, or fail under ARMBRIDGE_REQUIRE_HIL=1.
 """
 from __future__ import annotations
 
@@ -81,6 +85,39 @@ class UART:
         pass
 
 
+class ADC:
+    ATTN_11DB = 3
+
+    def __init__(self, pin, atten=0):
+        self.pin = pin
+
+    def read_uv(self):
+        return 1650000
+
+
+class I2C:
+    """Every device keeps the bytes written to it (auto-increment) and reads them back."""
+    log = []
+
+    def __init__(self, bus, scl=None, sda=None, freq=0):
+        self.regs = {}
+
+    def _mem(self, addr):
+        if addr not in self.regs:
+            self.regs[addr] = bytearray(256)
+        return self.regs[addr]
+
+    def writeto_mem(self, addr, reg, buf, addrsize=8):
+        I2C.log.append([addr, reg, bytes(buf).hex()])
+        mem = self._mem(addr)
+        for k in range(len(buf)):
+            mem[(reg + k) & 0xFF] = buf[k]
+
+    def readfrom_mem(self, addr, reg, n, addrsize=8):
+        mem = self._mem(addr)
+        return bytes([mem[(reg + k) & 0xFF] for k in range(n)])
+
+
 class RTC:
     def memory(self, data=None):
         return b""
@@ -143,16 +180,74 @@ with open("/io/out.json", "w") as f:
 '''
 
 
-def test_the_mas_chip_hal_under_micropython():
+PCA = '''
+import sys, json
+with open("/io/machine.py", "w") as f:
+    f.write(MACHINE)
+sys.path[:0] = ["/io", "/fw", "/fwc", "/bridge"]
+import config as cfg
+import machine
+import bridgehal, bridgerigs
+from hal_pca9685 import Pca9685Hal
+
+
+def calls(hal):
+    hal.write_positions([1.5, -1.5, 0.1])
+    hal.write_positions([1.5, -1.5, 0.1])      # unchanged: no transfer
+    hal.set_calibration(1, 600, -3927, 2400, 785)
+    hal.write_positions([1.6, -1.4, 0.0])
+    hal.write_pen(True)
+    hal.outputs_off()
+    hal.write_positions([1.6, -1.4, 0.0])
+
+
+chip = Pca9685Hal(cfg)
+calls(chip)
+bridge = bridgerigs.PcaBridgeHal(cfg.N_JOINTS)
+regs = bridgerigs.RegisterFile()
+sent = []
+
+
+def ask(line):
+    # a read's question carries the log before it (the emulator replays it first)
+    for f in line[1:].split("\\t")[:-1]:
+        if f[0] == "I":
+            a, r, d = f[1:].split(",")
+            sent.append([int(a), int(r), d])
+    return regs.ask(line)
+
+
+bridge.asker = ask
+bridge.start(cfg)
+calls(bridge)
+sent += [[v[0], v[1], bridgehal._hex(v[2])] for k, v in bridge.ops if k == bridgerigs.I2C_W]
+with open("/io/out.json", "w") as f:
+    json.dump({"chip": machine.I2C.log, "bridge": sent, "pen": [chip.has_pen, bridge.has_pen],
+               "waits": [v for k, v in bridge.ops if k == bridgerigs.SLEEP]}, f)
+'''
+
+
+def run_script(scenario: str) -> dict:
     pkg = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pyscript" / "micropython.mjs"
     node = shutil.which("node")
     if node is None or not pkg.is_file():
         missing("node and the npm package @micropython/micropython-webassembly-pyscript (make setup)")
-    script = "MACHINE = " + repr(MACHINE) + "\n" + SCENARIO
+    script = "MACHINE = " + repr(MACHINE) + "\n" + scenario
     proc = subprocess.run([node, str(ROOT / "tests" / "mpy" / "run_script.mjs"), str(ROOT)], input=script,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    got = json.loads(proc.stdout)
+    return json.loads(proc.stdout)
+
+
+def test_the_pca9685_rigs_chip_hal_and_the_bridges_send_the_same_transfers():
+    got = run_script(PCA)
+    assert got["pen"] == [True, True] and got["waits"] == [500]   # the oscillator's wake-up, as a busy-wait
+    assert len(got["chip"]) > 10
+    assert got["bridge"] == got["chip"]
+
+
+def test_the_mas_chip_hal_under_micropython():
+    got = run_script(SCENARIO)
     assert got["irq"] == [True, True]                     # active low: the falling edge, a hard IRQ
     assert got["edges"] == [120, 4000, 8001] and got["again"] == []
     assert got["counts"] == [9000, 0]

@@ -1,6 +1,7 @@
 // Runs a Python script under the real MicroPython interpreter (the WebAssembly
 // port from npm) with firmware/esp32 on its path (firmware/common at /fwc and
-// firmware/masr_ma at /fwma, for a script to put on its path), and prints what
+// firmware/masr_ma at /fwma, the emulator's bridge modules at /bridge, for a
+// script to put on its path), and prints what
 // the script wrote to /io/out.json: tests/test_pca9685.py runs the PCA9685
 // driver and the servo bank this way, tests/test_hal_ma_micropython.py the MA's HAL.
 //
@@ -35,6 +36,7 @@ async function main() {
   copyPy(FS, path.join(root, "firmware", "esp32"), "/fw");
   copyPy(FS, path.join(root, "firmware", "common"), "/fwc");
   copyPy(FS, path.join(root, "firmware", "masr_ma"), "/fwma");
+  copyPy(FS, path.join(root, "host", "armbridge", "emulator", "mpbridge"), "/bridge");
   mkdirs(FS, "/io");
   try {
     mp.runPython("import sys\nsys.path.insert(0, '/fw')\n" + script);
