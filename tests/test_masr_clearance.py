@@ -98,6 +98,21 @@ def test_a_plan_keeps_its_margin_and_the_margin_binds(e1_plans):
     assert plans[bound].cost > plans[0.0].cost
 
 
+def test_without_a_margin_an_environment_keeps_the_execution_bound_and_the_papers_keep_theirs(tmp_path):
+    e1 = fixed_environment("E1")
+    assert e1.margin == 0.0 and e1.planning_margin == 0.0  # E1-E3: the paper's check, as published
+    doc = e1.to_dict()
+    assert doc["margin"] == 0.0
+    del doc["margin"]
+    mine = environment_from_dict(doc, tmp_path / "mine.json")
+    assert mine.margin is None and "margin" not in mine.to_dict()
+    assert mine.planning_margin == pytest.approx(execution_margin(mine.arm))
+    assert mine.planning_checker().margin == pytest.approx(0.5 * mine.arm.link_width + execution_margin(mine.arm))
+    from armbridge.planning.masr.random_env import random_environment
+
+    assert random_environment(seed=0).margin == 0.0  # Fig. 5 as the paper ran it
+
+
 def test_an_environment_file_carries_its_margin_and_refuses_a_bad_one(tmp_path):
     doc = fixed_environment("E1").to_dict()
     doc["margin"] = 0.003

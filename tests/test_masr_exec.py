@@ -32,7 +32,7 @@ from armbridge.emulator import EmulatedBoard
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.client import BoardClient
 from armbridge.executor.masr import board_ramps, masr_commands, planned_time
-from armbridge.executor import run as executor_run
+from armbridge.executor import estop as executor_estop
 from armbridge.executor.run import RunFailed, run_plan
 from armbridge.executor.summary import Summary
 from armbridge.geometry import wrap_angle
@@ -394,7 +394,7 @@ def _estop_during_a_reset(boot_ms: float):
         summary = Summary(plan="p", port=port.url, rrd=None, robot="masr", waypoints_total=1)
         emu.schedule_reset(emu.now())
         t0 = client.now()
-        executor_run._fail(client, summary, None, ArmbridgeError("the board refused MV"))
+        executor_estop.fail_run(client, summary, None, ArmbridgeError("the board refused MV"))
         waited = client.now() - t0
     finally:
         port.close()
@@ -412,7 +412,7 @@ def test_an_e_stop_the_board_never_takes_in_is_reported_as_not_confirmed():
                              "(check the arm; the next run needs --clear)")
     # no longer than its wait and one read (arq.READ_WAIT_S) past it: over the threaded pty the board's
     # thread could run up to a lead and a period past the host's last read, 0.06 s, whatever it asserted
-    assert executor_run.ESTOP_CONFIRM_S <= waited <= executor_run.ESTOP_CONFIRM_S + 0.011
+    assert executor_estop.ESTOP_CONFIRM_S <= waited <= executor_estop.ESTOP_CONFIRM_S + 0.011
 
 
 def test_an_e_stop_lost_in_a_boot_is_sent_again_at_the_boot_and_confirmed():
@@ -422,7 +422,7 @@ def test_an_e_stop_lost_in_a_boot_is_sent_again_at_the_boot_and_confirmed():
     emu, summary, waited = _estop_during_a_reset(boot_ms=250.0)
     assert len(emu.resets) == 1 and len(emu.hal.estop_byte_at) == 1 and emu.estop_byte_at[0] > emu.boots[-1]
     assert emu.state == "ESTOP" and summary.estop_confirmed and summary.final_state == "ESTOP"
-    assert waited < executor_run.ESTOP_CONFIRM_S
+    assert waited < executor_estop.ESTOP_CONFIRM_S
 
 
 def test_the_watchdog_stops_the_ma_when_the_host_falls_silent(tmp_path):

@@ -78,7 +78,7 @@ class Summary:
     fw_version: str | None = None
     calibration: dict | None = None  # executor/calcheck.Calibration: the board's chip id and calibration
     drawing: dict | None = None  # a plan with pen flags: plans/drawing.py run_drawing_report
-    safety_filter: dict | None = None  # a drawing plan: the CBF filter on what was streamed (run.safety_filter)
+    safety_filter: dict | None = None  # a drawing plan: the CBF filter on what was streamed (prepare.safety_filter)
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)

@@ -94,8 +94,8 @@ def masr_cmd(
     margin: Optional[float] = typer.Option(
         None, "--margin", metavar="MM",
         help="Clearance (mm) every link keeps from every obstacle beyond half its width [default: the "
-             "environment's \"margin\", else 0]; the MA's own execution bound is reported beside the plan's "
-             "least clearance."),
+             "environment's \"margin\" (0 for E1-E3, the paper's check), else the MA's execution bound, "
+             "5.25 mm for masr5]; the bound is reported beside the plan's least clearance."),
     png: Optional[Path] = typer.Option(None, "--png", help="Also draw the environment and path to this PNG."),
     json_out: Optional[str] = typer.Option(None, "--json", metavar="FILE|-",
                                            help=JSON_HELP.format(what="the planning summary")),
@@ -119,7 +119,7 @@ def masr_cmd(
         console.print(note, style="dim")
     extra = None if margin is None else check_margin(margin / 1000.0, "--margin")
     environment = load_environment(env)
-    extra = environment.margin if extra is None else extra
+    extra = environment.planning_margin if extra is None else extra
     checker = environment.planning_checker(margin=extra)
     if not bool(checker.free(environment.start)):
         raise ArmbridgeError(f"{environment.name}: the start comes within {extra * 1000:g} mm of an obstacle (the "

@@ -68,7 +68,8 @@ class Environment:
     description: str = ""
     known_path: Optional[np.ndarray] = None
     provenance: dict = field(default_factory=dict)
-    margin: float = 0.0  # m kept beyond half the link width when planning (planning/masr/margin.py)
+    margin: Optional[float] = None  # m kept beyond half the link width when planning; None: the MA's execution
+    #                                 bound (planning/masr/margin.py; E1-E3 and Fig. 5's environments say 0)
     source: Optional[Path] = None
     _checkers: dict = field(default_factory=dict, repr=False)
 
@@ -79,11 +80,19 @@ class Environment:
             self._checkers[key] = CollisionChecker.create(self.arm, self.obstacles, margin=margin, sweep_res=key[0])
         return self._checkers[key]
 
+    @property
+    def planning_margin(self) -> float:
+        """The clearance plans keep beyond half the link width (m): the file's "margin", else the MA's
+        execution bound (planning/masr/margin.py: 5.25 mm for masr5)."""
+        from armbridge.planning.masr.margin import execution_margin
+
+        return float(self.margin) if self.margin is not None else execution_margin(self.arm)
+
     def planning_checker(self, sweep_res: Optional[float] = None, margin: Optional[float] = None
                          ) -> CollisionChecker:
         """The checker plans are made with: obstacles inflated by half the link width plus `margin` (m;
-        default this environment's `margin`, 0 unless its file or `plan masr --margin` says)."""
-        extra = self.margin if margin is None else check_margin(margin)
+        default planning_margin)."""
+        extra = self.planning_margin if margin is None else check_margin(margin)
         if extra == 0.0:
             return self.checker(sweep_res)
         return self.checker(sweep_res, margin=0.5 * self.arm.link_width + extra)
@@ -124,7 +133,7 @@ class Environment:
             d["description"] = self.description
         d["robot"] = robot
         d["obstacles"] = [[[float(x), float(y)] for x, y in p] for p in self.obstacles]
-        if self.margin:
+        if self.margin is not None:
             d["margin"] = float(self.margin)
         d["start"] = [float(v) for v in self.start]
         d["goal"] = goal
@@ -195,7 +204,7 @@ def environment_from_dict(doc: Any, source: Any = None) -> Environment:
         raise ctx.err("obstacles must be a list of polygons")
     obstacles = [obstacle(p, i, ctx) for i, p in enumerate(obs)]
     checker = CollisionChecker.create(arm, obstacles)
-    margin = 0.0
+    margin = None
     if "margin" in doc:
         value = number(doc["margin"], "margin (m)", ctx)
         try:

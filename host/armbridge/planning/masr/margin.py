@@ -12,12 +12,13 @@ into the farthest any point of the arm can stray: 2.5 mrad x (0.8 + 0.6 +
 Measured on 20 drawn, calibrated boards the MA's pose ends 5.5 +- 3.2 mm from
 the plan (docs/benchmarks.md, issue 23): the same size.
 
-Planning keeps the environment's `margin` (m, an environment file's
-"margin" field or `plan masr --margin MM`) beyond half the link width
-(Environment.planning_checker). Its default is 0, the paper's check: with
-the 5.25 mm bound, E1's plans cost 43 % more and E2 fails 1 seed in 5
-(docs/masr.md, "Clearance"), so the bound is reported beside every plan's
-clearance rather than imposed on the paper's scenes.
+Planning keeps the environment's margin (m) beyond half the link width
+(Environment.planning_checker): `plan masr --margin MM`, else the
+environment file's "margin" field, else this execution bound. The paper's
+E1-E3 and the random environments of its Fig. 5 say "margin": 0 (its check,
+as published: with the bound E1's plans cost 43 % more and E2 fails a seed
+in 5; docs/planning.md, "Clearance"), and `plan masr` reports the bound
+beside every plan's least clearance.
 
 The clearance of a path (`path_clearance`): along each action the motion
 convention (collision.rotation_order) turns the actuated joints one at a

@@ -112,6 +112,7 @@ def random_environment(arm: MasrArm | None = None, seed: int = 0, *, max_obstacl
                            f"{cov * 100:.1f}% of the workspace",
             "robot": arm.name if is_registered(arm) else arm.to_dict(),
             "obstacles": [p.tolist() for p in polys],
+            "margin": 0.0,  # Fig. 5 as the paper ran it: its check, half the link width
             "start": q0.tolist(),
             "goal": {"pose": arm.fk(qg).tolist(), "q": qg.tolist(), "e_p": e_p, "e_phi": e_phi},
             "provenance": {"tool": "armbridge.planning.random_environment", "seed": seed, "coverage": cov},
