@@ -55,7 +55,7 @@
 #define AB_ARG_JOINT 1
 #define AB_ARG_Q 2
 
-#define AB_ARG_NAME_LEN 8
+#define AB_ARG_NAME_LEN 10
 #define AB_VERB_LEN 7
 #define AB_ERROR_NAME_LEN 10
 typedef struct { char name[AB_ARG_NAME_LEN]; uint8_t kind; int32_t lo; int32_t hi; } ab_arg_spec;
@@ -90,32 +90,34 @@ static const ab_arg_spec AB_ARGS_X[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}
 static const ab_arg_spec AB_ARGS_XY[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"dur", AB_ARG_INT, 1, 60000L}, {"x", AB_ARG_INT, -1000000L, 1000000L}, {"y", AB_ARG_INT, -1000000L, 1000000L}};
 #define AB_VERB_PEN 14
 static const ab_arg_spec AB_ARGS_PEN[] AB_PROGMEM = {{"down", AB_ARG_INT, 0, 1}};
-#define AB_VERB_CAL 15
+#define AB_VERB_PENPOS 15
+static const ab_arg_spec AB_ARGS_PENPOS[] AB_PROGMEM = {{"up_us", AB_ARG_INT, 500, 2500}, {"down_us", AB_ARG_INT, 500, 2500}, {"settle_ms", AB_ARG_INT, 0, 2000}};
+#define AB_VERB_CAL 16
 static const ab_arg_spec AB_ARGS_CAL[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"us_a", AB_ARG_INT, 500, 2500}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"us_b", AB_ARG_INT, 500, 2500}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
-#define AB_VERB_MV 16
+#define AB_VERB_MV 17
 static const ab_arg_spec AB_ARGS_MV[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"d", AB_ARG_INT, 0, 1000000L}};
-#define AB_VERB_ROT 17
+#define AB_VERB_ROT 18
 static const ab_arg_spec AB_ARGS_ROT[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"joint", AB_ARG_JOINT, 1, 0}, {"angle", AB_ARG_INT, -1000000L, 1000000L}};
-#define AB_VERB_GRIP 18
+#define AB_VERB_GRIP 19
 static const ab_arg_spec AB_ARGS_GRIP[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
-#define AB_VERB_HOME 19
+#define AB_VERB_HOME 20
 static const ab_arg_spec AB_ARGS_HOME[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}};
-#define AB_VERB_DBAND 20
+#define AB_VERB_DBAND 21
 static const ab_arg_spec AB_ARGS_DBAND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"mrad", AB_ARG_INT, 0, 1000}};
-#define AB_VERB_BEND 21
+#define AB_VERB_BEND 22
 static const ab_arg_spec AB_ARGS_BEND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
-#define AB_VERB_MODBUS 22
+#define AB_VERB_MODBUS 23
 static const ab_arg_spec AB_ARGS_MODBUS[] AB_PROGMEM = {{"addr", AB_ARG_INT, 1, 247}};
-#define AB_VERB_IDENT 23
-#define AB_VERB_CALID 24
+#define AB_VERB_IDENT 24
+#define AB_VERB_CALID 25
 static const ab_arg_spec AB_ARGS_CALID[] AB_PROGMEM = {{"id", AB_ARG_INT, 1, 1073741823L}};
-#define AB_VERB_RELAY 25
+#define AB_VERB_RELAY 26
 static const ab_arg_spec AB_ARGS_RELAY[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"amp", AB_ARG_INT, 1, 1000}, {"hyst", AB_ARG_INT, 0, 1000}, {"cycles", AB_ARG_INT, 1, 50}};
-#define AB_VERB_MAG 26
+#define AB_VERB_MAG 27
 static const ab_arg_spec AB_ARGS_MAG[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"pos", AB_ARG_INT, 0, 1000000L}, {"win", AB_ARG_INT, 0, 10000}};
-#define AB_VERB_WHEEL 27
+#define AB_VERB_WHEEL 28
 static const ab_arg_spec AB_ARGS_WHEEL[] AB_PROGMEM = {{"nm", AB_ARG_INT, 1, 1000000L}};
-#define AB_N_COMMANDS 28
+#define AB_N_COMMANDS 29
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -132,6 +134,7 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {
     {"X", AB_ARGS_X, 5, 0, -1, -1},
     {"XY", AB_ARGS_XY, 4, 0, -1, -1},
     {"PEN", AB_ARGS_PEN, 1, 0, -1, -1},
+    {"PENPOS", AB_ARGS_PENPOS, 3, 0, -1, -1},
     {"CAL", AB_ARGS_CAL, 5, 0, 1, 3},
     {"MV", AB_ARGS_MV, 2, 0, -1, -1},
     {"ROT", AB_ARGS_ROT, 3, 0, -1, -1},

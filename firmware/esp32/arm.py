@@ -10,8 +10,9 @@ Capabilities, each present only when the HAL or the filesystem has it (a
 board without one answers its verb VERB, docs/protocol.md §3):
   * X, XY: Cartesian waypoints solved here by the int8 net and FABRIK
     (ik3r.py), when the weights file cfg.IK_WEIGHTS is on the filesystem;
-  * PEN: the pen-lift servo (hal.has_pen), modal: the pen state rides with the
-    waypoints queued after it (traj's aux), a change dwells PEN_SETTLE_MS;
+  * PEN, PENPOS: the pen-lift servo (hal.has_pen), modal: the pen state rides
+    with the waypoints queued after it (traj's aux), a change dwells the settle
+    time (PEN_SETTLE_MS, or PENPOS's); PENPOS sets its pulse widths (arm_pen.py);
   * CAL: positional servo calibration (hal.POSITIONAL, the PCA9685 rig);
     on the effort rig the pots' calibration, and RELAY (relay auto-tune of
     one joint's loop): arm_cal.py, which also gives CALID its settings.
@@ -47,6 +48,7 @@ times the joint's travel holds the joint at vmax / g.
 import ik3r
 import link as L
 from arm_cal import ArmCal
+from arm_pen import ArmPen
 import proto
 import protodef as P
 from pid import PID
@@ -158,13 +160,12 @@ class Board(L.LinkedBoard):
             self.verbs["X"] = self._cmd_x
             self.verbs["XY"] = self._cmd_x
             self.motion_verbs += ["X", "XY"]
-        self.pen = 0              # pen state written to the servo (0 up, 1 down)
-        self.pen_next = 0         # the state waypoints queued from now on draw with
-        self._settling = False    # a pen move has not settled yet ...
-        self._settle_at = 0       # ... until this ticks_ms
+        self.pen = None  # type: ArmPen | None  # PEN, PENPOS (arm_pen.py), with a pen-lift servo
         if getattr(hal, "has_pen", False):
-            self.verbs["PEN"] = self._cmd_pen
-            self.motion_verbs.append("PEN")
+            self.pen = ArmPen(self)
+            self.verbs["PEN"] = self.pen.cmd_pen
+            self.verbs["PENPOS"] = self.pen.cmd_penpos
+            self.motion_verbs += ["PEN", "PENPOS"]
         self.cal = ArmCal(self)   # RELAY, CAL, what CALID saves (arm_cal.py)
         if self.positional:
             if hasattr(hal, "set_calibration"):
@@ -200,34 +201,14 @@ class Board(L.LinkedBoard):
                 raise proto.ProtocolError(P.RANGE, "", str(j + 1))
         dwell = 0
         aux = None
-        if "PEN" in self.verbs:
-            aux = self.pen_next
-            busy = self.traj.busy()
-            before = self.traj.last_aux() if busy else self.pen
-            if before is None:
-                before = self.pen
-            if aux != before:
-                dwell = self.cfg.PEN_SETTLE_MS
-            elif not busy and self._settling:   # a pen moved at rest is still settling
-                left = self.hal.ticks_diff(self._settle_at, self.hal.ticks_ms())
-                dwell = left if left > 0 else 0
+        pen = self.pen
+        if pen is not None:
+            aux = pen.next
+            dwell = pen.dwell()
         if not self.traj.push(wid, dur, targets, dwell, aux):
             raise proto.ProtocolError(P.FULL)
         self.cal.finish()           # a waypoint ends a relay test
         self.link.queued = wid
-
-    def _cmd_pen(self, v: list) -> list:
-        """PEN down: the state of the waypoints queued after it; at rest, now."""
-        self.pen_next = v[0]
-        if not self.traj.busy() and v[0] != self.pen:
-            self._set_pen(v[0])
-        return []
-
-    def _set_pen(self, down: int) -> None:
-        self.pen = down
-        self.hal.write_pen(down == 1)
-        self._settling = True
-        self._settle_at = (self.hal.ticks_ms() + self.cfg.PEN_SETTLE_MS) & L.TICKS_MASK
 
     def _cmd_gain(self, v: list) -> list:
         self.pids[v[0] - 1].set_gains(v[1] / 1000.0, v[2] / 1000.0, v[3] / 1000.0)
@@ -254,10 +235,17 @@ class Board(L.LinkedBoard):
         return self.traj.busy()
 
     def cal_text(self) -> list:
-        return self.cal.cal_text()
+        return self.cal.cal_text() + (self.pen.cal_text() if self.pen is not None else [])
 
     def cal_apply(self, tokens: list) -> None:
-        self.cal.cal_apply(tokens)
+        """CALID's tokens: the pen's `P=` (arm_pen.py), the rest arm_cal.py's; all checked first."""
+        pen = [t for t in tokens if t[:2] == "P="]
+        if pen and self.pen is None:
+            raise ValueError("no pen")
+        x = ArmPen.parse(pen[-1]) if pen else None
+        self.cal.cal_apply([t for t in tokens if t[:2] != "P="])
+        if x is not None:
+            self.pen.apply(x)   # type: ignore[union-attr]
 
     def _read(self) -> None:
         self.hal.read_positions(self.q)
@@ -267,7 +255,8 @@ class Board(L.LinkedBoard):
         self.cal.finish()
         self.traj.flush()
         self.traj.hold = False
-        self.pen_next = self.pen
+        if self.pen is not None:
+            self.pen.next = self.pen.state
         for j in range(self.n):
             self.u[j] = 0.0
 
@@ -345,9 +334,9 @@ class Board(L.LinkedBoard):
         last waypoint completed in the tick (those before it are done too), and
         START only for a waypoint that starts from rest (otherwise it starts in
         the tick its predecessor is DONE)."""
-        if self._settling and self.hal.ticks_diff(self.hal.ticks_ms(), self._settle_at) >= 0:
-            self._settling = False
-            self.link.event("PEN", [self.pen])
+        pen = self.pen
+        if pen is not None:
+            pen.tick()
         last_done = -1
         for e in self.traj.step(self.period_ms):
             if e[0] == "DONE":
@@ -355,8 +344,8 @@ class Board(L.LinkedBoard):
                 if self.on_done is not None:
                     self.on_done(e[1], e[2])
             elif e[0] == "AUX":
-                if e[1] != self.pen:
-                    self._set_pen(e[1])
+                if pen is not None and e[1] != pen.state:
+                    pen.set(e[1])
             elif e[0] != "START" or last_done < 0:
                 self.link.event(e[0], e[1:])
         if last_done >= 0:

@@ -8,7 +8,7 @@ power cycle) and the filesystem. Each rig adds its outputs:
 `Esp32Hal` (config SERVOS = "effort"): servos driven by effort, PWM at
 PWM_FREQ_HZ, pulse PULSE_MIN_US..PULSE_MAX_US for an effort of -1..1
 (PULSE_NEUTRAL_US at 0). The optional pen-lift servo on PEN_PIN (None: none)
-gets PEN_UP_US / PEN_DOWN_US. outputs_off() stops every pulse (duty 0), the
+gets PEN_UP_US / PEN_DOWN_US, or the widths set_pen_widths gave (PENPOS). outputs_off() stops every pulse (duty 0), the
 pen's too, which lets hobby servos go limp; the next write_outputs() drives
 them again, the pen where it was last put (up, before any write_pen).
 
@@ -47,6 +47,9 @@ class Esp32Hal(ArmBase):
         self.has_pen = pin is not None
         self._pen = None
         self._pen_ns = cfg.PEN_UP_US * 1000 if pin is not None else 0
+        self._pen_up_ns = cfg.PEN_UP_US * 1000
+        self._pen_down_ns = cfg.PEN_DOWN_US * 1000
+        self._pen_down = False
         self._live = False
         if pin is not None:
             self._pen = machine.PWM(machine.Pin(pin), freq=cfg.PWM_FREQ_HZ, duty_ns=self._pen_ns)
@@ -78,8 +81,18 @@ class Esp32Hal(ArmBase):
         self._live = False
 
     def write_pen(self, down: bool) -> None:
-        """The pen-lift servo to PEN_DOWN_US (down) or PEN_UP_US (up); it is
-        driven from now on."""
+        """The pen-lift servo to its down or up width (PEN_DOWN_US / PEN_UP_US
+        until set_pen_widths); it is driven from now on."""
         if self._pen is not None:
-            self._pen_ns = (self.cfg.PEN_DOWN_US if down else self.cfg.PEN_UP_US) * 1000
+            self._pen_down = bool(down)
+            self._pen_ns = self._pen_down_ns if down else self._pen_up_ns
             self._pen.duty_ns(self._pen_ns)
+
+    def set_pen_widths(self, up_us: int, down_us: int) -> None:
+        """The pen's up and down pulse widths (PENPOS); a driven pen moves to its state's new one."""
+        self._pen_up_ns = up_us * 1000
+        self._pen_down_ns = down_us * 1000
+        if self._pen is not None:
+            self._pen_ns = self._pen_down_ns if self._pen_down else self._pen_up_ns
+            if self._live:
+                self._pen.duty_ns(self._pen_ns)

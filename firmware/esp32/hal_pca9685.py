@@ -44,3 +44,6 @@ class Pca9685Hal(ArmBase):
 
     def write_pen(self, down: bool) -> None:
         self.servos.pen(down)
+
+    def set_pen_widths(self, up_us: int, down_us: int) -> None:
+        self.servos.set_pen_widths(up_us, down_us)

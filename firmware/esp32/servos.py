@@ -157,6 +157,13 @@ class ServoBank:
         self.pen_down = bool(down)
         self.pca.pulse_us(self.pen_channel, self.pen_down_us if down else self.pen_up_us)
 
+    def set_pen_widths(self, up_us, down_us) -> None:
+        """The pen's up and down pulse widths (PENPOS); a driven pen moves to its state's new one."""
+        self.pen_up_us = up_us
+        self.pen_down_us = down_us
+        if self._live and self.has_pen:
+            self.pen(self.pen_down)
+
     def set_calibration(self, j, us_a, mrad_a, us_b, mrad_b) -> None:
         """Joint j (0-based): a new two-point calibration, used from the next write."""
         self.servos[j].set(us_a, mrad_a, us_b, mrad_b)

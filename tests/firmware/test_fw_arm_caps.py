@@ -121,7 +121,7 @@ def test_a_stop_resets_the_modal_pen_to_where_the_pen_is():
     assert host.answer(3, "W", 1, 100, *q)[1] == "OK"
     assert host.answer(4, "PEN", 1)[1] == "OK"
     board.estop()
-    assert board.pen_next == board.pen == 0
+    assert board.pen.next == board.pen.state == 0
     assert host.answer(5, "PEN", 1)[1] == "ER"               # latched: a motion verb
 
 

@@ -83,6 +83,10 @@ COMMANDS = {
     "XY": (("id", 0, 65535), ("dur", 1, 60000), ("x", -1000000, 1000000), ("y", -1000000, 1000000)),
     # PEN: modal pen-lift state (0 up, 1 down) of the waypoints queued after it.
     "PEN": (("down", 0, 1),),
+    # PENPOS: the pen-lift servo's pulse widths for up and down (us) and the dwell after a
+    # pen change (ms, the pen's settle); a pen at rest moves to its state's new width. Refused
+    # RANGE while waypoints are queued; saved by CALID.
+    "PENPOS": (("up_us", 500, 2500), ("down_us", 500, 2500), ("settle_ms", 0, 2000)),
     # CAL: a positional servo's calibration, pulse us_a (us) at angle a, us_b at b (mrad).
     "CAL": (("joint", 1, 0), ("us_a", 500, 2500), ("a", -1000000, 1000000), ("us_b", 500, 2500),
             ("b", -1000000, 1000000)),
