@@ -6,7 +6,7 @@
 //
 // The repo layout is mirrored in the interpreter's filesystem under /repo
 // (firmware/common/*.py, the generated protocol table protodef.py among them,
-// firmware/esp32/{config,arm,arm_cal,ik3r,mlp}.py, firmware/masr_ma/*.py but its
+// firmware/esp32/{config,arm,arm_cal,arm_pen,ik3r,mlp}.py, firmware/masr_ma/*.py but its
 // machine-bound hal_ma.py and main.py, tests/firmware/*.py,
 // tests/vectors/lines.json), so the tests find the vectors (and the MA tests
 // masr_ma's config.py) relative to their own files, as under CPython.
@@ -49,7 +49,7 @@ async function main() {
     console.error("firmware/common/protodef.py missing (python -m armbridge.link.codegen writes it)");
     process.exit(2);
   }
-  copyRepo(FS, "firmware/esp32", (n) => ["config.py", "arm.py", "arm_cal.py", "ik3r.py", "mlp.py"].includes(n));
+  copyRepo(FS, "firmware/esp32", (n) => ["config.py", "arm.py", "arm_cal.py", "arm_pen.py", "ik3r.py", "mlp.py"].includes(n));
   const ma = copyRepo(FS, "firmware/masr_ma", (n) => !["hal_ma.py", "main.py"].includes(n));
   if (!ma.includes("ma.py") || !ma.includes("config.py")) {
     console.error("firmware/masr_ma/ma.py or config.py missing");

@@ -8,7 +8,12 @@ from typing import Optional
 import typer
 
 from armbridge.errors import ArmbridgeError
-from armbridge.executor.command import CARTESIAN_HELP, KEYS_HELP, PEN_HELP
+from armbridge.executor.command import (CARTESIAN_HELP, KEYS_HELP, PEN_DOWN_HELP, PEN_HELP, PEN_UP_HELP,
+                                        PEN_WAIT_HELP)
+from armbridge.executor.penpos import pen_pos_options
+
+PEN_DRAW_NOTE = (" Kept in the plan (its drawing provenance) for `armbridge run`; with --port sent as one PENPOS "
+                 "before the first waypoint.")
 
 DEFAULT_SPEED = 0.02  # m/s: a steady pen on a hobby-servo arm
 DEFAULT_TRAVEL_SPEED = 0.1  # m/s: pen-up moves (the fastest the 3 mm safety margin was measured at)
@@ -138,6 +143,9 @@ def draw_cmd(
     cartesian: bool = typer.Option(False, "--cartesian", help="With --port: " + CARTESIAN_HELP),
     pen: str = typer.Option("auto", "--pen", metavar="auto|on|off", help="With --port: " + PEN_HELP),
     keys: bool = typer.Option(True, "--keys/--no-keys", help="With --port: " + KEYS_HELP),
+    pen_up: Optional[int] = typer.Option(None, "--pen-up", metavar="US", help=PEN_UP_HELP + PEN_DRAW_NOTE),
+    pen_down: Optional[int] = typer.Option(None, "--pen-down", metavar="US", help=PEN_DOWN_HELP),
+    pen_wait: Optional[int] = typer.Option(None, "--pen-wait", metavar="MS", help=PEN_WAIT_HELP),
 ) -> None:
     """Turn text, an SVG, a CSV of points, an image or a shape into a plan for the drawing arm.
 
@@ -163,6 +171,7 @@ def draw_cmd(
     if port is None and (rrd is not None or json_out is not None or clear or cartesian or pen != "auto"):
         raise ArmbridgeError("--rrd, --json, --clear, --cartesian and --pen need --port (they are about running "
                              "the plan)")
+    pen_pos = pen_pos_options(pen_up, pen_down, pen_wait)  # bad values: one line, before anything is built
     if fit and size is not None:
         raise ArmbridgeError("give --size or --fit, not both")
     if page is None and (landscape or margin is not None):
@@ -190,6 +199,8 @@ def draw_cmd(
         from armbridge.draw.sources import characters
 
         d.plan.provenance["drawing"]["characters"] = characters(written)
+    if pen_pos:  # `armbridge run` of this plan sends them too (its command line wins)
+        d.plan.provenance["drawing"]["pen_pos"] = pen_pos
     try:
         _outputs(d, png, svg_out, source, None)
         save_plan(d.plan, out)
@@ -202,7 +213,8 @@ def draw_cmd(
 
         rrd = rrd if rrd is not None else default_rrd_path(d.plan.name)
         try:
-            run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, keys=keys)
+            run_command(out, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, keys=keys,
+                        pen_pos=pen_pos)
         finally:  # completed or not: the figure and the SVG show what was drawn
             if (png is not None or svg_out is not None) and rrd.exists():
                 _drawn_outputs(d, png, svg_out, source, rrd)

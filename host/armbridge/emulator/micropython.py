@@ -20,8 +20,9 @@ log before it is replayed. So plant, UART lanes and the
 board's records are the same objects as under CPython. Before each boot the
 emulator HAL's files (`hal.files`: the IK weights) are written into the
 interpreter's filesystem, where the firmware's `hal.read_file` opens them as on
-the chip, and its pen servo (`hal.has_pen`) is announced; pen moves come back
-in the log and are replayed on `hal.write_pen`. About 60 us of the round
+the chip, and its pen servo (`hal.has_pen`) is announced; pen moves and the
+pen's widths (PENPOS) come back in the log and are replayed on `hal.write_pen`
+and `hal.set_pen_widths`. About 60 us of the round
 trip is the pipe; the rest is MicroPython.
 
 A boot starts a fresh Node process (a fresh interpreter: a reset loses all
@@ -281,6 +282,7 @@ class MicroPythonBoard:
             "X": lambda b: hal.outputs_off(),
             "P": lambda b: hal.save_persist(bytes.fromhex(b)),
             "N": lambda b: hal.write_pen(b == "1") if hasattr(hal, "write_pen") else None,
+            "Y": lambda b: hal.set_pen_widths(*(int(x) for x in b.split(","))),
             "W": file,
             "D": done,
         }
@@ -295,6 +297,7 @@ class MicroPythonBoard:
 
             h.update(I=i2c, Z=lambda b: hal.bridged_sleep_us(int(b)), Q=lambda b: hal.bridged_positions(floats(b)),
                      X=lambda b: hal.bridged_off(), N=lambda b: hal.bridged_pen(b == "1"),
+                     Y=lambda b: hal.bridged_pen_widths(*(int(x) for x in b.split(","))),
                      C=lambda b: hal.bridged_calibration(*(int(x) for x in b.split(","))))
         return h
 

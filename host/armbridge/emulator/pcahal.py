@@ -15,8 +15,10 @@ advance the sim clock.
 Records, besides SimHal's (outputs_off_at / outputs_on_at, estop_byte_at, and
 pen_log: (t, down) of every write_pen): `positions` ((t, q) of every
 write_positions), `calibrations` ((t, j0, us_a, mrad_a, us_b, mrad_b)) and
-`pen_changes` ((t, down) when the pen servo crossed the midpoint of its up and
-down angles); `pen_down_at(t)` answers from those, the servo's own travel.
+`pen_changes` ((t, down) when the pen servo's angle reached or left that of
+its contact width, simhal.PEN_CONTACT_US: where the tip meets the paper);
+`pen_down_at(t)` answers from those, the servo's own travel, whatever widths
+the firmware sends (PENPOS: `pen_widths_log`, (t, up_us, down_us)).
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from armbridge.boards import joint_limits_rad
 from armbridge.emulator.i2c import SimI2C
 from armbridge.emulator.pca9685 import Pca9685Model
 from armbridge.emulator.servo_plant import PenServo, PositionalPlant, ServoParams
-from armbridge.emulator.simhal import SimHal
+from armbridge.emulator.simhal import PEN_CONTACT_US, SimHal
 from armbridge.errors import ArmbridgeError
 
 
@@ -50,7 +52,7 @@ def rig_plant(cfg: Any, params: ServoParams | None, q0, seed: int) -> Positional
     mapping = [(c[0], c[1] / 1000.0, c[2], c[3] / 1000.0) for c in cfg.SERVO_CAL]
     pen = None
     if getattr(cfg, "PEN_CHANNEL", None) is not None:
-        pen = PenServo(up_us=float(cfg.PEN_UP_US), down_us=float(cfg.PEN_DOWN_US))
+        pen = PenServo(up_us=float(cfg.PEN_UP_US), down_us=float(cfg.PEN_DOWN_US), contact_us=PEN_CONTACT_US)
     plant = PositionalPlant(lo, hi, mapping, params, q0=q0, seed=seed, pen=pen)
     plant.cfg = cfg
     return plant
@@ -83,6 +85,7 @@ class PcaSimHal(SimHal):
         max_log = int(kw.get("max_log", 200_000))
         self.positions: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=max_log)
         self.calibrations: list[tuple[float, int, int, int, int, int]] = []
+        self.pen_widths_log: list[tuple[float, int, int]] = []
         self.driver = fw["pca9685"].Pca9685(self.bus, cfg.PCA9685_ADDR, cfg.SERVO_FREQ_HZ,
                                             sleep_us=self._busy_wait)
         self.servos = fw["servos"].ServoBank(self.driver, cfg)
@@ -100,15 +103,20 @@ class PcaSimHal(SimHal):
     def pen_changes(self) -> list[tuple[float, bool]]:
         return self.rig.pen_changes
 
-    def pen_down_at(self, t: float) -> bool:
-        """Whether the pen touched the paper at time t (s): the pen servo's position."""
-        self._sync()
+    def pen_down_at(self, t: float, sync: bool = True) -> bool:
+        """Whether the pen touched the paper at time t (s): the pen servo's position
+        (`sync` False: from another thread, as far as the plant has run)."""
+        if sync:
+            self._sync()
         down = False
         for at, d in self.rig.pen_changes:
             if at > t:
                 break
             down = d
         return down
+
+    def pen_touch_at_ms(self, ms: int) -> bool:
+        return self.pen_down_at(self._board_t(ms), sync=False)
 
     # the HAL -------------------------------------------------------------
     def write_positions(self, q) -> None:
@@ -133,6 +141,10 @@ class PcaSimHal(SimHal):
     def write_pen(self, down: bool) -> None:
         self.servos.pen(down)
         self.bridged_pen(down)
+
+    def set_pen_widths(self, up_us: int, down_us: int) -> None:
+        self.servos.set_pen_widths(up_us, down_us)
+        self.bridged_pen_widths(up_us, down_us)
 
     # the firmware's own driver under MicroPython (emulator/micropython.py) ------------
     # There the firmware's pca9685.py and servos.py run in the interpreter: their I2C
@@ -163,3 +175,6 @@ class PcaSimHal(SimHal):
 
     def bridged_pen(self, down: bool) -> None:
         SimHal.write_pen(self, down)
+
+    def bridged_pen_widths(self, up_us: int, down_us: int) -> None:
+        self.pen_widths_log.append((self.clock.t, int(up_us), int(down_us)))

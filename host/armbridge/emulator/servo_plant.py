@@ -154,10 +154,14 @@ def step(q: np.ndarray, target: np.ndarray, driven: np.ndarray, dt: float, tau: 
 @dataclass(frozen=True)
 class PenServo:
     """The pen-lift servo: its pulse->angle map (us_a at rad_a, us_b at rad_b),
-    the pulses for pen up and down, its numbers."""
+    the config's pulses for pen up and down (the side of down is the paper's),
+    the pulse at which its tip meets the paper (contact_us; None: midway between
+    up and down), its numbers. The pen is down when the servo's angle has
+    reached the contact's, whatever the firmware thinks it sent."""
 
     up_us: float
     down_us: float
+    contact_us: float | None = None
     mapping: tuple[float, float, float, float] = (500.0, 0.0, 2500.0, math.pi)
     params: ServoParams = PEN_PARAMS
 
@@ -207,8 +211,9 @@ class PositionalPlant:
             ends = _angle(pen.mapping, [_at(pen.params.pulse_min, 0), _at(pen.params.pulse_max, 0)])
             lo_all.append(float(ends.min()))
             hi_all.append(float(ends.max()))
-            self.pen_threshold = float(_angle(pen.mapping, 0.5 * (pen.up_us + pen.down_us)))
-            self._pen_sign = 1.0 if _angle(pen.mapping, pen.down_us) > self.pen_threshold else -1.0
+            contact = 0.5 * (pen.up_us + pen.down_us) if pen.contact_us is None else pen.contact_us
+            self.pen_threshold = float(_angle(pen.mapping, contact))
+            self._pen_sign = 1.0 if _angle(pen.mapping, pen.down_us) > _angle(pen.mapping, pen.up_us) else -1.0
         self._lo, self._hi = np.array(lo_all), np.array(hi_all)
         m = len(servos)
         self._q = np.empty(m)
@@ -253,7 +258,7 @@ class PositionalPlant:
         """True when the pen is down (None: no pen servo)."""
         if self.pen is None:
             return None
-        return bool((self._joint[self.n] - self.pen_threshold) * self._pen_sign > 0)
+        return bool((self._joint[self.n] - self.pen_threshold) * self._pen_sign >= 0)
 
     # drive ---------------------------------------------------------------
     def targets_for(self, pulses_us) -> tuple[np.ndarray, np.ndarray]:

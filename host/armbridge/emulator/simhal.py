@@ -15,9 +15,14 @@ time of every e-stop byte (`estop_byte_at`), and every complete line the
 firmware writes (handed to `on_line` before link faults are applied).
 
 The pen-lift servo (config PEN_PIN) is a fourth output: `write_pen(down)`
-logs (time, down) in `pen_log`; `pen_down_at(t)` is where the pen was at time
-t, taking PEN_SETTLE_MS of servo travel after each command (the pen touches
-the paper when the travel ends, and leaves it at once).
+logs (time, down) in `pen_log`, and the pulse width it commands (the up or
+down width: the config's PEN_UP_US / PEN_DOWN_US until `set_pen_widths`,
+the firmware's PENPOS) in `pen_us_log`. The pen touches the paper only when
+the commanded width reaches `pen_contact_us` (a physical fact of the rig: where
+the tip meets the paper, PEN_CONTACT_US between the default widths; on the
+side of the down width, `pen_contact_above`), `pen_travel_s` after the
+command that brought it there, and leaves it at once: `pen_down_at(t)` is
+whether it touched at time t (`pen_touch_at_ms`: at a board time).
 
 Files: `read_file(name)` serves the board's filesystem from `files` (name ->
 bytes; None for a name it lacks); an emulated board starts with
@@ -42,6 +47,9 @@ TICKS_MAX = TICKS_PERIOD - 1
 TICKS_HALF = TICKS_PERIOD >> 1
 ESTOP_BYTE = 0x98
 RTC_MEMORY_SIZE = ESP32_RTC_MEMORY  # bytes of ESP32 RTC user memory
+# The emulated rigs' pen: the pulse width (us) at which the tip meets the paper, between the
+# default config's PEN_UP_US (1200) and PEN_DOWN_US (1700), nearer down (the lift clears the paper)
+PEN_CONTACT_US = 1550.0
 
 
 def ticks_diff(a: int, b: int) -> int:
@@ -117,6 +125,10 @@ class SimHal:
         self.reads = 0
         self.pen_travel_s = 0.15  # servo travel up <-> down (the firmware waits PEN_SETTLE_MS)
         self.pen_log: list[tuple[float, bool]] = []
+        self.pen_widths = (1200.0, 1700.0)  # (up, down) us: the default config's, until set_pen_widths
+        self.pen_contact_us = PEN_CONTACT_US
+        self.pen_contact_above = True  # the paper is on the long-pulse side (the default config's down)
+        self.pen_us_log: list[tuple[float, float]] = []  # (t, us) every width the pen servo was sent
         self._line = bytearray()
 
     # clock ---------------------------------------------------------------
@@ -162,17 +174,46 @@ class SimHal:
     # pen -----------------------------------------------------------------
     def write_pen(self, down) -> None:
         self.pen_log.append((self.clock.t, bool(down)))
+        self.pen_us_log.append((self.clock.t, self.pen_widths[1 if down else 0]))
+
+    def rig_pen(self, cfg) -> None:
+        """The rig's pen as the firmware config `cfg` wires it: its default widths, and the
+        paper on the side of its down width."""
+        up, down = getattr(cfg, "PEN_UP_US", None), getattr(cfg, "PEN_DOWN_US", None)
+        if up is not None and down is not None:
+            self.pen_widths = (float(up), float(down))
+            self.pen_contact_above = down > up
+
+    def set_pen_widths(self, up_us, down_us) -> None:
+        """The firmware's PENPOS: new widths; a pen already driven goes to its state's new one."""
+        self.pen_widths = (float(up_us), float(down_us))
+        if self.pen_log:
+            us = self.pen_widths[1 if self.pen_log[-1][1] else 0]
+            if us != self.pen_us_log[-1][1]:
+                self.pen_us_log.append((self.clock.t, us))
+
+    def pen_touches(self, us: float) -> bool:
+        """Whether a pen servo held at pulse width `us` has its tip on the paper."""
+        return us >= self.pen_contact_us if self.pen_contact_above else us <= self.pen_contact_us
 
     def pen_down_at(self, t: float) -> bool:
         """Whether the pen touched the paper at time t (s)."""
-        down = False
-        for at, d in self.pen_log:
+        since = None  # when the pen (commanded to a touching width) meets the paper
+        for at, us in self.pen_us_log:
             if at > t:
                 break
-            down = d and t >= at + self.pen_travel_s
-            if not d:
-                down = False
-        return down
+            if not self.pen_touches(us):
+                since = None
+            elif since is None:
+                since = at + self.pen_travel_s
+        return since is not None and t >= since
+
+    def pen_touch_at_ms(self, ms: int) -> bool:
+        """pen_down_at the board time `ms` (ticks_ms) stands for."""
+        return self.pen_down_at(self._board_t(ms))
+
+    def _board_t(self, ms: int) -> float:
+        return ((int(ms) - self.tick_offset_ms) & TICKS_MAX) / 1000.0
 
     # files ---------------------------------------------------------------
     def read_file(self, name) -> bytes | None:

@@ -16,6 +16,7 @@ import typer
 from rich.console import Console
 
 from armbridge.executor.estop import estop_note
+from armbridge.executor.penpos import pen_pos_options
 from armbridge.executor.run import RATE_MAX, RATE_MIN, RunFailed, Summary, run_plan
 from armbridge.executor.signals import Stopped, holding, stop_on_signals
 from armbridge.jsonfile import JSON_HELP, detach, emit_json
@@ -29,6 +30,11 @@ KEYS_HELP = ("At a terminal, space or p holds the arm where it is (the protocol'
              "left alone.")
 PEN_HELP = ("Plans with pen flags: 'auto' drives the board's pen-lift servo when it has one, 'on' requires one, "
             "'off' never sends PEN (pen-up moves only marked).")
+PEN_UP_HELP = "The pen servo's pulse width for pen up, us (500..2500) [default: the firmware's, 1200]."
+PEN_DOWN_HELP = ("The pen servo's pulse width for pen down, us (500..2500) [default: the firmware's, 1700]; "
+                 "one that does not reach the paper draws nothing.")
+PEN_WAIT_HELP = "The board's dwell after every pen change, ms (0..2000) [default: the firmware's, 150]."
+PEN_POS_NOTE = " Sent as one PENPOS before the first waypoint; over a drawing plan's own."
 
 
 def run_cmd(
@@ -53,17 +59,21 @@ def run_cmd(
                                       help="Run on a board whose calibration is not the one this host made for it "
                                            "(docs/calibration.md)."),
     keys: bool = typer.Option(True, "--keys/--no-keys", help=KEYS_HELP),
+    pen_up: Optional[int] = typer.Option(None, "--pen-up", metavar="US", help=PEN_UP_HELP + PEN_POS_NOTE),
+    pen_down: Optional[int] = typer.Option(None, "--pen-down", metavar="US", help=PEN_DOWN_HELP),
+    pen_wait: Optional[int] = typer.Option(None, "--pen-wait", metavar="MS", help=PEN_WAIT_HELP),
 ) -> None:
     """Validate a plan, stream it to the board, record telemetry to Rerun, print a summary.
 
     Exit codes: 0 completed, 1 run failed, 2 bad input, 128+signal when stopped (130 Ctrl-C).
     """
+    pen_pos = pen_pos_options(pen_up, pen_down, pen_wait)  # bad values: one line, before any port opens
     run_command(plan, port, rrd, rate, json_out, clear, progress, cartesian=cartesian, pen=pen, home=home,
-                calibration="ignore" if no_cal_check else "check", keys=keys)
+                calibration="ignore" if no_cal_check else "check", keys=keys, pen_pos=pen_pos)
 
 
 def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=False, pen="auto",
-                home=False, goal_exit=True, calibration="check", keys=True) -> Summary:
+                home=False, goal_exit=True, calibration="check", keys=True, pen_pos=None) -> Summary:
     """What `armbridge run` does with its options (also `armbridge draw --port`, the demos); the
     Summary of a completed run (any other outcome exits with its code). `keys`: space or p
     holds and resumes the arm while the plan streams, when stdin is a terminal."""
@@ -72,13 +82,15 @@ def run_command(plan, port, rrd, rate, json_out, clear, progress, *, cartesian=F
     try:
         with stop_on_signals():
             return run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, cartesian=cartesian,
-                                  pen=pen, home=home, goal_exit=goal_exit, calibration=calibration, keys=keys)
+                                  pen=pen, home=home, goal_exit=goal_exit, calibration=calibration, keys=keys,
+                                  pen_pos=pen_pos)
     except Stopped as stop:  # before the run started, or while its files were written
         raise typer.Exit(stop.exit_code) from None
 
 
 def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *, cartesian=False,
-                   pen="auto", home=False, goal_exit=True, calibration="check", keys=False) -> Summary:
+                   pen="auto", home=False, goal_exit=True, calibration="check", keys=False,
+                   pen_pos=None) -> Summary:
     """run_plan, then what `armbridge run` reports: the JSON summary, the table
     and the exit code (1: the run failed, 3: it completed with the arm outside the
     plan's goal, unless `goal_exit` is False (the caller reports it), 128 + n: stopped
@@ -86,7 +98,8 @@ def run_and_report(plan, port, rrd, rate, json_out, clear, progress, console, *,
     failed: RunFailed | None = None
     try:
         summary = run_plan(plan, port, rrd, rate_hz=rate, progress=progress, clear=clear, console=console,
-                           cartesian=cartesian, pen=pen, home=home, calibration=calibration, pause_keys=keys)
+                           cartesian=cartesian, pen=pen, home=home, calibration=calibration, pause_keys=keys,
+                           pen_pos=pen_pos)
     except RunFailed as exc:
         failed, summary = exc, exc.summary
     with holding():

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.errors import ArmbridgeError, BoardFailure
+from armbridge.executor import penpos
 from armbridge.executor.calcheck import CalibrationMismatch
 from armbridge.executor.client import LATCHED_STATES, BoardClient
 from armbridge.executor.estop import fail_run, stop_run
@@ -69,6 +70,7 @@ def run_plan(
     home: bool = False,
     calibration: str = "check",
     pause_keys: bool = False,
+    pen_pos: dict | None = None,
 ) -> Summary:
     """Validate the plan, then connect, stream it, record telemetry and return a Summary.
 
@@ -83,6 +85,9 @@ def run_plan(
     on the first waypoint naming the missing capability). `pen` (plans with pen
     flags): "auto" uses the board's pen-lift servo when it has one (PEN lines),
     "on" requires one, "off" never sends PEN (pen-up moves are only marked).
+    `pen_pos` (drawing plans): the pen's up_us, down_us, settle_ms (any of them), over the
+    plan's own (`drawing.pen_pos`), sent as one PENPOS before the first waypoint
+    (executor/penpos.py); a board that refuses it stops the run there (PenRefused).
     `home` (MASR plans): a HOME action first, for a board that does not know where
     its MA is (UNHOMED after a power on).
 
@@ -116,6 +121,11 @@ def run_plan(
         raise ArmbridgeError(f"telemetry rate {rate_hz} Hz is outside [{RATE_MIN}, {RATE_MAX}]")
     if pen not in PEN_MODES:
         raise ArmbridgeError(f"pen mode {pen!r}: use one of {', '.join(PEN_MODES)}")
+    pen_set = penpos.resolve((plan.provenance.get("drawing") or {}).get("pen_pos") if plan.pen is not None else None,
+                             penpos.check_pen_pos(pen_pos, "pen_pos"))
+    if pen_pos and (plan.pen is None or pen == "off"):
+        raise ArmbridgeError("--pen-up, --pen-down and --pen-wait set the pen-lift servo: "
+                             + ("the plan has no pen flags" if plan.pen is None else "not with --pen off"))
     from armbridge.executor.session import open_session
     from armbridge.link.transport import PortError
     from armbridge.telemetry.recording import Recording, default_rrd_path
@@ -142,6 +152,7 @@ def run_plan(
     summary.safety_filter = safety
 
     samples: list[tuple[float, str, np.ndarray, np.ndarray, int]] = []  # t, state, q, target, active seg
+    sample_ms: list[int] = []  # each sample's board time (ms)
     rec: Recording | None = None
     client: BoardClient | None = None
     last_state: list[str | None] = [None]
@@ -156,6 +167,7 @@ def run_plan(
         if masr is not None:  # the board's d is an estimate (+- its bound): a mm past an end is the MA at that end
             m.q[-1] = min(max(float(m.q[-1]), 0.0), masr.robot.total_length)
         samples.append((t, m.state, m.q, m.target, active))
+        sample_ms.append(m.ms)
         pause.on_telemetry(t)
         if rec is not None:
             rec.telemetry(t, m.q, m.target, m.effort, m.done, active=active)
@@ -191,6 +203,9 @@ def run_plan(
                 summary.calibration = c.calibration.to_json() if c.calibration is not None else None
                 if cartesian:
                     check_board_ik(c)
+                if pen_set is not None and pen != "off":  # before the PEN probe and the first waypoint
+                    penpos.send_pen_pos(c, pen_set)
+                    summary.pen_pos = pen_set
                 flags = pen_flags(c, plan, pen, summary)
                 band = c.settle_tolerance(robot.dof)  # None: the board has no dead band
                 bar = pause.bar = _progress_bar(plan, console) if progress else None
@@ -218,7 +233,7 @@ def run_plan(
                     if band is not None:
                         fill_settle(summary, c, plan, samples, names, *band)
                     if plan.pen is not None:
-                        summary.drawing = _drawing(plan, samples, summary.measured_duration_s)
+                        summary.drawing = _drawing(plan, samples, summary.measured_duration_s, _touched(c, sample_ms))
                     if masr is not None:
                         from armbridge.executor.masr import masr_report
 
@@ -230,7 +245,7 @@ def run_plan(
                                         if s0 in d and plan.k - 1 in d else float("nan"))
                         summary.masr = masr_report(masr, samples[-1][2] if samples else None, executed)
                     summary.goal = _goal(plan, masr, summary, samples)
-        except CalibrationMismatch:  # nothing was sent: one line, no summary, no recording
+        except (CalibrationMismatch, penpos.PenRefused):  # nothing moved: one line, no summary, no recording
             _discard(rec, rrd)
             summary.rrd = None
             raise
@@ -352,9 +367,19 @@ def _discard(rec, path: Path) -> None:
         pass
 
 
-def _drawing(plan: Plan, samples, duration_s: float) -> dict:
+def _drawing(plan: Plan, samples, duration_s: float, touched=None) -> dict:
     """A drawing plan's summary section (plans/drawing.py) from the telemetry samples."""
     from armbridge.plans.drawing import run_drawing_report
 
     q = np.array([x[2] for x in samples]).reshape(-1, plan.n)
-    return run_drawing_report(plan, q, np.array([x[4] for x in samples], int), duration_s)
+    return run_drawing_report(plan, q, np.array([x[4] for x in samples], int), duration_s, touched)
+
+
+def _touched(client, sample_ms: list[int]) -> np.ndarray | None:
+    """An emulated board's answer, per sample, to whether its pen touched the paper (its hidden
+    physics: simhal.py, pcahal.py); None for a real board, which cannot know."""
+    emu = getattr(getattr(client, "port", None), "emulator", None)
+    hal = getattr(emu, "hal", None)
+    if not hasattr(hal, "pen_touch_at_ms") or not getattr(hal, "has_pen", False):
+        return None
+    return np.array([hal.pen_touch_at_ms(ms) for ms in sample_ms], bool)

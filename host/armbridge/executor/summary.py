@@ -80,6 +80,7 @@ class Summary:
     drawing: dict | None = None  # a plan with pen flags: plans/drawing.py run_drawing_report
     safety_filter: dict | None = None  # a drawing plan: the CBF filter on what was streamed (prepare.safety_filter)
     pen: str | None = None  # a plan with pen flags: "servo" (PEN lines) or "marked" (no pen-lift servo)
+    pen_pos: dict | None = None  # the PENPOS sent (up_us, down_us, settle_ms; executor/penpos.py), None: none
     ik: str = "host"  # "host": joint waypoints (W); "board": Cartesian waypoints (X) solved on the board
     masr: dict | None = None  # a MASR plan: executor/masr.py masr_report (final MA pose error, time vs tau)
     settle: dict[str, JointSettle] = field(default_factory=dict)  # boards with a dead band (settle_times)
@@ -170,6 +171,13 @@ class Summary:
                       f"{_f(st.mean_s, 3)} / {_f(st.max_s, 3)} s; {st.unsettled} of {st.waypoints} never settled")
         if self.pen:
             t.add_row("pen", "pen-lift servo (PEN)" if self.pen == "servo" else "no pen-lift servo: pen-up moves marked")
+        if self.pen_pos:
+            p = self.pen_pos
+            t.add_row("pen heights (PENPOS)", f"up {p['up_us']} us, down {p['down_us']} us, settle {p['settle_ms']} ms")
+        untouched = (self.drawing or {}).get("pen_untouched")
+        if untouched is not None:
+            t.add_row("pen on the paper (emulated)", f"{untouched} of {self.drawing['pen_down_samples']} pen-down "
+                                                     "samples did not touch it")
         if self.ik == "board":
             t.add_row("IK", "on the board (X waypoints)")
         if self.masr:

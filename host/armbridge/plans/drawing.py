@@ -120,13 +120,17 @@ def safe_excursion(points: np.ndarray, center, radius: float) -> dict:
             "safe_excess_max_mm": round(float(excess.max()) * 1000, 4) if len(excess) else None}
 
 
-def run_drawing_report(plan, q: np.ndarray, active: np.ndarray, duration_s: float) -> dict:
+def run_drawing_report(plan, q: np.ndarray, active: np.ndarray, duration_s: float,
+                       touched: np.ndarray | None = None) -> dict:
     """The drawing section of a run's summary: the error of the measured pen trace
     (FK of the measured q (n, dof) while the active segment's pen flag is 1) against
     the plan's pen-down strokes (FK of its waypoints), in mm, and for text the time
     per character (duration_s / the characters in the plan's provenance). A plan that names its
     safe region (`armbridge draw`'s provenance) also gets how many samples of the executed pen,
-    pen up or down, were outside that disc and the largest excess (`safe_excursion`)."""
+    pen up or down, were outside that disc and the largest excess (`safe_excursion`). `touched`
+    (an emulated board, which knows where its pen tip is: one bool per sample) adds
+    `pen_down_samples` and `pen_untouched`, the pen-down samples whose pen was off the paper
+    (travelling to it in the settle dwell, or held above it by a down width that does not reach it)."""
     robot = plan.robot
     target = pen_strips(np.asarray(plan.ee_path())[:, :2], plan.pen)
     q = np.asarray(q, float).reshape(-1, plan.n)
@@ -136,6 +140,9 @@ def run_drawing_report(plan, q: np.ndarray, active: np.ndarray, duration_s: floa
     down[ok] = plan.pen[active[ok]] == 1
     tips = np.asarray(robot.ee_point(q))[:, :2] if len(q) else np.zeros((0, 2))
     out = drawing_error(target, trace_strips(tips, down)).to_dict()
+    if touched is not None and len(touched) == len(down):
+        out["pen_down_samples"] = int(down.sum())
+        out["pen_untouched"] = int((down & ~np.asarray(touched, bool)).sum())
     region = ((plan.provenance or {}).get("drawing") or {}).get("safe_region")
     if region:
         out |= safe_excursion(tips, region["center"], region["radius"])

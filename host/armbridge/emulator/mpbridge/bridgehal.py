@@ -25,7 +25,7 @@ sense()): the joint readings q1 .. qn on the arm's rigs, `wheel gear level
 edges` on the MA (bridgerigs.py). The answer is one line of tab-separated
 fields: the board's state, then the log in order: `T<hex>` UART bytes,
 `O<e1>,..,<en>` outputs written, `X` outputs off, `P<hex>` persisted memory
-written, `N1` / `N0` pen down / up, `W<name> <hex>` a file the firmware wrote,
+written, `N1` / `N0` pen down / up, `Y<up_us>,<down_us>` the pen's widths (PENPOS), `W<name> <hex>` a file the firmware wrote,
 `D<json list>` the arguments of the completion hook, the rigs' own fields
 (bridgerigs.py: `L`, `R`, `G`, `I`, `Z`, `Q`, `C`); and last, when the firmware
 raised, `!<json string>` its traceback.
@@ -58,6 +58,7 @@ PERSIST = 3
 DONE = 4
 PEN = 5
 FILE = 6
+PENW = 7
 
 
 class BridgeHal:
@@ -113,6 +114,9 @@ class BridgeHal:
 
     def write_pen(self, down):
         self.ops.append((PEN, bool(down)))
+
+    def set_pen_widths(self, up_us, down_us):
+        self.ops.append((PENW, (int(up_us), int(down_us))))
 
     def read_file(self, name):
         """A file of the interpreter's filesystem (written by F requests), None if missing:
@@ -203,6 +207,8 @@ def _fields(hal):
             out.append("P" + _hex(v))
         elif kind == PEN:
             out.append("N1" if v else "N0")
+        elif kind == PENW:
+            out.append("Y%d,%d" % v)
         elif kind == FILE:
             out.append("W%s %s" % (v[0], _hex(v[1])))
         elif kind == DONE:

@@ -22,7 +22,7 @@ read is asked of the emulator's bus at once (`BridgeHal.ask`: the log so far
 is replayed there first, so the simulated chip answers in the state those
 writes left it in). The HAL-level calls go into the log as well, for the
 emulator's records: `Q<q1>,..` write_positions, `X` outputs off, `C<j0>,..`
-a calibration, `N1`/`N0` the pen (their I2C transfers are the `I` fields).
+a calibration, `N1`/`N0` the pen, `Y<up>,<down>` its widths (their I2C transfers are the `I` fields).
 """
 
 try:
@@ -149,6 +149,10 @@ class PcaBridgeHal(bridgehal.BridgeHal):
     def write_pen(self, down):
         self.servos.pen(down)
         self.ops.append((bridgehal.PEN, bool(down)))
+
+    def set_pen_widths(self, up_us, down_us):
+        self.servos.set_pen_widths(up_us, down_us)
+        self.ops.append((bridgehal.PENW, (int(up_us), int(down_us))))
 
 
 class RegisterFile:
