@@ -379,7 +379,7 @@ def _touched(client, sample_ms: list[int]) -> np.ndarray | None:
     """An emulated board's answer, per sample, to whether its pen touched the paper (its hidden
     physics: simhal.py, pcahal.py); None for a real board, which cannot know."""
     emu = getattr(getattr(client, "port", None), "emulator", None)
-    hal = getattr(emu, "hal", None)
+    hal: Any = getattr(emu, "hal", None)
     if not hasattr(hal, "pen_touch_at_ms") or not getattr(hal, "has_pen", False):
         return None
     return np.array([hal.pen_touch_at_ms(ms) for ms in sample_ms], bool)

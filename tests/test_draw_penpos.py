@@ -1,0 +1,149 @@
+"""Pen heights and the pen's settle as options (issue 25 §4): PENPOS end to end.
+
+On the emulated boards (both rigs, CPython and the real MicroPython interpreter)
+the pen touches the paper only where the servo's pulse reaches the rig's contact
+width, so a down width short of it draws nothing and the run's summary says so;
+`draw` keeps the settings in the plan and `run` sends them unless its command
+line says otherwise; CALID keeps them across a power cycle; a board without a
+pen servo refuses them before any waypoint; bad values are one line, before any
+port opens. The firmware's own logic on a fake HAL: tests/firmware/test_fw_arm_pen.py."""
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+
+import pytest
+from rich.console import Console
+from typer.testing import CliRunner
+
+from armbridge.cli import build_app
+from armbridge.draw.build import build
+from armbridge.draw.sources import text_lines
+from armbridge.emulator.simhal import PEN_CONTACT_US, SimHal
+from armbridge.errors import ArmbridgeError
+from armbridge.executor.run import run_plan
+from armbridge.executor.session import open_session
+from armbridge.plans.format import load_plan
+from armbridge.robots import ARM3R, get_robot
+from cli_procs import ARMBRIDGE
+from require import require_micropython
+
+SHORT = 1500  # a down width that stops short of the default rig's contact width
+assert 1200 < SHORT < PEN_CONTACT_US < 1700   # the default rig: contact between the default up and down
+
+
+def _plan(text: str = "I"):
+    return build(text_lines(text), get_robot("arm3r"), name=text, source=f"text {text!r}", size=0.05,
+                 speed=0.03).plan
+
+
+RIGS = [pytest.param("", id="effort"), pytest.param("&servos=pca9685", id="pca9685"),
+        pytest.param("&interpreter=micropython", id="effort-micropython", marks=pytest.mark.hil),
+        pytest.param("&servos=pca9685&interpreter=micropython", id="pca9685-micropython", marks=pytest.mark.hil)]
+
+
+@pytest.mark.parametrize("rig", RIGS)
+def test_a_down_width_short_of_the_paper_draws_nothing(rig, ports, tmp_path):
+    if "micropython" in rig:
+        require_micropython()
+    plan = _plan()
+    url = "emu:esp32?speed=0" + rig
+    s = run_plan(plan, url, tmp_path / "a.rrd", progress=False)
+    d = s.drawing
+    assert s.completed and s.pen_pos is None and d["pen_down_samples"] > 50
+    assert d["pen_untouched"] < 0.2 * d["pen_down_samples"], d  # only while the pen travels down
+    s = run_plan(plan, url, tmp_path / "b.rrd", progress=False, pen_pos={"down_us": SHORT})
+    d = s.drawing
+    assert s.completed and s.pen_pos == {"up_us": 1200, "down_us": SHORT, "settle_ms": 150}
+    assert d["pen_down_samples"] > 50 and d["pen_untouched"] == d["pen_down_samples"], d
+    con = Console(record=True, width=200)
+    con.print(s.table())
+    assert f"{d['pen_untouched']} of {d['pen_down_samples']} pen-down samples did not touch" in con.export_text()
+
+
+def test_the_settle_option_is_the_boards_dwell(ports, tmp_path):
+    """--pen-wait: each pen-down segment waits it out on the board before it moves."""
+    plan = _plan()
+    s = run_plan(plan, "emu:esp32?speed=0", tmp_path / "r.rrd", progress=False, pen_pos={"settle_ms": 600})
+    assert s.completed and s.pen_pos["settle_ms"] == 600
+    emu = ports[0].emulator
+    done = {wid: ms for ms, wid, _ in emu.executed}
+    first_down = int(next(i for i in range(1, plan.k) if plan.pen[i] == 1 and plan.pen[i - 1] == 0))
+    assert done[first_down] - done[first_down - 1] >= 1000 * plan.durations[first_down] + 600 - 10
+
+
+def test_draw_keeps_the_settings_and_the_command_line_wins(tmp_path):
+    out, js = tmp_path / "i.json", tmp_path / "s.json"
+    r = CliRunner().invoke(build_app(), ["draw", "I", "--size", "0.05", "--speed", "0.03", "--out", str(out),
+                                         "--pen-down", str(SHORT), "--pen-wait", "100",
+                                         "--port", "emu:esp32?speed=0", "--rrd", str(tmp_path / "a.rrd"),
+                                         "--json", str(js), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "pen heights (PENPOS)" in r.output and "pen on the paper (emulated)" in r.output
+    assert load_plan(out).provenance["drawing"]["pen_pos"] == {"down_us": SHORT, "settle_ms": 100}
+    s = json.loads(js.read_text())
+    assert s["pen_pos"] == {"up_us": 1200, "down_us": SHORT, "settle_ms": 100}
+    assert s["drawing"]["pen_untouched"] == s["drawing"]["pen_down_samples"] > 0
+    # `run` of that plan: the plan's settings, the command line's over them
+    r = CliRunner().invoke(build_app(), ["run", str(out), "--port", "emu:esp32?speed=0", "--pen-down", "1650",
+                                         "--rrd", str(tmp_path / "b.rrd"), "--json", str(js), "--no-progress",
+                                         "--no-keys"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(js.read_text())
+    assert s["pen_pos"] == {"up_us": 1200, "down_us": 1650, "settle_ms": 100}
+    assert s["drawing"]["pen_untouched"] < 0.2 * s["drawing"]["pen_down_samples"]
+
+
+def test_a_board_without_a_pen_refuses_it_before_any_waypoint(ports, tmp_path, monkeypatch):
+    monkeypatch.setattr(SimHal, "has_pen", False)
+    with pytest.raises(ArmbridgeError, match=r"refused PENPOS \(VERB\).*no pen-lift servo") as e:
+        run_plan(_plan(), "emu:esp32?speed=0", tmp_path / "r.rrd", progress=False, pen_pos={"up_us": 1000})
+    assert "\n" not in str(e.value)
+    assert ports[0].emulator.executed == [] and not (tmp_path / "r.rrd").exists()
+    with pytest.raises(ArmbridgeError, match="not with --pen off"):
+        run_plan(_plan(), "emu:esp32?speed=0", tmp_path / "r.rrd", progress=False, pen="off",
+                 pen_pos={"up_us": 1000})
+
+
+def test_calid_keeps_the_pen_across_a_power_cycle(ports, tmp_path):
+    """Under the real MicroPython interpreter: PENPOS, CALID, then a new emulator on the same
+    board filesystem (a power cycle) comes up with the saved widths."""
+    require_micropython()
+    url = f"emu:esp32?interpreter=micropython&speed=0&fs={tmp_path / 'fs'}"
+    with open_session(url, ARM3R, calibration="ignore") as c:
+        c.command("PENPOS", 1000, 1900, 250)
+        c.command("CALID", 31)
+    assert "P=1000,1900,250" in (tmp_path / "fs" / "cal.txt").read_text()
+    with open_session(url, ARM3R, calibration="ignore") as c:
+        assert c.command("IDENT").payload[1] == "31"
+        c.command("PEN", 1)   # at rest: the pen moves now, to the saved down width
+        c.command("PING")
+        hal = ports[-1].emulator.hal
+        assert hal.pen_us_log and hal.pen_us_log[-1][1] == 1900
+
+
+def test_out_of_range_is_one_line_before_the_port_opens(tmp_path):
+    """The real program on a pty that nothing else holds: exit 2, one line naming the option and its
+    range, and not one byte on the port."""
+    plan = tmp_path / "p.json"
+    r = CliRunner().invoke(build_app(), ["draw", "I", "--out", str(plan)])
+    assert r.exit_code == 0, r.output
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        for args, what in ((["--pen-up", "3000"], "--pen-up 3000: outside 500..2500 us"),
+                           (["--pen-wait", "2001"], "--pen-wait 2001: outside 0..2000 ms")):
+            p = subprocess.run([ARMBRIDGE, "run", str(plan), "--port", port, "--no-progress", *args],
+                               capture_output=True, text=True, timeout=60)
+            assert p.returncode == 2, p.stderr
+            lines = p.stderr.strip().splitlines()
+            assert len(lines) == 1 and what in lines[0], p.stderr
+            assert select.select([master], [], [], 0)[0] == []   # nothing was written to the port
+    finally:
+        os.close(master)
+        os.close(slave)
+    r = CliRunner().invoke(build_app(), ["draw", "I", "--out", str(tmp_path / "q.json"), "--pen-down", "400"])
+    assert isinstance(r.exception, ArmbridgeError) and "--pen-down 400: outside 500..2500 us" in str(r.exception)
+    assert not (tmp_path / "q.json").exists()
