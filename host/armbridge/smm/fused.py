@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from armbridge.smm.stepping import SING_EVERY, STUCK, Ctx, Traces, embed, null_vector
+from armbridge.smm.stepping import SING_EVERY, STUCK, Ctx, Traces, embed, null_vector, start_state
 
 BLOCK = 16  # steps between two looks of the host (a multiple of SING_EVERY)
 MIN_BATCH = 64  # smallest batch size on CUDA (fewer sizes, fewer graphs; on the CPU a dead row costs its ops)
@@ -142,19 +142,7 @@ class Tracer:
         jac, _ = ctx.eval(q, x[loc], None if rt_all is None else rt_all[loc])
         u = null_vector(jac)  # eq. (6) fixes the direction; later steps keep its sign
         u = u / torch.linalg.vector_norm(u, dim=-1, keepdim=True).clamp_min(1e-300)
-        full = {
-            "q": q, "u": u, "start": embed(q), "x": x[loc], "es": embed(seeds)[loc],
-            "stopper": (pick[loc] & (torch.arange(n_seed, device=dev)[None, :] < idx[:, None])) | origin[loc],
-            "left": torch.zeros(a_count, dtype=torch.bool, device=dev),
-            "live": torch.ones(a_count, dtype=torch.bool, device=dev),
-            "fin": torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev),
-            "closed": torch.zeros(a_count, dtype=torch.bool, device=dev),
-            "stopped": torch.zeros(a_count, dtype=torch.bool, device=dev),
-            "singular": torch.zeros(a_count, dtype=torch.bool, device=dev),
-            "passed": torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev),
-        }
-        if rt_all is not None:
-            full["rt"] = rt_all[loc]
+        full = {"q": q, "u": u, **start_state(q, x, seeds, pick, origin, loc, idx, rt_all, max_steps)}
         hist: list[tuple[torch.Tensor, int, torch.Tensor]] = [(torch.arange(a_count, device=dev), 0, q[None])]
         rows = torch.arange(a_count, device=dev)  # trace of each row of `full` (sink: padding)
         live_rows = torch.arange(a_count, device=dev)  # rows of `full` live at the block's start

@@ -114,6 +114,31 @@ def embed(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.cos(q), torch.sin(q)], -1)
 
 
+def start_state(q: torch.Tensor, x: torch.Tensor, seeds: torch.Tensor, pick: torch.Tensor, origin: torch.Tensor,
+                loc: torch.Tensor, idx: torch.Tensor, rt_all: torch.Tensor | None, max_steps: int
+                ) -> dict[str, torch.Tensor]:
+    """The per-trace state both tracers start a wave from (this module's `trace`, fused.py's): where each
+    trace began, its target, the seeds it may stop at (picked ones of lower index and earlier origins),
+    and its flags, all rows live."""
+    a_count, n_seed, dev = q.shape[0], seeds.shape[1], q.device
+    st = {
+        "start": embed(q),
+        "x": x[loc],
+        "es": embed(seeds)[loc],  # (A, S, 2n)
+        "stopper": (pick[loc] & (torch.arange(n_seed, device=dev)[None, :] < idx[:, None])) | origin[loc],
+        "left": torch.zeros(a_count, dtype=torch.bool, device=dev),
+        "live": torch.ones(a_count, dtype=torch.bool, device=dev),
+        "fin": torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev),
+        "closed": torch.zeros(a_count, dtype=torch.bool, device=dev),
+        "stopped": torch.zeros(a_count, dtype=torch.bool, device=dev),
+        "singular": torch.zeros(a_count, dtype=torch.bool, device=dev),
+        "passed": torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev),
+    }
+    if rt_all is not None:
+        st["rt"] = rt_all[loc]
+    return st
+
+
 @dataclass
 class Traces:
     """The loops that one tracing wave kept, one per branch."""
@@ -154,21 +179,7 @@ def trace(ctx: Ctx, x: torch.Tensor, seeds: torch.Tensor, pick: torch.Tensor, or
     # The active batch.
     rows = torch.arange(a_count, device=dev)
     q = seeds[loc, idx]
-    st = {
-        "start": embed(q),
-        "x": x[loc],
-        "es": embed(seeds)[loc],  # (A, S, 2n)
-        "stopper": (pick[loc] & (torch.arange(n_seed, device=dev)[None, :] < idx[:, None])) | origin[loc],
-        "left": torch.zeros(a_count, dtype=torch.bool, device=dev),
-        "live": torch.ones(a_count, dtype=torch.bool, device=dev),
-        "fin": torch.full((a_count,), max_steps + 1, dtype=torch.long, device=dev),
-        "closed": torch.zeros(a_count, dtype=torch.bool, device=dev),
-        "stopped": torch.zeros(a_count, dtype=torch.bool, device=dev),
-        "singular": torch.zeros(a_count, dtype=torch.bool, device=dev),
-        "passed": torch.zeros(a_count, n_seed, dtype=torch.bool, device=dev),
-    }
-    if rt_all is not None:
-        st["rt"] = rt_all[loc]
+    st = start_state(q, x, seeds, pick, origin, loc, idx, rt_all, max_steps)
     hist: list[tuple[torch.Tensor, torch.Tensor]] = [(rows, q)]
     rhs = torch.zeros(a_count, n, 2, dtype=dt, device=dev)
     rhs[:, n - 1, 1] = 1
