@@ -147,3 +147,23 @@ def test_out_of_range_is_one_line_before_the_port_opens(tmp_path):
     r = CliRunner().invoke(build_app(), ["draw", "I", "--out", str(tmp_path / "q.json"), "--pen-down", "400"])
     assert isinstance(r.exception, ArmbridgeError) and "--pen-down 400: outside 500..2500 us" in str(r.exception)
     assert not (tmp_path / "q.json").exists()
+
+
+def test_board_pen_sets_and_saves_with_the_boards_calibration(tmp_path):
+    """`armbridge board pen`: PENPOS (and PEN with --lower); --save CALIDs again under the id the
+    board holds, so the host's calibration file still matches; a board with none is one line."""
+    fs = tmp_path / "fs"
+    url = f"emu:esp32?speed=0&fs={fs}"
+    r = CliRunner().invoke(build_app(), ["board", "pen", "--down", "1650", "--save", "--port", url])
+    assert isinstance(r.exception, ArmbridgeError) and "holds no calibration" in str(r.exception)
+    assert not (fs / "cal.txt").exists()
+    with open_session(url, ARM3R, calibration="ignore") as c:
+        c.command("CALID", 9)
+    r = CliRunner().invoke(build_app(), ["board", "pen", "--down", "1650", "--wait", "90", "--lower", "--save",
+                                         "--port", url])
+    assert r.exit_code == 0, r.output
+    assert "down 1650 us" in r.output and "saved with calibration 9" in r.output
+    assert (fs / "cal.txt").read_text().split()[:2] == ["ABC1", "9"]
+    assert "P=1200,1650,90" in (fs / "cal.txt").read_text()
+    r = CliRunner().invoke(build_app(), ["board", "pen", "--wait", "5000", "--port", url])
+    assert isinstance(r.exception, ArmbridgeError) and "--wait 5000: outside 0..2000 ms" in str(r.exception)

@@ -5,6 +5,7 @@
     armbridge board ping    --port socket://h:7000 round-trip times
     armbridge board clear   --port P [--yes]       clear a latched ESTOP/WDOG/FAULT (asks first)
     armbridge board rate 20 --port P               telemetry rate
+    armbridge board pen --down 1650 --port P       the pen servo's heights and settle (PENPOS; --save keeps them)
     armbridge board monitor --port P               live telemetry and events until Ctrl-C
 
 Each verb opens a new session (a board's queue is flushed and the arm stops
@@ -270,6 +271,39 @@ def rate_cmd(hz: int = typer.Argument(..., min=RATE_MIN, max=RATE_MAX, help=f"Te
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
         client.set_rate(hz)
     _out(None).print(f"telemetry rate {hz} Hz" + (" (off)" if hz == 0 else ""))
+
+
+# ---------------------------------------------------------------------- pen
+@board_app.command("pen")
+def pen_cmd(up: Optional[int] = typer.Option(None, "--up", metavar="US", help="Pen-up pulse width, us (500..2500)."),
+            down: Optional[int] = typer.Option(None, "--down", metavar="US",
+                                               help="Pen-down pulse width, us (500..2500)."),
+            wait: Optional[int] = typer.Option(None, "--wait", metavar="MS",
+                                               help="The board's dwell after a pen change, ms (0..2000)."),
+            pen_down: Optional[bool] = typer.Option(None, "--lower/--lift",
+                                                    help="Then put the pen down (or up), to see where it lands."),
+            save: bool = typer.Option(False, "--save", help="Keep them across a reboot: CALID again under the "
+                                                            "calibration id the board holds (armbridge calibrate)."),
+            port: str = _port_opt(), session: Optional[int] = _session_opt(),
+            timeout: float = _timeout_opt()) -> None:
+    """Set the pen-lift servo's heights and settle (PENPOS; the firmware's defaults for those not given)."""
+    from armbridge.executor.penpos import board_defaults, pen_pos_options, send_pen_pos
+
+    given = pen_pos_options(up, down, wait, ("--up", "--down", "--wait"))  # bad values: one line, before the port opens
+    pos = {**board_defaults(), **given}
+    with _verb(), board_session(port, session=session, timeout=timeout) as client:
+        send_pen_pos(client, pos)
+        if pen_down is not None:
+            client.command("PEN", int(pen_down))
+        if save:
+            cal = client.command("IDENT").payload[1]
+            if cal in ("0", 0):
+                raise BoardFailure("--save: the board holds no calibration to keep them with (IDENT cal 0); "
+                                   "run armbridge calibrate, which saves the pen too")
+            client.command("CALID", int(cal))
+    _out(None).print(f"pen up {pos['up_us']} us, down {pos['down_us']} us, settle {pos['settle_ms']} ms"
+                     + (f", saved with calibration {cal}" if save else " (until the board resets; --save keeps them)"),
+                     highlight=False)
 
 
 # ---------------------------------------------------------------------- monitor

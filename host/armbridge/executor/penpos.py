@@ -15,7 +15,8 @@ from armbridge.errors import ArmbridgeError
 from armbridge.link import protodef
 
 #: option -> (the PENPOS argument, its range): the protocol's own ranges
-OPTIONS = {"--pen-up": "up_us", "--pen-down": "down_us", "--pen-wait": "settle_ms"}
+NAMES = ("--pen-up", "--pen-down", "--pen-wait")
+OPTIONS = dict(zip(NAMES, ("up_us", "down_us", "settle_ms")))
 _RANGES = {name: (lo, hi) for name, lo, hi in protodef.COMMANDS["PENPOS"]}
 _UNITS = {"up_us": "us", "down_us": "us", "settle_ms": "ms"}
 
@@ -27,11 +28,12 @@ def _check(name: str, value, label: str) -> int:
     return value
 
 
-def pen_pos_options(up: int | None, down: int | None, wait: int | None) -> dict[str, int]:
+def pen_pos_options(up: int | None, down: int | None, wait: int | None,
+                    names: tuple[str, str, str] = NAMES) -> dict[str, int]:
     """The pen options given (None: not given) as PENPOS's names; ArmbridgeError (one line,
-    the option and its range) for a value outside the protocol's range."""
-    return {OPTIONS[opt]: _check(OPTIONS[opt], value, opt)
-            for opt, value in zip(OPTIONS, (up, down, wait)) if value is not None}
+    the option, as `names` spells it, and its range) for a value outside the protocol's range."""
+    return {OPTIONS[opt]: _check(OPTIONS[opt], value, label)
+            for opt, label, value in zip(OPTIONS, names, (up, down, wait)) if value is not None}
 
 
 def check_pen_pos(given, where: str = "pen_pos") -> dict[str, int]:
