@@ -174,3 +174,17 @@ def test_a_margin_that_leaves_no_path_says_so_and_writes_nothing(tmp_path):
     assert "found no path to the goal of E1 in 100 iterations" in r.stdout + r.stderr
     assert "or a smaller --margin" in r.stdout + r.stderr
     assert not (tmp_path / "p.json").exists()
+
+
+def test_a_run_of_a_planned_path_reports_its_planned_clearance_and_margin(tmp_path):
+    """`plan masr --margin 3` on E1, then the plan on the emulated MA (lockstep): the run's summary carries
+    the plan's margin and least clearance beside the MA's pose error."""
+    from armbridge.executor.run import run_plan
+
+    r = _plan(tmp_path, "--margin", "3", "--json", str(tmp_path / "s.json"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    s = json.loads((tmp_path / "s.json").read_text())
+    run = run_plan(tmp_path / "p.json", "emu:masr_ma?speed=0&seed=5", tmp_path / "r.rrd", progress=False, home=True)
+    assert run.masr["margin_mm"] == 3.0
+    assert run.masr["clearance_min_mm"] == pytest.approx(s["clearance_min_mm"], abs=1e-3)
+    assert run.completed

@@ -159,7 +159,8 @@ def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, 
     (`tau_s`, `tau_ratio`), and the dead reckoning the final d
     rests on (`dead_reckoning`): `dead_reckoning_mm` since the magnet of joint `last_magnet`,
     and `d_bound_mm`, the board's bound there under its slip model (`board_localisation`);
-    a slip beyond that model after the last magnet is not seen by the board."""
+    a slip beyond that model after the last magnet is not seen by the board. A plan `plan masr` made
+    also gives the margin it was planned for and its least clearance (`margin_mm`, `clearance_min_mm`)."""
     mp = _plan(mp)
     tau = M.total_time(mp)
     planned = planned_time(mp)
@@ -174,6 +175,11 @@ def masr_report(mp, final_q: np.ndarray | None, executed_s: float) -> dict[str, 
     g = M.goal(mp)
     if g is not None:
         out.update(e_p_mm=g[1] * 1000.0, e_phi_deg=float(np.degrees(g[2])))
+    prov = _plan(mp).provenance
+    if isinstance(prov, dict) and isinstance(prov.get("margin_mm"), (int, float)):  # `plan masr` wrote them
+        least = prov.get("clearance_min_mm")
+        out.update(margin_mm=float(prov["margin_mm"]),
+                   clearance_min_mm=float(least) if isinstance(least, (int, float)) else None)
     if final_q is None:
         out.update(dp_mm=None, dphi_deg=None)
         return out

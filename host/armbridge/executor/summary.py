@@ -185,6 +185,9 @@ class Summary:
             t.add_row("MA pose error at the end (dp / dphi)", f"{_f(m.get('dp_mm'), 2)} mm / {_f(m.get('dphi_deg'), 2)} deg")
             t.add_row("action time (run / planned / tau)",
                       f"{_f(m.get('executed_s'), 2)} s / {_f(m.get('planned_s'), 2)} s / {_f(m.get('tau_s'), 2)} s")
+            if m.get("margin_mm") is not None:  # the plan's own (plan masr: planning/masr/margin.py)
+                t.add_row("planned clearance (least / margin)",
+                          f"{_f(m.get('clearance_min_mm'), 2)} mm / {_f(m['margin_mm'], 2)} mm")
             if m.get("dead_reckoning_mm") is not None:  # what no magnet checked (executor/masr.py)
                 t.add_row("MA d at the end: dead reckoning",
                           f"{m['dead_reckoning_mm']:.0f} mm since magnet {m['last_magnet']}: within "
