@@ -97,6 +97,7 @@ SERVO_CAL = ((500, -785, 2500, 3927), (500, -3927, 2500, 785), (500, -2356, 2500
 # pen servo, and the PEN verb is refused VERB).
 PEN_CHANNEL = 3
 PEN_PIN = 14
+# The next three are defaults: PENPOS sets them (arm_pen.py) and CALID keeps them.
 PEN_UP_US = 1200
 PEN_DOWN_US = 1700
 PEN_SETTLE_MS = 150                 # a pen change waits this long before the next move
