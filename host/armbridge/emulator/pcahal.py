@@ -26,6 +26,8 @@ from collections import deque
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
+
 from armbridge.boards import joint_limits_rad
 from armbridge.emulator.i2c import SimI2C
 from armbridge.emulator.pca9685 import Pca9685Model
@@ -103,20 +105,19 @@ class PcaSimHal(SimHal):
     def pen_changes(self) -> list[tuple[float, bool]]:
         return self.rig.pen_changes
 
-    def pen_down_at(self, t: float, sync: bool = True) -> bool:
-        """Whether the pen touched the paper at time t (s): the pen servo's position
-        (`sync` False: from another thread, as far as the plant has run)."""
-        if sync:
-            self._sync()
-        down = False
-        for at, d in self.rig.pen_changes:
-            if at > t:
-                break
-            down = d
-        return down
+    def pen_down_at(self, t: float) -> bool:
+        """Whether the pen touched the paper at time t (s): the pen servo's position."""
+        self._sync()
+        return bool(self.pen_touching([t])[0])
 
-    def pen_touch_at_ms(self, ms: int) -> bool:
-        return self.pen_down_at(self._board_t(ms), sync=False)
+    def pen_touching(self, ts) -> np.ndarray:
+        """pen_down_at for many times (s), as far as the plant has run (no sync: callable
+        from another thread)."""
+        changes = list(self.rig.pen_changes)
+        at = np.array([c[0] for c in changes], float)
+        down = np.array([c[1] for c in changes], bool)
+        i = np.searchsorted(at, np.asarray(ts, float), side="right") - 1
+        return np.where(i >= 0, down[np.maximum(i, 0)] if len(down) else False, False)
 
     # the HAL -------------------------------------------------------------
     def write_positions(self, q) -> None:

@@ -35,8 +35,11 @@ from what it emulates (a drawn plant is another physical board).
 """
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import Callable
+
+import numpy as np
 
 from armbridge.boards import ESP32_RTC_MEMORY
 from armbridge.emulator.plant import ServoPlant
@@ -55,6 +58,14 @@ PEN_CONTACT_US = 1550.0
 def ticks_diff(a: int, b: int) -> int:
     """Signed a - b for tick values that wrap at 2**30 (MicroPython semantics)."""
     return ((a - b + TICKS_HALF) & TICKS_MAX) - TICKS_HALF
+
+
+def in_intervals(ts: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Whether each time lies in one of the sorted, disjoint intervals [starts[i], ends[i])."""
+    i = np.searchsorted(starts, ts, side="right") - 1
+    inside = i >= 0
+    inside[inside] = ts[inside] < ends[i[inside]]
+    return inside
 
 
 def ticks_add(t: int, delta: int) -> int:
@@ -198,22 +209,32 @@ class SimHal:
 
     def pen_down_at(self, t: float) -> bool:
         """Whether the pen touched the paper at time t (s)."""
-        since = None  # when the pen (commanded to a touching width) meets the paper
-        for at, us in self.pen_us_log:
-            if at > t:
-                break
-            if not self.pen_touches(us):
-                since = None
-            elif since is None:
-                since = at + self.pen_travel_s
-        return since is not None and t >= since
+        return bool(self.pen_touching([t])[0])
 
-    def pen_touch_at_ms(self, ms: int) -> bool:
-        """pen_down_at the board time `ms` (ticks_ms) stands for."""
-        return self.pen_down_at(self._board_t(ms))
+    def pen_touching(self, ts) -> np.ndarray:
+        """pen_down_at for many times (s) at once."""
+        starts, ends = [], []   # the pen on the paper: [start, end) from the log
+        since = None            # when the pen (commanded to a touching width) meets the paper
+        for at, us in list(self.pen_us_log):
+            if self.pen_touches(us):
+                if since is None:
+                    since = at + self.pen_travel_s
+                continue
+            if since is not None and at > since:
+                starts.append(since)
+                ends.append(at)
+            since = None
+        if since is not None:
+            starts.append(since)
+            ends.append(math.inf)
+        return in_intervals(np.asarray(ts, float), np.array(starts, float), np.array(ends, float))
 
-    def _board_t(self, ms: int) -> float:
-        return ((int(ms) - self.tick_offset_ms) & TICKS_MAX) / 1000.0
+    def pen_touch_at_ms(self, ms) -> np.ndarray:
+        """pen_touching at the board times `ms` (ticks_ms) stand for."""
+        return self.pen_touching(self._board_t(ms))
+
+    def _board_t(self, ms) -> np.ndarray:
+        return ((np.asarray(ms, np.int64) - self.tick_offset_ms) & TICKS_MAX) / 1000.0
 
     # files ---------------------------------------------------------------
     def read_file(self, name) -> bytes | None:

@@ -382,4 +382,4 @@ def _touched(client, sample_ms: list[int]) -> np.ndarray | None:
     hal: Any = getattr(emu, "hal", None)
     if not hasattr(hal, "pen_touch_at_ms") or not getattr(hal, "has_pen", False):
         return None
-    return np.array([hal.pen_touch_at_ms(ms) for ms in sample_ms], bool)
+    return np.asarray(hal.pen_touch_at_ms(np.array(sample_ms, np.int64)), bool)
