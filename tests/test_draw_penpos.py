@@ -167,3 +167,17 @@ def test_board_pen_sets_and_saves_with_the_boards_calibration(tmp_path):
     assert "P=1200,1650,90" in (fs / "cal.txt").read_text()
     r = CliRunner().invoke(build_app(), ["board", "pen", "--wait", "5000", "--port", url])
     assert isinstance(r.exception, ArmbridgeError) and "--wait 5000: outside 0..2000 ms" in str(r.exception)
+
+
+@pytest.mark.parametrize("device", ["arduino_pump", "masr_ma"])
+def test_the_boards_without_a_pen_answer_verb_and_run_on(device):
+    """The pump board's C sketch (in simavr) and the MASR actuator know PENPOS's shape from the
+    shared table, and refuse it as a verb they do not implement; the board keeps answering."""
+    from armbridge.link import protocol as P
+
+    with open_session(f"emu:{device}?speed=0", None, calibration="ignore") as c:
+        ans = c.ask("PENPOS", 1200, 1700, 150)
+        assert isinstance(ans, P.Er) and ans.code == P.VERB, ans
+        ans = c.ask("PENPOS", 1200, 1700, 5000)   # the range is checked first, as for every verb
+        assert isinstance(ans, P.Er) and ans.code == P.RANGE and ans.detail == ("settle_ms",), ans
+        assert c.stat()[0] == "IDLE"
