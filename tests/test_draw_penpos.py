@@ -181,3 +181,45 @@ def test_the_boards_without_a_pen_answer_verb_and_run_on(device):
         ans = c.ask("PENPOS", 1200, 1700, 5000)   # the range is checked first, as for every verb
         assert isinstance(ans, P.Er) and ans.code == P.RANGE and ans.detail == ("settle_ms",), ans
         assert c.stat()[0] == "IDLE"
+
+
+def _next(proc, text: str, start: int) -> int:
+    """The index of the first line of `proc` from `start` on that holds `text` (waiting for it)."""
+    while True:
+        for i in range(start, len(proc.lines)):
+            if text in proc.lines[i]:
+                return i
+        line = proc._q.get(timeout=60)
+        assert line is not None, f"the emulator ended without {text!r}: {proc.lines[-8:]}"
+        proc.lines.append(line)
+
+
+def test_over_a_pty_to_armbridge_emulate(tmp_path):
+    """The real programs, as a user runs them: `armbridge emulate esp32 --servos pca9685` on a pty,
+    `armbridge run --pen-down --pen-wait` to it (PENPOS before the first waypoint, the summary's
+    pen_pos), then `armbridge board pen --lower` (the pen at rest settles at the new width)."""
+    from cli_procs import Proc, emulated_board
+
+    plan = tmp_path / "i.json"
+    r = CliRunner().invoke(build_app(), ["draw", "I", "--size", "0.03", "--speed", "0.05", "--out", str(plan)])
+    assert r.exit_code == 0, r.output
+    board = emulated_board(tmp_path, "--speed", "4", "--servos", "pca9685")
+    emu, link = next(board)
+    try:
+        run = Proc("run", str(plan), "--port", link, "--pen-down", "1650", "--pen-wait", "60", "--json", "-",
+                   "--rrd", str(tmp_path / "r.rrd"), "--no-progress", "--no-keys")
+        rc, err = run.finish(timeout=120)
+        assert rc == 0, err
+        s = json.loads("\n".join(run.lines))
+        assert s["completed"] and s["pen_pos"] == {"up_us": 1200, "down_us": 1650, "settle_ms": 60}
+        assert "pen_untouched" not in s["drawing"]   # a board on a pty: the host cannot know where the tip is
+        seen = _next(emu, " PEN 0*", 0) + 1      # the run's last event: the pen lifted at the end
+        pen = Proc("board", "pen", "--up", "1100", "--down", "1800", "--wait", "40", "--lower", "--port", link)
+        rc, err = pen.finish(timeout=60)
+        assert rc == 0 and "pen up 1100 us, down 1800 us, settle 40 ms" in " ".join(pen.lines), (err, pen.lines)
+        # the pen at rest went to its new up width and settled (PEN 0), then down (PEN 1): new events
+        _next(emu, " PEN 1*", seen)
+        events = [ln.split(" PEN ")[1][0] for ln in emu.lines[seen:] if " EV " in ln and " PEN " in ln]
+        assert events == ["0", "1"], emu.lines[seen:]
+    finally:
+        board.close()
