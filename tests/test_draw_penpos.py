@@ -223,3 +223,26 @@ def test_over_a_pty_to_armbridge_emulate(tmp_path):
         assert events == ["0", "1"], emu.lines[seen:]
     finally:
         board.close()
+
+
+@pytest.mark.parametrize("rig, seed", [("", 4), ("&servos=pca9685", 3)], ids=["effort", "pca9685"])
+def test_a_drawn_rig_has_its_own_contact_width(rig, seed, ports, tmp_path):
+    """plant=random draws the rig's contact width (its hidden truth, emulator/truth.py): a down width
+    20 us short of it draws nothing, one 40 us past it draws. (Seeds 4 and 3 draw about 1619 and
+    1626 us, past the default rig's 1550.)"""
+    from armbridge.emulator.plant import hidden_truth as effort_truth
+    from armbridge.emulator.servo_plant import hidden_truth as pca_truth
+    from armbridge.emulator.truth import truth_rng
+
+    url = f"emu:esp32?speed=0&plant=random&seed={seed}{rig}"
+    s = run_plan(_plan(), url, tmp_path / "a.rrd", progress=False, pen_pos={"down_us": 1600})
+    hal = ports[-1].emulator.hal
+    truth = (pca_truth if rig else effort_truth)(hal.rig.cfg if rig else ports[-1].emulator.cfg, truth_rng(seed))
+    contact = truth.pen_contact_us
+    assert 1600 < contact < 1640 and contact != PEN_CONTACT_US
+    assert (hal.rig.pen.contact_us if rig else hal.pen_contact_us) == contact   # the drawn truth is the physics
+    d = s.drawing
+    assert s.completed and d["pen_untouched"] == d["pen_down_samples"] > 50, d
+    s = run_plan(_plan(), url, tmp_path / "b.rrd", progress=False, pen_pos={"down_us": int(contact) + 40})
+    d = s.drawing
+    assert s.completed and d["pen_untouched"] < 0.2 * d["pen_down_samples"], d

@@ -53,6 +53,7 @@ def test_the_same_seed_gives_the_same_plant_and_another_seed_another(cfg, rig):
 
 @pytest.mark.parametrize("rig", sorted(RIGS))
 def test_every_drawn_value_is_one_per_joint_within_its_bounds(cfg, rig):
+    """(The rig's pen contact width, `pen_contact_us`, is one value for the rig.)"""
     truth, spreads, _ = RIGS[rig]
     n = joint_limits_rad(cfg)[0].size
     seen = {s.field: [] for s in spreads}
@@ -60,7 +61,11 @@ def test_every_drawn_value_is_one_per_joint_within_its_bounds(cfg, rig):
         p = truth(cfg, truth_rng(seed))
         for s in spreads:
             v = getattr(p, s.field)
-            assert isinstance(v, tuple) and len(v) == n, s.field
+            if s.per_joint:
+                assert isinstance(v, tuple) and len(v) == n, s.field
+            else:
+                assert isinstance(v, float), s.field
+                v = (v,)
             assert all(s.lo <= x <= s.hi for x in v), (s.field, v)
             seen[s.field] += v
     for s in spreads:   # the draws really spread (not stuck at a bound)

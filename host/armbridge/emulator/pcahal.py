@@ -16,7 +16,7 @@ Records, besides SimHal's (outputs_off_at / outputs_on_at, estop_byte_at, and
 pen_log: (t, down) of every write_pen): `positions` ((t, q) of every
 write_positions), `calibrations` ((t, j0, us_a, mrad_a, us_b, mrad_b)) and
 `pen_changes` ((t, down) when the pen servo's angle reached or left that of
-its contact width, simhal.PEN_CONTACT_US: where the tip meets the paper);
+its contact width, the plant's `pen_contact_us`: where the tip meets the paper);
 `pen_down_at(t)` answers from those, the servo's own travel, whatever widths
 the firmware sends (PENPOS: `pen_widths_log`, (t, up_us, down_us)).
 """
@@ -54,7 +54,8 @@ def rig_plant(cfg: Any, params: ServoParams | None, q0, seed: int) -> Positional
     mapping = [(c[0], c[1] / 1000.0, c[2], c[3] / 1000.0) for c in cfg.SERVO_CAL]
     pen = None
     if getattr(cfg, "PEN_CHANNEL", None) is not None:
-        pen = PenServo(up_us=float(cfg.PEN_UP_US), down_us=float(cfg.PEN_DOWN_US), contact_us=PEN_CONTACT_US)
+        contact = params.pen_contact_us if params is not None else PEN_CONTACT_US  # a drawn rig's own
+        pen = PenServo(up_us=float(cfg.PEN_UP_US), down_us=float(cfg.PEN_DOWN_US), contact_us=contact)
     plant = PositionalPlant(lo, hi, mapping, params, q0=q0, seed=seed, pen=pen)
     plant.cfg = cfg
     return plant

@@ -56,6 +56,8 @@ class PlantParams:
     backlash    0 rad       gear play between the motor and the joint (total)
     zero_offset 0 rad       the pot reads the joint this far off
     pot_gain    1           the pot's scale about the middle of the joint's range
+    pen_contact_us 1550 us  the pen-lift servo's pulse at which the tip meets the paper
+                            (PEN_CONTACT_US; the pen is the HAL's, simhal.py)
     """
 
     v_servo: PerJoint = 5.0
@@ -69,6 +71,18 @@ class PlantParams:
     backlash: PerJoint = 0.0
     zero_offset: PerJoint = 0.0
     pot_gain: PerJoint = 1.0
+    pen_contact_us: float = 1550.0
+
+
+#: the default rig's pen contact width (us): between the default config's PEN_UP_US (1200) and
+#: PEN_DOWN_US (1700), nearer down (the lift clears the paper)
+PEN_CONTACT_US = PlantParams.pen_contact_us
+#: how far a drawn rig's contact width strays (truth.py): both SPREADS use it
+PEN_CONTACT_SPREAD = Spread(
+    "pen_contact_us", "normal", 40.0, lo=1450.0, hi=1650.0, unit="us",
+    source="where the pen tip meets the paper: the pen's length in its holder and the paper's height, against "
+           "the lift's 0.09 deg/us (SG90 class, 180 deg over 2000 us: about 0.3 mm a 10 us step on a 20 mm horn); "
+           "+-40 us, our estimate, bounded so that the default widths (up 1200, down 1700) still lift and draw")
 
 
 #: the typical board the spreads are about: the neutral fields at their typical values
@@ -94,6 +108,7 @@ SPREADS: tuple[Spread, ...] = (
                   "hobbyists; the DS3235 data sheet gives none)"),
     Spread("sigma", "scale", 0.3, per_joint=True, lo=0.0005, hi=0.003, unit="rad",
            source="pot wiper noise and ESP32 ADC noise (a few LSB rms uncalibrated): 1 mrad +-30 %"),
+    PEN_CONTACT_SPREAD,
 )
 
 

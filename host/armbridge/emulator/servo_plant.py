@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from armbridge.boards import joint_limits_rad
-from armbridge.emulator.plant import PerJoint, Pots, play
+from armbridge.emulator.plant import PEN_CONTACT_SPREAD, PEN_CONTACT_US, PerJoint, Pots, play
 from armbridge.emulator.truth import Spread, draw
 
 #: the pulse widths of a nominal servo's ends of travel (us): SERVO_CAL's frame
@@ -70,6 +70,7 @@ class ServoParams:
     backlash     0 rad       gear play between the servo's shaft and the joint (total)
     zero_offset  0 rad       the feedback pot reads the joint this far off
     pot_gain     1           the feedback pot's scale about the middle of the joint's range
+    pen_contact_us 1550 us   the rig's pen servo: the pulse at which its tip meets the paper
     """
 
     w_max: PerJoint = 7.0
@@ -87,6 +88,7 @@ class ServoParams:
     backlash: PerJoint = 0.0
     zero_offset: PerJoint = 0.0
     pot_gain: PerJoint = 1.0
+    pen_contact_us: float = PEN_CONTACT_US
 
 
 # The pen-lift servo: 9 g, 180 deg over 500..2500 us (SG90 class), 0.1 s/60 deg.
@@ -122,6 +124,7 @@ SPREADS: tuple[Spread, ...] = (
                   "linearity (+-1..3 %); bounded at +-6 % (uncalibrated Vref)"),
     Spread("sigma", "scale", 0.3, per_joint=True, lo=0.0005, hi=0.003, unit="rad",
            source="pot wiper noise and ESP32 ADC noise (a few LSB rms uncalibrated): 1 mrad +-30 %"),
+    PEN_CONTACT_SPREAD,
 )
 
 

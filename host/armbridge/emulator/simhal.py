@@ -19,7 +19,8 @@ logs (time, down) in `pen_log`, and the pulse width it commands (the up or
 down width: the config's PEN_UP_US / PEN_DOWN_US until `set_pen_widths`,
 the firmware's PENPOS) in `pen_us_log`. The pen touches the paper only when
 the commanded width reaches `pen_contact_us` (a physical fact of the rig: where
-the tip meets the paper, PEN_CONTACT_US between the default widths; on the
+the tip meets the paper, the plant's `pen_contact_us`, PEN_CONTACT_US between
+the default widths unless a hidden truth drew another; on the
 side of the down width, `pen_contact_above`), `pen_travel_s` after the
 command that brought it there, and leaves it at once: `pen_down_at(t)` is
 whether it touched at time t (`pen_touch_at_ms`: at a board time).
@@ -42,7 +43,7 @@ from typing import Callable
 import numpy as np
 
 from armbridge.boards import ESP32_RTC_MEMORY
-from armbridge.emulator.plant import ServoPlant
+from armbridge.emulator.plant import PEN_CONTACT_US, ServoPlant
 from armbridge.emulator.uart import PacedUart
 
 TICKS_PERIOD = 1 << 30
@@ -50,9 +51,6 @@ TICKS_MAX = TICKS_PERIOD - 1
 TICKS_HALF = TICKS_PERIOD >> 1
 ESTOP_BYTE = 0x98
 RTC_MEMORY_SIZE = ESP32_RTC_MEMORY  # bytes of ESP32 RTC user memory
-# The emulated rigs' pen: the pulse width (us) at which the tip meets the paper, between the
-# default config's PEN_UP_US (1200) and PEN_DOWN_US (1700), nearer down (the lift clears the paper)
-PEN_CONTACT_US = 1550.0
 
 
 def ticks_diff(a: int, b: int) -> int:
@@ -137,7 +135,8 @@ class SimHal:
         self.pen_travel_s = 0.15  # servo travel up <-> down (the firmware waits PEN_SETTLE_MS)
         self.pen_log: list[tuple[float, bool]] = []
         self.pen_widths = (1200.0, 1700.0)  # (up, down) us: the default config's, until set_pen_widths
-        self.pen_contact_us = PEN_CONTACT_US
+        # where the tip meets the paper: the plant's (a drawn plant's own), else the default rig's
+        self.pen_contact_us = float(getattr(getattr(plant, "p", None), "pen_contact_us", PEN_CONTACT_US))
         self.pen_contact_above = True  # the paper is on the long-pulse side (the default config's down)
         self.pen_us_log: list[tuple[float, float]] = []  # (t, us) every width the pen servo was sent
         self._line = bytearray()
