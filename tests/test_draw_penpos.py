@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import select
+import shutil
 import subprocess
 
 import pytest
@@ -21,11 +22,13 @@ from typer.testing import CliRunner
 from armbridge.cli import build_app
 from armbridge.draw.build import build
 from armbridge.draw.sources import text_lines
+from armbridge.emulator.board import EmulatedBoard
 from armbridge.emulator.simhal import PEN_CONTACT_US, SimHal
 from armbridge.errors import ArmbridgeError
 from armbridge.executor.run import run_plan
 from armbridge.executor.session import open_session
 from armbridge.plans.format import load_plan
+from armbridge.resources import firmware_dir
 from armbridge.robots import ARM3R, get_robot
 from cli_procs import ARMBRIDGE
 from require import require_micropython
@@ -105,6 +108,35 @@ def test_a_board_without_a_pen_refuses_it_before_any_waypoint(ports, tmp_path, m
     with pytest.raises(ArmbridgeError, match="not with --pen off"):
         run_plan(_plan(), "emu:esp32?speed=0", tmp_path / "r.rrd", progress=False, pen="off",
                  pen_pos={"up_us": 1000})
+    # settings the plan carries (armbridge draw's) under --pen auto: no servo, nothing to set; the pen-up
+    # moves are marked as ever. Under --pen on the board must take them.
+    plan = _plan()
+    plan.provenance["drawing"]["pen_pos"] = {"down_us": 1650}
+    s = run_plan(plan, "emu:esp32?speed=0", tmp_path / "m.rrd", progress=False)
+    assert s.completed and s.pen == "marked" and s.pen_pos is None
+    with pytest.raises(ArmbridgeError, match=r"no pen-lift servo; the plan carries them .*--pen off"):
+        run_plan(plan, "emu:esp32?speed=0", tmp_path / "o.rrd", progress=False, pen="on")
+
+
+def test_a_firmware_older_than_penpos_is_told_apart(tmp_path):
+    """A board whose firmware has the pen servo (PEN) but not PENPOS, on a real pty: the run stops
+    before any waypoint, saying the firmware is the reason, not the servo."""
+    root = tmp_path / "fw"
+    shutil.copytree(firmware_dir() / "common", root / "common")
+    shutil.copytree(firmware_dir() / "esp32", root / "esp32")
+    arm = root / "esp32" / "arm.py"
+    src = arm.read_text()
+    old = src.replace('            self.verbs["PENPOS"] = self.pen.cmd_penpos\n', "")
+    assert old != src
+    arm.write_text(old)
+    link = str(tmp_path / "arm")
+    emu = EmulatedBoard("esp32", link=link, firmware_root=root).start()
+    try:
+        with pytest.raises(ArmbridgeError, match=r"has a pen-lift servo \(PEN works\) but its firmware predates"):
+            run_plan(_plan(), link, tmp_path / "r.rrd", progress=False, pen_pos={"down_us": 1650})
+        assert emu.executed == [] and not (tmp_path / "r.rrd").exists()
+    finally:
+        emu.stop()
 
 
 def test_calid_keeps_the_pen_across_a_power_cycle(ports, tmp_path):

@@ -292,7 +292,7 @@ def pen_cmd(up: Optional[int] = typer.Option(None, "--up", metavar="US", help="P
     given = pen_pos_options(up, down, wait, ("--up", "--down", "--wait"))  # bad values: one line, before the port opens
     pos = {**board_defaults(), **given}
     with _verb(), board_session(port, session=session, timeout=timeout) as client:
-        send_pen_pos(client, pos)
+        send_pen_pos(client, pos)   # refused: one line, exit 1
         if pen_down is not None:
             client.command("PEN", int(pen_down))
         if save:

@@ -62,16 +62,25 @@ def resolve(plan_pen_pos: dict | None, cli: dict[str, int] | None) -> dict[str, 
     return {**board_defaults(), **given}
 
 
-def send_pen_pos(client, pos: dict[str, int]) -> None:
-    """PENPOS up down settle, answered OK, else ArmbridgeError (one line; nothing streamed yet)."""
+def send_pen_pos(client, pos: dict[str, int], required: bool = True, hint: str = "") -> bool:
+    """PENPOS up down settle -> True when the board took it. A refusal is PenRefused (one line;
+    nothing streamed yet), saying which of the two VERB means: a pen servo (PEN works) on a
+    firmware older than PENPOS, or no pen servo at all, which is no error when not `required`
+    (the plan's own settings under --pen auto: the board draws with pen-up moves marked) -> False.
+    `hint`: what the user can do instead, for the message."""
     from armbridge.link import protocol as P
 
     ans = client.ask("PENPOS", pos["up_us"], pos["down_us"], pos["settle_ms"])
-    if isinstance(ans, P.Er):
-        if ans.code == P.VERB:
-            raise PenRefused("the board refused PENPOS (VERB): it has no pen-lift servo, or its firmware predates "
-                             "PENPOS; run without --pen-up/--pen-down/--pen-wait")
+    if not isinstance(ans, P.Er):
+        return True
+    if ans.code != P.VERB:
         raise PenRefused(f"the board refused PENPOS {pos['up_us']} {pos['down_us']} {pos['settle_ms']}: {ans}")
+    if client.can("PEN", 0):
+        raise PenRefused("the board refused PENPOS (VERB): it has a pen-lift servo (PEN works) but its firmware "
+                         "predates PENPOS; flash a newer one" + (f", or {hint}" if hint else ""))
+    if not required:
+        return False
+    raise PenRefused("the board refused PENPOS (VERB): it has no pen-lift servo" + (f"; {hint}" if hint else ""))
 
 
 class PenRefused(ArmbridgeError):

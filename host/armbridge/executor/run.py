@@ -204,8 +204,10 @@ def run_plan(
                 if cartesian:
                     check_board_ik(c)
                 if pen_set is not None and pen != "off":  # before the PEN probe and the first waypoint
-                    penpos.send_pen_pos(c, pen_set)
-                    summary.pen_pos = pen_set
+                    hint = ("run without --pen-up/--pen-down/--pen-wait" if pen_pos else
+                            "the plan carries them (drawing.pen_pos, from armbridge draw): run with --pen off")
+                    if penpos.send_pen_pos(c, pen_set, required=bool(pen_pos) or pen == "on", hint=hint):
+                        summary.pen_pos = pen_set
                 flags = pen_flags(c, plan, pen, summary)
                 band = c.settle_tolerance(robot.dof)  # None: the board has no dead band
                 bar = pause.bar = _progress_bar(plan, console) if progress else None
