@@ -135,8 +135,7 @@ class SimBoard:
         self.hal = spec.hal(self.clock, self.plant, self.uart, self.persist,
                             tick_offset_ms=tick_offset_ms, on_line=self._tap, files=board_files(self.cfg))
         self.hal.uid_hex = board_uid(self.device, self.plant_kind, seed)
-        if hasattr(self.hal, "rig_pen"):  # the pen's widths from the config, and the side its paper is on
-            self.hal.rig_pen(self.cfg)
+        getattr(self.hal, "rig_pen", lambda cfg: None)(self.cfg)  # the pen's widths, its paper's side
         self.fs: BoardFs | None = None
         self.console: Console | None = None
         if isinstance(spec.firmware, MicroPythonFirmware):
