@@ -216,6 +216,11 @@ def run(size: MasrPlanBenchSize, card: Path = CARD_12, parts: tuple[str, ...] = 
                                           "cpu": platform.processor() or platform.machine()},
                               "shards": runner.backend if runner is not None else "serial"}
     t0 = time.perf_counter()
+    from armbridge.planning.base import compile_note
+
+    note = compile_note("masr")
+    if note is not None:
+        progress(note)
     if "timing" in parts:
         result["timing"] = timing(size, goal_ik(card), progress)
     if "ompl" in parts:

@@ -241,6 +241,7 @@ def run(size: WjrrtBenchSize, scenes: Sequence[Any] = (), planners: Sequence[str
     loaded, groups = resolve_scenes(names)  # a bad name, file or spec fails before any work
     skipped = {pl: why for pl in planners if pl in OMPL and (why := ompl_planners.missing(pl))}
     active = [pl for pl in planners if pl not in skipped]
+    progress("warming up every planner on a tiny scene (numba compiles on first use, up to a minute) ...")
     warm_s = warm_up(active, res)
     result: dict[str, Any] = {
         "benchmark": "wjrrt (Table 1 of the WJRRT paper, with OMPL)", "size": asdict(size), "res_m": res,
