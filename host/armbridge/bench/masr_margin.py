@@ -24,11 +24,11 @@ def margins(runs: int, goal_ik: Callable, progress: Callable[[str], None] = lamb
     from armbridge.planning.masr.environment import FIXED, fixed_environment
     from armbridge.planning.masr.margin import execution_margin, path_clearance
 
-    out: dict[str, Any] = {"iterations": ITERATIONS, "runs": runs, "p_c": 0.6, "environments": {}}
-    for name in FIXED:
-        env = fixed_environment(name)
-        bound = execution_margin(env.arm)
-        out["execution_bound_mm"] = bound * 1000.0
+    envs = {name: fixed_environment(name) for name in FIXED}
+    bound = execution_margin(envs[FIXED[0]].arm)  # E1-E3 share their arm
+    out: dict[str, Any] = {"iterations": ITERATIONS, "runs": runs, "p_c": 0.6, "environments": {},
+                           "execution_bound_mm": bound * 1000.0}
+    for name, env in envs.items():
         rows = []
         for f in FACTORS:
             chk = env.planning_checker(margin=f * bound)

@@ -269,7 +269,7 @@ def _settings(problem: Problem, params: dict[str, Any]) -> dict[str, Any]:
     return s
 
 
-def _branch(Q: np.ndarray, parent: np.ndarray, v: int) -> list[int]:
+def _branch(parent: np.ndarray, v: int) -> list[int]:
     """Node indices from the root to v."""
     out = []
     while v >= 0:
@@ -330,8 +330,8 @@ def solve(problem: Problem, *, iterations: int = 1000, seed: int = 0, time_limit
     chk.checks += checks
     path, idx, tail = None, [], []
     if status in (TIP, MEET):
-        idx = _branch(Q[0], parent[0], a)
-        tail = _branch(Q[1], parent[1], b)[::-1] if status == MEET else []
+        idx = _branch(parent[0], a)
+        tail = _branch(parent[1], b)[::-1] if status == MEET else []
         states = [Q[0, i] for i in idx] + [Q[1, i] for i in tail]
         path = np.array([q for k, q in enumerate(states) if k == 0 or not np.array_equal(q, states[k - 1])])
     kinds = np.concatenate([kind[0, idx[1:]], kind[1, tail[:-1]]]) if path is not None else np.zeros(0, np.int8)
