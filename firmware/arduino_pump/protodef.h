@@ -102,22 +102,24 @@ static const ab_arg_spec AB_ARGS_ROT[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535
 static const ab_arg_spec AB_ARGS_GRIP[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}, {"open", AB_ARG_INT, 0, 1}};
 #define AB_VERB_HOME 20
 static const ab_arg_spec AB_ARGS_HOME[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}};
-#define AB_VERB_DBAND 21
+#define AB_VERB_END 21
+static const ab_arg_spec AB_ARGS_END[] AB_PROGMEM = {{"id", AB_ARG_INT, 0, 65535L}};
+#define AB_VERB_DBAND 22
 static const ab_arg_spec AB_ARGS_DBAND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"mrad", AB_ARG_INT, 0, 1000}};
-#define AB_VERB_BEND 22
+#define AB_VERB_BEND 23
 static const ab_arg_spec AB_ARGS_BEND[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"adc_a", AB_ARG_INT, 0, 1023}, {"a", AB_ARG_INT, -1000000L, 1000000L}, {"adc_b", AB_ARG_INT, 0, 1023}, {"b", AB_ARG_INT, -1000000L, 1000000L}};
-#define AB_VERB_MODBUS 23
+#define AB_VERB_MODBUS 24
 static const ab_arg_spec AB_ARGS_MODBUS[] AB_PROGMEM = {{"addr", AB_ARG_INT, 1, 247}};
-#define AB_VERB_IDENT 24
-#define AB_VERB_CALID 25
+#define AB_VERB_IDENT 25
+#define AB_VERB_CALID 26
 static const ab_arg_spec AB_ARGS_CALID[] AB_PROGMEM = {{"id", AB_ARG_INT, 1, 1073741823L}};
-#define AB_VERB_RELAY 26
+#define AB_VERB_RELAY 27
 static const ab_arg_spec AB_ARGS_RELAY[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"amp", AB_ARG_INT, 1, 1000}, {"hyst", AB_ARG_INT, 0, 1000}, {"cycles", AB_ARG_INT, 1, 50}};
-#define AB_VERB_MAG 27
+#define AB_VERB_MAG 28
 static const ab_arg_spec AB_ARGS_MAG[] AB_PROGMEM = {{"joint", AB_ARG_JOINT, 1, 0}, {"pos", AB_ARG_INT, 0, 1000000L}, {"win", AB_ARG_INT, 0, 10000}};
-#define AB_VERB_WHEEL 28
+#define AB_VERB_WHEEL 29
 static const ab_arg_spec AB_ARGS_WHEEL[] AB_PROGMEM = {{"nm", AB_ARG_INT, 1, 1000000L}};
-#define AB_N_COMMANDS 29
+#define AB_N_COMMANDS 30
 static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {
     {"HELLO", AB_ARGS_HELLO, 3, 0, -1, -1},
     {"LIM", AB_ARGS_LIM, 1, 1, -1, -1},
@@ -140,6 +142,7 @@ static const ab_command AB_COMMANDS[AB_N_COMMANDS] AB_PROGMEM = {
     {"ROT", AB_ARGS_ROT, 3, 0, -1, -1},
     {"GRIP", AB_ARGS_GRIP, 2, 0, -1, -1},
     {"HOME", AB_ARGS_HOME, 1, 0, -1, -1},
+    {"END", AB_ARGS_END, 1, 0, -1, -1},
     {"DBAND", AB_ARGS_DBAND, 2, 0, -1, -1},
     {"BEND", AB_ARGS_BEND, 5, 0, 1, 3},
     {"MODBUS", AB_ARGS_MODBUS, 1, 0, -1, -1},

@@ -51,6 +51,7 @@ SETTLE_MS = 20                       # ... for this long (MV, the stop on a magn
 HOME_MM_S = 40                       # HOME speed while the board does not know d
 HOME_EFFORT = 0.5                    # effort cap while homing (pushing on the base stop)
 HOME_STOP_MS = 150                   # no wheel progress this long at the base magnet: homed
+END_APPROACH_MM = 10                 # END: ramp to this short of l, then push on the far stop at creep
 
 # ---------------------------------------------------------------- joint rotation
 # Joint loop: effort per rad of angle error; kff = 1 / (joint rate at full effort).

@@ -7,7 +7,7 @@ common verbs) is firmware/common/link.py's BoardLink, as for the arm
 (mm), n = cfg.N_JOINTS.
 
 Verbs (docs/protocol.md section 3, "MASR actuator"): the actions MV id d,
-ROT id j angle, GRIP id open and HOME id, queued with credits and completed
+ROT id j angle, GRIP id open, HOME id and END id, queued with credits and completed
 with the link's DONE; GAIN j kp ki kd (j < n: joint j's angle loop, j = n: the
 speed loop) and SETLIM j min max vmax (narrows as on the arm, section 11).
 
@@ -31,9 +31,12 @@ Actions, one at a time, in order:
   HOME  drive to the base (ramped while d is known, at HOME_MM_S otherwise)
         and push on the base stop at most HOME_EFFORT: no wheel count for
         HOME_STOP_MS with the hall sensor on magnet 1 is d = 0.
+  END   HOME's mirror onto the far end stop (d = l; d known), reporting
+        EV ENDSTOP n count there (the wheel's count from home: calibration's
+        second reference beside the base); the estimate is left as it is.
 UNHOMED: after a reset while moving (the persisted record says m = 1), a
 power on (no record), or a localisation FAULT, MV and ROT are refused UNHOMED
-unless a HOME is queued or running ahead of them; GRIP and HOME are not.
+unless a HOME is queued or running ahead of them (END too); GRIP and HOME are not.
 
 Calibration (ma_cal.py): MAG, WHEEL, RELAY and the settings CALID saves.
 Localisation is loc.py (its docstring derives the error bound); its faults
@@ -55,7 +58,7 @@ import proto
 import protodef as P
 from drive import Loco, Rot
 from loc import MISSED, OK, Loc
-from ma_act import GRIP, HOME, MV, ROT
+from ma_act import END, GRIP, HOME, MV, ROT
 
 def _milli(x: float) -> int:
     return int(round(x * 1000.0))
@@ -105,9 +108,9 @@ class Board(L.LinkedBoard):
         # arguments it was queued with (as arm.py's on_done): the emulator's log.
         self.on_done = None
         self.verbs = {"MV": self._cmd_mv, "ROT": self._cmd_rot, "GRIP": self._cmd_grip,
-                      "HOME": self._cmd_home, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim,
+                      "HOME": self._cmd_home, "END": self._cmd_end, "GAIN": self._cmd_gain, "SETLIM": self._cmd_setlim,
                       "MAG": self._cmd_mag, "WHEEL": self._cmd_wheel, "RELAY": self._cmd_relay}
-        self.motion_verbs = [MV, ROT, GRIP, HOME, C.RELAY]
+        self.motion_verbs = [MV, ROT, GRIP, HOME, END, C.RELAY]
         self._sense_counts()
         self.link = L.BoardLink(hal, cfg, self)   # last: it calls restore(), hold_here(), sends BOOT
 
@@ -140,6 +143,10 @@ class Board(L.LinkedBoard):
 
     def _cmd_home(self, v: list) -> list:
         return self._push(v[0], HOME, [])
+
+    def _cmd_end(self, v: list) -> list:
+        self._homed_for()
+        return self._push(v[0], END, [])
 
     def _homed_for(self) -> None:
         """MV/ROT need a known d: homed, or a HOME ahead of them."""

@@ -23,6 +23,11 @@ t0_ms, aux]`:
   HOME  go -> push               go (d known): ramp to 0 arriving at creep;
         push: toward the base at creep (HOME_MM_S when d is unknown), effort
         at most HOME_EFFORT, until the wheel stops on magnet 1.
+  END   go -> push               HOME's mirror at the far end (d known): ramp to
+        END_APPROACH_MM short of l arriving at creep; push up at creep, effort
+        at most HOME_EFFORT, until the wheel stops: EV ENDSTOP n count (the
+        wheel's count from home), d's estimate left as it is. No stop within
+        2 END_APPROACH_MM past the estimate's l: FAULT END:MISSED.
   LIMIT go                       the board's own move of d into a range a
         SETLIM narrowed (ma.py `limit_to`; id -1: no START or DONE, EV LIMIT n
         when it begins): MV's ramp to the range's nearer end.
@@ -44,6 +49,7 @@ MV = "MV"
 ROT = "ROT"
 GRIP = "GRIP"
 HOME = "HOME"
+END = "END"
 LIMIT = "LIMIT"
 
 
@@ -143,8 +149,10 @@ def advance(b) -> None:
             _finish(b)
     elif verb == ROT:
         _rot(b, act)
-    else:
+    elif verb == HOME:
         _home(b, act)
+    else:
+        _end(b, act)
 
 
 def _mv(b, act) -> None:
@@ -254,6 +262,29 @@ def _home(b, act) -> None:
         b.link.fault([b.n, 1], "MAGNET:MISSED")          # drove past the arm: no base stop
 
 
+def _end(b, act) -> None:
+    c = b.cfg
+    loc = b.loc
+    ramp = b.loco.ramp
+    vmax = b.lim[b.n - 1][2]
+    if act[3] == "go":
+        if ramp.step(b.dt, loc.length - c.END_APPROACH_MM, vmax, c.LOCO_ACCEL_MM_S2, c.LOCO_CREEP_MM_S):
+            act[3] = "push"
+            act[5] = b._c
+        b.loco.effort(b.dt, loc.d(), b.speed, vmax)
+        return
+    v = c.LOCO_CREEP_MM_S
+    ramp.step(b.dt, ramp.x + 1000.0, v if v < vmax else vmax, c.LOCO_ACCEL_MM_S2)
+    b.loco.effort(b.dt, loc.d(), b.speed, vmax, c.HOME_EFFORT)
+    if b._still >= c.HOME_STOP_MS:
+        b.link.event("ENDSTOP", [b.n, b._c - loc.c_home])
+        b.loco.reset(loc.d())
+        _finish(b)
+        return
+    if abs(b._c - act[5]) * loc.q > 3 * c.END_APPROACH_MM:
+        b.link.fault([b.n, 0], "END:MISSED")           # drove on past l: no end stop there
+
+
 def _finish(b) -> None:
     wid = b.act[0]
     args = b.act[2]
@@ -288,7 +319,7 @@ def check(b) -> bool:
     else:
         b._still = 0
     homing = b.act is not None and b.act[3] == "push"
-    if b._still >= c.STALL_MS and not (homing and b._level == 1):
+    if b._still >= c.STALL_MS and not (homing and (b._level == 1 or b.act[1] == END)):
         b.link.fault([n, int(round(b.loco.u * 1000.0))], "STALL:LOCO")
         return False
     j = b.rot.j

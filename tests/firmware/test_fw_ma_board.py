@@ -48,6 +48,37 @@ def test_home_from_mid_arm_at_the_base_stop():
     assert not board.unhomed and hal.u_loco == 0.0
 
 
+def test_end_pushes_onto_the_far_stop_and_reports_its_count():
+    board, hal, host = _homed()
+    hal.length += 0.4                    # this arm's end cap sits 0.4 mm beyond l
+    assert host.answer(3, "END", 7)[1] == "OK"
+    lines = []
+
+    def each():
+        lines.extend(hal.take())
+    run_until(board, hal, lambda: 7 in done_ids(lines), 30000, each)
+    ev = events(lines, "ENDSTOP")
+    assert len(ev) == 1 and ev[0][1] == str(board.n), ev
+    assert int(ev[0][2]) == hal.wheel_count() - board.loc.c_home     # the count from home, at the stop
+    assert hal.d == hal.length and hal.u_loco == 0.0
+    assert abs(board.loc.d() - hal.length) <= board.loc.err()        # the estimate kept, not re-zeroed
+
+
+def test_end_needs_a_known_d_and_faults_past_a_missing_stop():
+    board, hal, host = new_board(CFG)
+    assert host.answer(2, "END", 1)[2][2] == "UNHOMED"
+    board, hal, host = _homed()
+    hal.length += 3 * CFG.END_APPROACH_MM + 20.0   # no stop where l says
+    assert host.answer(3, "END", 8)[1] == "OK"
+    lines = []
+
+    def each():
+        lines.extend(hal.take())
+    run_until(board, hal, lambda: board.state == "FAULT", 40000, each)
+    assert board.link.reason == "END:MISSED" and events(lines, "FAULT")[0][:2] == ["FAULT", str(board.n)]
+    assert hal.u_loco == 0.0 and not events(lines, "ENDSTOP")
+
+
 def test_mv_reaches_d_with_a_ramp():
     board, hal, host = _homed()
     assert host.answer(3, "MV", 1, 350)[1] == "OK"

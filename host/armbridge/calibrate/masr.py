@@ -16,7 +16,10 @@ Steps:
   known positions r_j (l_1 + ... + l_{j-1}, home = 0; magnet 1, with one edge
   only, is left out); the centres in mm are that scale times the counts.
   Magnet 1: its window is the mean of the others', its centre its upper edge
-  less that. Set with `MAG j pos win` (um) and `WHEEL nm`.
+  less that. After each drive, END pushes onto the far end stop (d = l) and
+  the board reports its count from home: a second exact reference beside home,
+  weighed with the magnets in the scale (`fit`), which the magnets alone leave
+  about 0.07 % off (0.5 mm at l). Set with `MAG j pos win` (um) and `WHEEL nm`.
 * "gains": relay experiments (RELAY) on the speed loop (MA on link 1) and on
   each joint's angle loop (the MA on its magnet): Ku, Tu and the
   Tyreus-Luyben gains are reported; the shipped gains are kept unless
@@ -28,19 +31,25 @@ emulator's plant.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from armbridge.calibrate.base import Found
 from armbridge.calibrate.tuning import pid_gains, ultimate
 from armbridge.errors import ArmbridgeError
+from armbridge.link.protodef import VERB
 
 STEPS = ("magnets", "wheel", "gains")
 SPEED_MM_S = 20          # the drive over the magnets (SETLIM d); the slip's random walk grows with sqrt(speed)
 ROUNDS = 2               # drives from a fresh HOME, averaged
 ZIG_MM = 8.0             # the zig-zag's reach past a joint (beyond window + hysteresis + the estimate's error)
 ACTION_S = 120.0         # the longest an action may take (board time)
+# The two references' spreads that weigh them in the scale (fit): a magnet glued within
+# +-1 mm of its joint, the far end cap printed within +-0.5 mm of l (docs/emulator.md's
+# SPREADS, about 2 sd each).
+MAGNET_SD_MM = 0.5
+END_SD_MM = 0.2
 RELAY_LOCO = (200, 3, 6)     # amp per mille, hyst mm/s, cycles
 RELAY_ROT = (300, 5, 6)      # amp per mille, hyst mrad, cycles
 RULE = "tyreus-luyben"
@@ -56,6 +65,7 @@ class _Actions:
         self.done: set[int] = set()
         self.fault: tuple | None = None
         self.edges: list[tuple[int, int, int]] = []      # (joint, count from home, way +-1)
+        self.ends: list[int] = []                         # the far end stop's counts from home (END)
         self.relays: dict[int, tuple[int, int]] = {}
         self.way = 0
         self.prev = client.on_event
@@ -67,6 +77,8 @@ class _Actions:
                     self.done.add(int(ev.args[0]))
                 elif ev.kind == "MAGNET" and len(ev.args) >= 2:
                     self.edges.append((int(ev.args[0]), int(ev.args[1]), self.way))
+                elif ev.kind == "ENDSTOP" and len(ev.args) >= 2:
+                    self.ends.append(int(ev.args[1]))
                 elif ev.kind == "FAULT":
                     self.fault = tuple(ev.args)
                 elif ev.kind == "RELAY" and len(ev.args) >= 3:
@@ -113,8 +125,10 @@ def joints_mm(cfg: Any) -> np.ndarray:
 
 
 def drive_over_magnets(client: Any, cfg: Any, speed: float = SPEED_MM_S, rounds: int = ROUNDS,
-                       zig: float = ZIG_MM) -> list[tuple[int, int, int]]:
-    """The drives of the magnets step -> every edge (joint, count from home, way)."""
+                       zig: float = ZIG_MM) -> tuple[list[tuple[int, int, int]], list[int]]:
+    """The drives of the magnets step -> every edge (joint, count from home, way), and
+    the far end stop's count from home after each drive (END; none from a board
+    that refuses END with VERB, a firmware older than it)."""
     n = int(cfg.N_JOINTS)
     r = joints_mm(cfg)
     lim = client.command("LIM", n).payload
@@ -123,6 +137,8 @@ def drive_over_magnets(client: Any, cfg: Any, speed: float = SPEED_MM_S, rounds:
         raise ArmbridgeError(f"calibration: d's range [{lo}, {hi}] mm must hold the base and {r[-1] + 2 * zig:g} mm "
                              "(a SETLIM narrowed it)")
     edges: list[tuple[int, int, int]] = []
+    ends: list[int] = []
+    has_end = True
     with _Actions(client) as act:
         try:
             for _ in range(rounds):
@@ -137,14 +153,33 @@ def drive_over_magnets(client: Any, cfg: Any, speed: float = SPEED_MM_S, rounds:
                     act.run("MV", int(round(rj - zig)), way=-1)   # the upper edge
                 act.run("MV", int(round(r[-1] + zig)), way=1)
                 edges += act.edges
+                if has_end:
+                    has_end = _end(act)
+            ends = act.ends
         finally:
             client.command("SETLIM", n, lo, hi, vmax)
-    return edges
+    return edges, ends
 
 
-def fit(edges: list[tuple[int, int, int]], r_mm: np.ndarray, nominal_mm_per_count: float) -> dict[str, Any]:
+def _end(act: _Actions) -> bool:
+    """END onto the far stop -> False when the board has no END (refused VERB)."""
+    try:
+        act.run("END", way=1)
+    except ArmbridgeError as exc:
+        if f": {VERB} VERB" in str(exc):     # client.command's refusal: code, then name
+            return False
+        raise
+    return True
+
+
+def fit(edges: list[tuple[int, int, int]], r_mm: np.ndarray, nominal_mm_per_count: float,
+        ends: Sequence[int] = (), length_mm: float = 0.0) -> dict[str, Any]:
     """Edges (joint, count from home, way) -> the wheel's mm per count, every magnet's
-    centre and half window (mm), from neighbouring up/down edge pairs. Pure."""
+    centre and half window (mm), from neighbouring up/down edge pairs. `ends`: the far
+    stop's counts from home, at length_mm (l). The scale q is weighted least squares
+    over both references: minimise sum_j (c_j q - r_j)^2 / MAGNET_SD^2 + (e q - l)^2 /
+    (END_SD^2 / k), c_j the centres' mean counts, e the k ends' mean, so
+    q = (sum c_j r_j / MAGNET_SD^2 + e l k / END_SD^2) / (sum c_j^2 / MAGNET_SD^2 + e^2 k / END_SD^2). Pure."""
     nj = len(r_mm)
     centre_c = np.full(nj, np.nan)
     half_c = np.full(nj, np.nan)
@@ -163,7 +198,13 @@ def fit(edges: list[tuple[int, int, int]], r_mm: np.ndarray, nominal_mm_per_coun
     if not upper1:
         raise ArmbridgeError("calibration: magnet 1's edge was not seen")
     c = centre_c[1:]
-    q = float(np.dot(c, r_mm[1:]) / np.dot(c, c))
+    num = float(np.dot(c, r_mm[1:])) / MAGNET_SD_MM ** 2
+    den = float(np.dot(c, c)) / MAGNET_SD_MM ** 2
+    if len(ends):
+        e, k = float(np.mean(ends)), len(ends)
+        num += e * length_mm * k / END_SD_MM ** 2
+        den += e * e * k / END_SD_MM ** 2
+    q = num / den
     if not abs(q / nominal_mm_per_count - 1.0) < 0.05:
         raise ArmbridgeError(f"calibration: the wheel's travel per count came out {q * 1e6:.0f} nm, more than 5 % "
                              f"off the config's {nominal_mm_per_count * 1e6:.0f} nm")
@@ -175,15 +216,23 @@ def fit(edges: list[tuple[int, int, int]], r_mm: np.ndarray, nominal_mm_per_coun
     if centre[0] < 0.0:
         centre[0], half[0] = 0.0, max(u1, q)
     return {"mm_per_count": q, "centre_mm": centre.tolist(), "half_window_mm": half.tolist(),
-            "pairs": [len(p) for p in pairs], "residual_mm": (centre[1:] - r_mm[1:]).tolist()}
+            "pairs": [len(p) for p in pairs], "residual_mm": (centre[1:] - r_mm[1:]).tolist(),
+            "end_mm": [x * q for x in ends]}
 
 
 def magnets_step(client: Any, cfg: Any, **kw) -> Found:
     r = joints_mm(cfg)
-    edges = drive_over_magnets(client, cfg, **kw)
-    f = fit(edges, r, float(cfg.WHEEL_MM_PER_COUNT))
+    edges, ends = drive_over_magnets(client, cfg, **kw)
+    length = float(np.sum(cfg.LINK_LENGTHS_MM))
+    f = fit(edges, r, float(cfg.WHEEL_MM_PER_COUNT), ends, length)
     q = f["mm_per_count"]
     found = Found()
+    if ends:
+        found.lines.append(f"far end stop: {np.mean(f['end_mm']):.3f} mm from home over {len(ends)} drives "
+                           f"(l = {length:g} mm; weighed in the scale)")
+    else:
+        found.lines.append("far end stop: the board has no END (firmware older than it): the scale from the "
+                           "magnets alone")
     for j, (c, h) in enumerate(zip(f["centre_mm"], f["half_window_mm"]), start=1):
         found.settings.append(("MAG", (j, int(round(c * 1000.0)), int(round(h * 1000.0)))))
         found.lines.append(f"magnet {j}: centre {c:.3f} mm ({c - r[j - 1]:+.3f} from r_{j}), "
@@ -193,6 +242,7 @@ def magnets_step(client: Any, cfg: Any, **kw) -> Found:
     found.values["magnets"] = {"centre_mm": f["centre_mm"], "half_window_mm": f["half_window_mm"],
                                "pairs": f["pairs"]}
     found.values["wheel_nm_per_count"] = q * 1e6
+    found.values["end_mm"] = f["end_mm"]
     return found
 
 

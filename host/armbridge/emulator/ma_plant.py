@@ -38,11 +38,12 @@ state, the faults and the seeded noise. The arm's pose is
 `robots.masr.MasrArm`'s (`MaPlant.points()`, `MaPlant.ma_point()`).
 
 Hidden truth (`plant=random`, truth.py): MaParams' wheel_scale, magnet_mm,
-hall_window_mm, backlash_mrad and joint_friction (neutral by default: the
-plant above) say where this MA differs from its config: the wheel's true travel
-per count (WHEEL_MM_PER_COUNT * wheel_scale), magnet j at r_j + magnet_mm[j]
-(the gear stays at r_j), the sensor's true window, each worm's true play, and
-a dead band of friction on the rotation effort while the worm turns joint j.
+hall_window_mm, backlash_mrad, joint_friction and end_mm (neutral by default:
+the plant above) say where this MA differs from its config: the wheel's true
+travel per count (WHEEL_MM_PER_COUNT * wheel_scale), magnet j at r_j +
+magnet_mm[j] (the gear stays at r_j), the sensor's true window, each worm's true
+play, a dead band of friction on the rotation effort while the worm turns joint
+j, and the far end stop at l + end_mm.
 `SPREADS` says how each varies (and v_full, w_full, slip_sigma), and
 `hidden_truth(cfg, rng)` draws one MA (docs/emulator.md, "Hidden truth").
 """
@@ -80,7 +81,7 @@ class MaPlant:
         self.arm = arm
         nj = arm.n
         self.n = nj + 1
-        self.length = arm.total_length
+        self.length = arm.total_length + self.p.end_mm / 1000.0   # the far end stop (d's hard end)
         p = self.p
         self.r = tuple(float(x) for x in arm.r)   # gears at r_j (eq. (1)), m
         self.magnets = tuple(rj + m / 1000.0 for rj, m in zip(self.r, per_joint(p.magnet_mm, nj, "magnet_mm")))
@@ -306,6 +307,8 @@ SPREADS: tuple[Spread, ...] = (
            source="rotation motor (ours); kept above the firmware's 0.28 rad/s with the friction"),
     Spread("joint_friction", "uniform", 0.03, per_joint=True, lo=0.0, hi=0.06,
            source="each joint's friction through its worm: 0-6 % of full effort, about 0.03 (ours)"),
+    Spread("end_mm", "normal", 0.2, lo=-0.5, hi=0.5, unit="mm",
+           source="the end cap printed onto the last link: its stop within +-0.5 mm of l (ours)"),
 )
 #: the truth's centre where it is not the config's or MaParams' neutral default
 TRUTH_NOMINAL: dict[str, Any] = {"backlash_mrad": 15.0, "joint_friction": 0.03}

@@ -45,6 +45,7 @@ class MaParams:
     backlash_mrad   None      each worm's true play (None: BACKLASH_MRAD; one per joint or one)
     joint_friction  0.0       effort lost to joint j's friction while the worm turns it
                               (a dead band, fraction of full effort; one per joint or one)
+    end_mm          0.0       the far end stop's offset from l, the links' sum (mm, + beyond)
     """
 
     v_full: float = 0.12
@@ -68,6 +69,7 @@ class MaParams:
     hall_window_mm: float | None = None
     backlash_mrad: float | tuple[float, ...] | None = None
     joint_friction: float | tuple[float, ...] = 0.0
+    end_mm: float = 0.0
 
 
 def per_joint(x: Any, n: int, what: str) -> list[float]:

@@ -94,10 +94,13 @@ COMMANDS = {
     # Its coordinates are joints 1..n-1 (mrad) and d (the last, in mm) along the arm.
     # MV: drive the MA to d. ROT: turn joint j to angle (the MA drives onto joint j's
     # magnet first). GRIP: the gripper (0 closed, 1 open). HOME: drive to the base, zero d.
+    # END: drive onto the far end stop (d = l) as HOME onto the base, report EV ENDSTOP n
+    # count (the wheel's count from home there; calibration's second reference), d unchanged.
     "MV": (("id", 0, 65535), ("d", 0, 1000000)),
     "ROT": (("id", 0, 65535), ("joint", 1, 0), ("angle", -1000000, 1000000)),
     "GRIP": (("id", 0, 65535), ("open", 0, 1)),
     "HOME": (("id", 0, 65535),),
+    "END": (("id", 0, 65535),),
     # The syringe-pump board (the soft arm, firmware/arduino_pump). DBAND: joint j's
     # dead band (mrad) of its proportional controller. BEND: joint j's bend-sensor
     # calibration, ADC count adc_a at angle a, adc_b at b (mrad), kept in EEPROM.
