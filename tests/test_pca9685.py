@@ -447,6 +447,26 @@ def test_the_servos_lead_runs_ahead_along_the_velocity_within_the_limits(rig):
     assert out == pytest.approx([3.142, 0.0, 1.571])
 
 
+def test_a_calibrated_servo_is_led_along_its_velocity_only_beyond_half_its_dband(rig):
+    """With DBAND w (the servo's hysteresis, which servos.py leads its pulse by half of), the
+    velocity lead is SERVO_LEAD_MS * v less w / 2 toward zero (none while that is less): the
+    servo lags by its dead band or its loop's lag, not by both."""
+    b = rig.board
+    lead = rig.cfg.SERVO_LEAD_MS / 1000.0
+    b.cal.set_lead(0, 20)
+    b.cal.set_lead(1, 20)
+    b.cal.set_lead(2, 20)
+    try:
+        b.traj.vel = [1000.0, -100.0, 0.0]       # mrad/s: 40 mrad ahead less 10; 4 mrad, within 10
+        out = b._led([1571.0, -1571.0, 0.0])
+        assert out == pytest.approx([1.571 + lead * 1.0 - 0.010, -1.571, 0.0])
+        b.traj.vel = [-1000.0, 0.0, 0.0]
+        assert b._led([1571.0, -1571.0, 0.0])[0] == pytest.approx(1.571 - lead * 1.0 + 0.010)
+    finally:
+        for j in range(3):
+            b.cal.set_lead(j, 0)
+
+
 def test_the_servos_lead_their_pulse_toward_the_side_they_move_to():
     """servos.Servo.led (DBAND on this rig): half the hysteresis width, on the side the pulse last
     moved to by more than SIDE_US; none before it has moved, none with lead 0; clipped to the range."""

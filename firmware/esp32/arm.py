@@ -309,12 +309,26 @@ class Board(L.LinkedBoard):
 
     def _led(self, sp: list) -> list:
         """The positional servos' set points (rad): SERVO_LEAD_MS ahead along the set
-        point's velocity (their own lag), within the joint's limits in force."""
+        point's velocity (their own lag), within the joint's limits in force. A servo
+        lags its pulse by its dead band, or by its loop's lag when that is more, plus
+        half its play; DBAND's lead (servos.py) covers the band and the play, so a
+        calibrated servo is led here only by what SERVO_LEAD_MS adds beyond half its
+        DBAND width (without, it ran 5-9 mrad ahead at drawing speeds and 1.6 mm off
+        at the strokes' corners)."""
         lead = self.lead_s
         vel = self.traj.vel
+        band = self.cal.lead
         out = []
         for j in range(self.n):
-            x = sp[j] + lead * vel[j]
+            a = lead * vel[j]
+            h = band[j] * 0.5
+            if a > h:
+                a -= h
+            elif a < -h:
+                a += h
+            else:
+                a = 0.0
+            x = sp[j] + a
             lim = self.lim[j]
             x = lim[0] if x < lim[0] else (lim[1] if x > lim[1] else x)
             out.append(x / 1000.0)

@@ -108,13 +108,25 @@ class Jogger:
     the gear play lets the joint trail its shaft, both toward where it came
     from, so the place it rests at for a pulse depends on the side it came
     from; the pca9685 rig's jig step places each mark from both sides and
-    takes the middle."""
+    takes the middle.
+
+    The approach is wider than any servo's hysteresis (its dead band both ways
+    and its play: up to about 36 mrad), so the joint comes from beyond it and
+    the play is taken up, and it ends slowly (`CREEP`: the last FINE rad at
+    CREEP_SPEED, the FINE before at SLOW_SPEED): the board leads a moving
+    positional servo's set point by SERVO_LEAD_MS along its velocity, so an
+    approach at SPEED would overshoot the target by 20 mrad and the servo would
+    come to rest from the other side (the width between the two sides measured
+    6 mrad on a servo whose truth was 23); at CREEP_SPEED the lead is 0.5 mrad."""
 
     SPEED = 0.5       # rad/s of the fastest joint
+    SLOW_SPEED = 0.1  # rad/s: the approach's middle (a lead of 4 mrad at 40 ms, within any dead band)
+    CREEP_SPEED = 0.0125   # rad/s: its last FINE rad
+    FINE = 0.005
     SETTLE_S = 0.4
     WID = 60000       # waypoint ids the jig uses (and counts up from)
 
-    def __init__(self, client: Any, start, side: int = 0, approach: float = 0.03) -> None:
+    def __init__(self, client: Any, start, side: int = 0, approach: float = 0.05) -> None:
         self.client = client
         self.side = side
         self.approach = approach
@@ -141,12 +153,15 @@ class Jogger:
         q = np.asarray(q, float)
         if self.side:
             self._go(q - self.side * self.approach)
-        self._go(q)
+            self._go(q - self.side * self.FINE, self.SLOW_SPEED)
+            self._go(q, self.CREEP_SPEED)
+        else:
+            self._go(q)
 
-    def _go(self, q) -> None:
+    def _go(self, q, speed: float | None = None) -> None:
         from armbridge.link import protocol as P
 
-        dur = max(50, int(1000 * float(np.max(np.abs(q - self.setpoint))) / self.SPEED))
+        dur = max(50, int(1000 * float(np.max(np.abs(q - self.setpoint))) / (speed or self.SPEED)))
         wid = self.next_id()
         self.client.command("W", wid, dur, *P.to_milli(q))
         self.client.drain(dur / 1000.0)
