@@ -233,6 +233,41 @@ def test_the_worm_turns_only_the_joint_the_ma_stands_on():
     assert abs(p.gear_count() - math.floor(p.w / 0.0005 + 1e-9)) == 0
 
 
+def test_the_current_sense_reads_the_load_only_while_the_worm_drives_the_gear():
+    """rot_load: about 0 while the worm turns in its play or off a joint, mesh_load plus the
+    joint's friction (capped at the effort) once it drives the gear; the noise a function
+    of the seed and the time alone (a reading does not change the next)."""
+    params = MaParams(backlash_mrad=20.0, mesh_load=0.03, joint_friction=0.02, sense_noise=0.002)
+    p = plant(seed=3, q0=q0_at(0.4 + 0.001), params=params)
+    p.gap[2] = -p.halves[2]                          # the far end of the play from +
+    p.set_rot(0.5)
+    seen = []
+    while p.q[2] == 0.0:
+        p.advance(0.001)
+        seen.append(p.rot_load())
+    assert len(seen) > 20 and max(abs(x) for x in seen[:-2]) < 0.01    # crossing 20 mrad: nothing driven
+    p.advance(0.05)
+    loads = [p.rot_load() for _ in range(3)]
+    assert loads[0] == loads[1] == loads[2]          # one instant, one reading
+    assert abs(loads[0] - 0.05) < 0.01               # mesh 0.03 + friction 0.02
+    p.set_rot(0.02)                                  # an effort below the load: the worm stalls on it
+    p.advance(0.2)
+    assert abs(p.rot_load() - 0.02) < 0.01
+    p.set_rot(-0.5)                                  # back: into the play again
+    p.advance(0.01)
+    assert abs(p.rot_load()) < 0.01
+    off = plant(seed=3, q0=q0_at(0.4 + 0.010), params=params)          # off the joint
+    off.set_rot(1.0)
+    off.advance(0.3)
+    assert abs(off.rot_load()) < 0.01
+    again = plant(seed=3, q0=q0_at(0.4 + 0.001), params=params)
+    again.advance(0.123)
+    p2 = plant(seed=3, q0=q0_at(0.4 + 0.001), params=params)
+    p2.advance(0.123)
+    p2.rot_load()
+    assert again.rot_load() == p2.rot_load()
+
+
 def test_a_seized_joint_stops_the_worm_once_the_play_is_taken_up():
     p = plant(seed=8, q0=q0_at(0.2))
     p.stall(1, 0.0)                                 # joint 2 seized

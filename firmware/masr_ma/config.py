@@ -63,6 +63,8 @@ ROT_KAFF = 0.05                      # s: the reference's acceleration fed forwa
                                      # + half a period + the gear count's delay)
 ROT_ACCEL_MRAD_S2 = 3000             # ramp of the angle reference (kff kaff a: a step the drive's 5 rad/s^2 can take)
 ROT_TOL_MRAD = 1.0                   # ROT is done within this of the angle (the drive off, the angle still)
+ROT_CONTACT_LOAD = 0.010             # current sense above this (effort): the worm drives the gear, the play taken up
+PLAY_MAX_MRAD = 40                   # the worm turned this far in the play without meeting the gear: FAULT MESH:j
 
 # ---------------------------------------------------------------- faults
 STALL_U = 0.25                       # an effort at least this with no encoder count ...
@@ -80,8 +82,11 @@ SERVO_FREQ_HZ = 50
 # ---------------------------------------------------------------- pins (ESP32)
 LOCO_PWM_PIN = 25                    # locomotion motor driver (e.g. DRV8871 / TB6612 IN/PWM)
 LOCO_DIR_PIN = 26
-ROT_PWM_PIN = 27                     # joint-rotation motor driver
+ROT_PWM_PIN = 27                     # joint-rotation motor driver (DRV8874: PH/EN, with IPROPI below)
 ROT_DIR_PIN = 14
+ROT_ISENSE_PIN = 36                  # its current sense (IPROPI through a resistor into ADC1); None: no
+                                     # sense, the joint estimated through the config's BACKLASH_MRAD
+ROT_ISENSE_FULL = 1.0                # the load (effort, stall current = 1) at the ADC's full scale
 MOTOR_PWM_HZ = 20000                 # above hearing
 WHEEL_ENC_A = 32                     # wheel encoder, quadrature (PCNT unit WHEEL_PCNT)
 WHEEL_ENC_B = 33

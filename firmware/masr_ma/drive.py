@@ -23,14 +23,25 @@ which stops at vmax (not the last step's 800 mm/s^2 once more), and the speed
 error is taken against the command as it was when the speed was measured
 (the encoder's SPEED_TICKS window is `delay` old: v_cmd - delay * a).
 
-Joint angle through the worm's play (`play`): the gear encoder measures the
-worm; the joint follows it only once the play of BACKLASH_MRAD is taken up
-(gap in [-B/2, B/2], worm minus joint). A drive reversal first crosses the gap
-(the joint does not move, the estimate neither); so the joint loop, a PID on
-the estimated angle, takes the backlash up on every reversal by itself. A
-fresh mesh (the MA arrives on a joint) starts with the gap at 0, the middle of
-the play: the angle of each engagement is off by at most B/2 (the worm gear
-holds the joint between engagements, so nothing else moves it).
+Joint angle through the worm's play: the gear encoder measures the worm; the
+joint follows it only once the play is taken up. With the rotation driver's
+current sense (ROT_ISENSE_PIN, `contact`), the board sees that happen: the
+worm turning in the play loads its motor with nothing, driving the gear it
+loads it with the mesh's and the joint's friction. So the estimate moves
+only while the worm drives the gear (`side`, the way it pushes, kept until
+the worm turns back), and counts half the period's travel in the period
+the load first comes on (the contact came somewhere inside it: on average
+half-way). That holds whatever the play's width and wherever in it a fresh
+mesh lands (the MA arriving on a joint meets the gear anywhere in its play,
+which the gear encoder cannot tell: masr paper, Table II's error). The worm
+turning PLAY_MAX_MRAD in the play without a load means no gear there (not
+meshed, or the sense is dead): FAULT MESH:j (ma_act `check`).
+Without a current sense (`play`), the model of BACKLASH_MRAD: gap in [-B/2,
+B/2], worm minus joint, a reversal crosses it before the joint moves, a fresh
+mesh starts at 0 (off by up to B/2 of the true play, every engagement).
+Either way the joint loop, a PID on the estimated angle, takes the play up on
+every reversal by itself, and the worm gear holds the joint between
+engagements, so nothing else moves it.
 """
 
 from pid import PID
@@ -155,6 +166,21 @@ def play(theta: float, gap: float, dw: float, half: float):
     return theta, g
 
 
+def contact(theta: float, side: int, slack: float, dw: float, loaded: bool):
+    """The worm turns dw (joint mrad) with the load sensed `loaded` at the end of the
+    period -> (theta, side, slack): side +-1 the way the worm drives the gear, 0 in
+    the play; slack the worm's travel in the play since it left the gear. Pure."""
+    s = 1 if dw > 0 else -1
+    if side == s:
+        return theta + dw, side, 0.0
+    if side == -s:
+        side = 0
+        slack = 0.0
+    if loaded:
+        return theta + 0.5 * dw, s, 0.0
+    return theta, 0, slack + (dw if dw > 0 else -dw)
+
+
 class Rot:
     """The joint-rotation angle loop on the engaged joint (mrad, effort)."""
 
@@ -166,7 +192,11 @@ class Rot:
         self.half = cfg.BACKLASH_MRAD / 2.0
         self.ramp = Ramp()
         self.j = 0                 # engaged joint (1-based), 0: none
-        self.gap = 0.0             # estimated worm-minus-joint play of the mesh
+        self.gap = 0.0             # estimated worm-minus-joint play of the mesh (no current sense)
+        self.sense = getattr(cfg, "ROT_ISENSE_PIN", None) is not None
+        self.contact_load = getattr(cfg, "ROT_CONTACT_LOAD", 0.0)
+        self.side = 0              # the way the worm drives the gear (+-1), 0: in the play (current sense)
+        self.slack = 0.0           # the worm's travel in the play since it left the gear
         self.g = 0                 # last gear count
         self.u = 0.0
 
@@ -174,6 +204,8 @@ class Rot:
         """The MA stands on joint j: a fresh mesh unless it is still on it."""
         if j != self.j:
             self.gap = 0.0
+            self.side = 0
+            self.slack = 0.0
         self.j = j
         self.g = count
         g = self.gains[j - 1]
@@ -187,11 +219,15 @@ class Rot:
         self.j = 0
         self.off()
 
-    def track(self, theta: float, count: int) -> float:
-        """The engaged joint's angle after the gear moved to count."""
+    def track(self, theta: float, count: int, load: float = 0.0) -> float:
+        """The engaged joint's angle after the gear moved to count (load: the current
+        sense's reading, with one)."""
         dw = (count - self.g) * self.q
         self.g = count
         if dw == 0.0:
+            return theta
+        if self.sense:
+            theta, self.side, self.slack = contact(theta, self.side, self.slack, dw, load >= self.contact_load)
             return theta
         theta, self.gap = play(theta, self.gap, dw, self.half)
         return theta

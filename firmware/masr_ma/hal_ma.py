@@ -53,6 +53,10 @@ class MaHal(Esp32Base):
         self._grip_closed_ns = cfg.GRIP_CLOSED_US * 1000
         self._grip = machine.PWM(pin(cfg.GRIP_PIN), freq=cfg.SERVO_FREQ_HZ,
                                  duty_ns=self._grip_closed_ns)
+        self._isense_pin = getattr(cfg, "ROT_ISENSE_PIN", None)   # None: the firmware never reads it
+        if self._isense_pin is not None:
+            self._isense = machine.ADC(pin(self._isense_pin), atten=machine.ADC.ATTN_11DB)
+            self._iscale = cfg.ROT_ISENSE_FULL / 65535.0
 
     # ------------------------------------------------------------ hall IRQ
     def _on_hall(self, p) -> None:
@@ -78,6 +82,10 @@ class MaHal(Esp32Base):
     # ------------------------------------------------------------ encoders
     def wheel_count(self) -> int:
         return self._wheel.value()
+
+    def rot_load(self) -> float:
+        """The rotation driver's current sense, in effort units (the stall current = 1)."""
+        return self._isense.read_u16() * self._iscale
 
     def gear_count(self) -> int:
         return self._gear.value()

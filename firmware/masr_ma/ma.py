@@ -366,7 +366,7 @@ class Board(L.LinkedBoard):
         self._c = c
         if self.rot.j:
             j = self.rot.j
-            self.theta[j - 1] = self.rot.track(self.theta[j - 1], g)
+            self.theta[j - 1] = self.rot.track(self.theta[j - 1], g, hal.rot_load() if self.rot.sense else 0.0)
         self._turned = g != self._g
         self._g = g
         return True

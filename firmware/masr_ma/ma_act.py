@@ -330,6 +330,9 @@ def check(b) -> bool:
     if b._still_rot >= c.STALL_MS:
         b.link.fault([j, int(round(b.rot.u * 1000.0))], "STALL:%d" % j)
         return False
+    if j and b.rot.slack > c.PLAY_MAX_MRAD:       # the worm turns, no gear takes its load
+        b.link.fault([j, int(b.rot.slack)], "MESH:%d" % j)
+        return False
     err = 0.0
     limit = 1.0
     k = 0

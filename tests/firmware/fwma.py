@@ -26,6 +26,7 @@ TAU = 0.04          # s
 A_MAX = 1000.0      # mm/s^2
 W_FULL = 350.0      # mrad/s at full effort
 W_TAU = 0.03
+MESH_LOAD = 0.03    # the current sense while the worm drives a gear (effort)
 HYST = 0.5          # mm
 ENGAGE_MM = 3.0
 
@@ -84,6 +85,7 @@ class FakeMaHal(FakeHal):
         self.gap0 = 0.0                    # the play of a fresh mesh
         self.mesh = -1
         self.backlash = cfg.BACKLASH_MRAD
+        self.sense_dead = False            # the current sense reads nothing (a broken wire)
         self.u_loco = 0.0
         self.u_rot = 0.0
         self.grip_open = None
@@ -120,6 +122,16 @@ class FakeMaHal(FakeHal):
 
     def wheel_count(self) -> int:
         return _floor(self.s / self.cfg.WHEEL_MM_PER_COUNT + 1e-9)
+
+    def rot_load(self) -> float:
+        """The rotation driver's current sense: MESH_LOAD while the worm drives the engaged
+        gear (the play taken up on the side it pushes), 0 in the play or off a joint."""
+        j = self.mesh
+        if j < 0 or not self.on or self.u_rot == 0.0 or self.sense_dead:
+            return 0.0
+        half = self.backlash / 2.0
+        g = self.gap[j]
+        return MESH_LOAD if (self.u_rot > 0 and g >= half) or (self.u_rot < 0 and g <= -half) else 0.0
 
     def gear_count(self) -> int:
         return _floor(self.w / self.cfg.GEAR_MRAD_PER_COUNT + 1e-9)

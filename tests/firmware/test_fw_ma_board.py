@@ -133,6 +133,36 @@ def test_rot_drives_to_the_joint_then_turns_it():
     assert abs(hal.theta[2] - 100.0) <= CFG.BACKLASH_MRAD / 2 + CFG.ROT_TOL_MRAD + 0.2
 
 
+def test_the_joint_lands_on_its_angle_wherever_a_fresh_mesh_meets_the_gear():
+    """The current sense (drive.py `contact`): the estimate moves only once the worm
+    loads its gear, so a worm of 15 mrad play (five times the config's) lands the
+    joint within a period's half travel plus ROT_TOL, from either end of its play
+    and its middle; the play model alone would be off by up to the play."""
+    for gap0 in (-7.5, 0.0, 7.5):
+        board, hal, host = _homed()
+        hal.backlash = 15.0
+        hal.gap0 = gap0
+        assert host.answer(3, "ROT", 7, 3, -250)[1] == "OK"
+        _until_done(board, hal, 7, 12000)
+        assert abs(hal.theta[2] - (-250.0)) <= 1.5 + CFG.ROT_TOL_MRAD, (gap0, hal.theta)
+        assert host.answer(4, "ROT", 8, 3, 100)[1] == "OK"           # back the other way: the play crossed
+        _until_done(board, hal, 8, 8000)
+        assert abs(hal.theta[2] - 100.0) <= 1.5 + CFG.ROT_TOL_MRAD, (gap0, hal.theta)
+
+
+def test_without_a_current_sense_the_config_play_is_assumed():
+    cfg = load_config(WDOG_MS=10000000, ROT_ISENSE_PIN=None)
+    board, hal, host = new_board(cfg)
+    assert host.answer(2, "HOME", 100)[1] == "OK"
+    run_until(board, hal, lambda: not board.unhomed and not board.busy(), 30000)
+    hal.sense_dead = True                       # nothing reads it: the firmware must not need it
+    hal.gap0 = -cfg.BACKLASH_MRAD / 2
+    assert host.answer(3, "ROT", 7, 3, 200)[1] == "OK"
+    _until_done(board, hal, 7, 12000)
+    assert not board.rot.sense and board.state != "FAULT"
+    assert abs(hal.theta[2] - 200.0) <= cfg.BACKLASH_MRAD + cfg.ROT_TOL_MRAD, hal.theta
+
+
 def test_rot_from_above_and_magnet_events():
     board, hal, host = _homed()
     host.answer(3, "MV", 1, 650)

@@ -116,6 +116,20 @@ def test_stalled_joint_is_stall_j():
     _stopped(board, hal)
 
 
+def test_a_worm_that_meets_no_gear_is_mesh_j():
+    """No load on the current sense for PLAY_MAX_MRAD of worm travel: no gear there (or
+    a dead sense): FAULT MESH:j, outputs off, and the joint's estimate never moved."""
+    board, hal, host = _homed()
+    hal.sense_dead = True
+    host.answer(3, "ROT", 1, 2, 300)
+    lines = _fault(board, hal, 10000)
+    assert board.link.reason == "MESH:2"
+    ev = events(lines, "FAULT")[0]
+    assert ev[1] == "2" and int(ev[2]) > board.cfg.PLAY_MAX_MRAD
+    assert board.theta[1] == 0.0
+    _stopped(board, hal)
+
+
 def test_estop_mid_move():
     board, hal, host = _homed()
     host.answer(3, "MV", 1, 400)

@@ -130,6 +130,10 @@ class MaSimHal(SimHal):
         self._sync()
         return self.ma.pop_edges()
 
+    def rot_load(self) -> float:
+        self._sync()
+        return self.ma.rot_load()
+
     def hall_level(self) -> int:
         self._sync()
         return 1 if self.ma.level else 0

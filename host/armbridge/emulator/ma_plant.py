@@ -43,7 +43,10 @@ the plant above) say where this MA differs from its config: the wheel's true
 travel per count (WHEEL_MM_PER_COUNT * wheel_scale), magnet j at r_j +
 magnet_mm[j] (the gear stays at r_j), the sensor's true window, each worm's true
 play, a dead band of friction on the rotation effort while the worm turns joint
-j, and the far end stop at l + end_mm.
+j, the far end stop at l + end_mm, and the load the worm takes while it drives
+a gear (mesh_load, plus the joint's friction), which `rot_load` reads with
+noise as the rotation driver's current sense does (0 in the play: that is how
+the firmware sees the play taken up).
 `SPREADS` says how each varies (and v_full, w_full, slip_sigma), and
 `hidden_truth(cfg, rng)` draws one MA (docs/emulator.md, "Hidden truth").
 """
@@ -57,7 +60,8 @@ from typing import Any
 import numpy as np
 
 from armbridge.emulator.ma_steps import (MaParams, backlash, count, counts, drive_step, engaged, friction,
-                                         ground_step, hall_step, loco_step, per_joint, rot_step, slip_step)
+                                         ground_step, hall_step, loco_step, per_joint, pushing, rot_step,
+                                         slip_step)
 from armbridge.emulator.truth import Spread, draw
 from armbridge.errors import ArmbridgeError
 from armbridge.robots.masr import MasrArm
@@ -97,6 +101,8 @@ class MaPlant:
         self.lo_stop = [float(x) - self.p.stop_margin for x in lo]
         self.hi_stop = [float(x) + self.p.stop_margin for x in hi]
         self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
+        self.load = 0.0       # the load the worm drives (effort), what the current sense reads less its noise
         q = np.zeros(self.n) if q0 is None else np.asarray(q0, float)
         if q.shape != (self.n,):
             raise ArmbridgeError(f"MA q0 needs {self.n} values (theta_1..theta_{nj}, d), got {q.shape}")
@@ -163,6 +169,15 @@ class MaPlant:
 
     def gear_count(self) -> int:
         return count(self.w, self.gear_q)
+
+    def rot_load(self) -> float:
+        """The rotation driver's current sense (effort units): the load while the worm
+        drives a gear, about 0 while it turns in the play or off a joint, plus noise.
+        The noise is a function of the seed and the plant's time (us), not a stream,
+        so a reading does not depend on how often anyone read before (the CPython and
+        the MicroPython firmware read at different moments and must see one plant)."""
+        z = np.random.default_rng([self.seed, 1, int(round(self.t * 1e6))]).standard_normal()
+        return self.load + self.p.sense_noise * float(z)
 
     def pop_edges(self) -> list[int]:
         """The counts latched at the hall rising edges since the last call, oldest first."""
@@ -259,6 +274,9 @@ class MaPlant:
             if refused != 0.0:
                 w1 -= refused
                 om1 = 0.0
+        u = self.u_rot
+        self.load = (min(abs(u), p.mesh_load + self.friction[j]) if j >= 0 and pushing(self.gap[j], self.halves[j], u)
+                     else 0.0)
         self.w, self.om = w1, om1
         # gripper
         target = 1.0 if self.grip_open else 0.0
@@ -309,6 +327,9 @@ SPREADS: tuple[Spread, ...] = (
            source="each joint's friction through its worm: 0-6 % of full effort, about 0.03 (ours)"),
     Spread("end_mm", "normal", 0.2, lo=-0.5, hi=0.5, unit="mm",
            source="the end cap printed onto the last link: its stop within +-0.5 mm of l (ours)"),
+    Spread("mesh_load", "normal", 0.008, lo=0.015, hi=0.05,
+           source="the worm's mesh driving a printed gear: 1.5-5 % of full effort on the current sense, "
+                  "above the joint's friction (ours; a self-locking worm is lossy)"),
 )
 #: the truth's centre where it is not the config's or MaParams' neutral default
 TRUTH_NOMINAL: dict[str, Any] = {"backlash_mrad": 15.0, "joint_friction": 0.03}

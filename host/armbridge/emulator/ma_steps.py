@@ -46,6 +46,11 @@ class MaParams:
     joint_friction  0.0       effort lost to joint j's friction while the worm turns it
                               (a dead band, fraction of full effort; one per joint or one)
     end_mm          0.0       the far end stop's offset from l, the links' sum (mm, + beyond)
+    mesh_load       0.03      the load (effort) the worm takes while it drives a gear, what the
+                              rotation driver's current sense reads then (the mesh's and the
+                              joint's friction, capped at the effort: w_full is the speed
+                              while driving, so it holds this load's share already); 0 in the play
+    sense_noise     0.002     the current sense's noise (sd, effort)
     """
 
     v_full: float = 0.12
@@ -70,6 +75,8 @@ class MaParams:
     backlash_mrad: float | tuple[float, ...] | None = None
     joint_friction: float | tuple[float, ...] = 0.0
     end_mm: float = 0.0
+    mesh_load: float = 0.03
+    sense_noise: float = 0.002
 
 
 def per_joint(x: Any, n: int, what: str) -> list[float]:
@@ -168,6 +175,12 @@ def engaged(d: float, r: Sequence[float], tol: float) -> int:
         if abs(rj - d) <= tol:
             return j
     return -1
+
+
+def pushing(gap: float, half: float, u: float) -> bool:
+    """The worm drives its gear: the play taken up (gap at +-half) on the side the
+    effort u turns it toward. Pure."""
+    return (u > 0.0 and gap >= half) or (u < 0.0 and gap <= -half)
 
 
 def backlash(theta: float, gap: float, dw: float, half: float, lo: float, hi: float,

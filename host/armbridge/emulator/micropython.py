@@ -242,8 +242,8 @@ class MicroPythonBoard:
         hal = self.hal
         if self.rig == "ma":
             edges = hal.hall_edges()
-            return "%d %d %d %s" % (hal.wheel_count(), hal.gear_count(), hal.hall_level(),
-                                    ",".join(map(str, edges)) or "-")
+            return "%d %d %d %s %r" % (hal.wheel_count(), hal.gear_count(), hal.hall_level(),
+                                       ",".join(map(str, edges)) or "-", hal.rot_load())
         hal.read_positions(self._q)
         return " ".join(map(repr, self._q))
 

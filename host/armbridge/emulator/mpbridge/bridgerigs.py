@@ -4,10 +4,11 @@ imports under CPython for fwcost.py). Importing it adds them to bridgehal.RIGS
 rig name the emulator announces (`H` request, caps "rig").
 
 "ma", the MASR actuator (firmware/masr_ma, the MA HAL of docs/architecture.md):
-the sensors arrive with every request (`S ms us RX wheel gear level edges`,
-edges the wheel counts the emulator's hall sensor latched since the last
-request, comma-separated, "-" for none) and are what wheel_count, gear_count,
-hall_level and hall_edges answer during that pass, as the chip's pulse
+the sensors arrive with every request (`S ms us RX wheel gear level edges
+load`, edges the wheel counts the emulator's hall sensor latched since the last
+request, comma-separated, "-" for none, load the rotation driver's current
+sense) and are what wheel_count, gear_count, hall_level, hall_edges and
+rot_load answer during that pass, as the chip's pulse
 counters and hall interrupt ring (hal_ma.py) would at that instant: the
 emulator's clock stands still during a pass. Edges the firmware has not taken
 yet stay queued here, in order. loco, rot and grip go into the log (`L<u>`,
@@ -48,6 +49,7 @@ class MaBridgeHal(bridgehal.BridgeHal):
         self.gear = 0
         self.level = 0
         self.edges = []
+        self.load = 0.0
 
     def sense(self, fields):
         self.wheel = int(fields[0])
@@ -56,6 +58,8 @@ class MaBridgeHal(bridgehal.BridgeHal):
         if len(fields) > 3 and fields[3] != "-":
             for x in fields[3].split(","):
                 self.edges.append(int(x))
+        if len(fields) > 4:
+            self.load = float(fields[4])
 
     def wheel_count(self):
         return self.wheel
@@ -70,6 +74,9 @@ class MaBridgeHal(bridgehal.BridgeHal):
         out = self.edges
         self.edges = []
         return out
+
+    def rot_load(self):
+        return self.load
 
     def loco(self, u):
         self.ops.append((LOCO, float(u)))
