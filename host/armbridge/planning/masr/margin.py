@@ -1,16 +1,18 @@
 """The MASR's execution margin and a path's clearance along the motion convention (issue 24 section 2).
 
 The margin. The MA turns a joint until the angle it estimates is within
-ROT_TOL_MRAD (1 mrad) of the set point; the estimate comes through the worm,
-whose play of BACKLASH_MRAD (3 mrad) the firmware models as a gap that a
-fresh mesh starts in the middle of (firmware/masr_ma/drive.py): each
-engagement's angle is off by at most half the play. So a joint rests within
-e = ROT_TOL + BACKLASH / 2 = 2.5 mrad of the plan (`joint_tolerance`, read
-from the firmware's config.py), and planning.margin.chain_margin turns that
-into the farthest any point of the arm can stray: 2.5 mrad x (0.8 + 0.6 +
-0.4 + 0.2 + 0.1) m = 5.25 mm for the paper's arm (`execution_margin`).
-Measured on 20 drawn, calibrated boards the MA's pose ends 5.5 +- 3.2 mm from
-the plan (docs/benchmarks.md, issue 23): the same size.
+ROT_TOL_MRAD (1 mrad) of the set point; the estimate comes through the worm
+and its play (firmware/masr_ma/drive.py). With the rotation driver's current
+sense the estimate starts where the worm meets the gear, placed within half a
+control period's worm travel (1.4 mrad at vmax); a board without it models
+BACKLASH_MRAD (3 mrad) with a fresh mesh in its middle, off by half of it.
+Either is within 1.5 mrad, so a joint rests within e = ROT_TOL + BACKLASH / 2
+= 2.5 mrad of the plan (`joint_tolerance`, read from the firmware's
+config.py), and planning.margin.chain_margin turns that into the farthest any
+point of the arm can stray: 2.5 mrad x (0.8 + 0.6 + 0.4 + 0.2 + 0.1) m =
+5.25 mm for the paper's arm (`execution_margin`). Measured on 20 drawn,
+calibrated boards the MA's pose ends 0.77 +- 0.42 mm from the plan, 1.75 mm
+at worst (docs/benchmarks.md, issue 23): inside the bound.
 
 Planning keeps the environment's margin (m) beyond half the link width
 (Environment.planning_checker): `plan masr --margin MM`, else the
