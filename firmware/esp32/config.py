@@ -79,11 +79,14 @@ PCA9685_ADDR = 0x40
 # at 200 Hz 1.22 us (2.9 mrad). 50 is the default because every hobby servo,
 # the analog SG90-class pen lift included, takes it; a rig whose servos are all
 # digital (the DS3235 takes up to 333 Hz) should use 200: finer steps and a
-# shorter frame (docs/drawing.md "Calibration").
+# shorter frame; the drawn "ARM" then keeps within 1.5 mm of its strokes on
+# every drawn board, which 50 Hz's counts alone cannot (docs/calibration.md).
 SERVO_FREQ_HZ = 50
 # The positional servos trail their pulse by their own loop's lag (about 40 ms,
 # first order: v * tau along a ramp); the board sends each set point this far
-# ahead along its velocity (0: none). Only while the set point moves.
+# ahead along its velocity (0: none). Only while the set point moves; a servo
+# with a DBAND (its hysteresis, which servos.py leads by half) is led here only
+# by what this adds beyond half its DBAND width (arm.py _led).
 SERVO_LEAD_MS = 40
 SERVO_CHANNELS = (0, 1, 2)          # PCA9685 channel of each joint
 # Per joint: pulse us_a (us) at angle a (mrad) and us_b at b; linear between.

@@ -15,8 +15,11 @@ Steps (STEPS; `only` picks some, none = all that the rig has):
   reading = c0 + g q (g only where the marks spread the joint by MIN_SPREAD,
   else 1). It sets effort rig: the pots' CAL (arm_cal.py's reuse of the
   verb: "pulse" 1000/2000 stand for the readings mid -+ 500 mrad); pca9685
-  rig: the servo's CAL at 1000 and 2000 us. Needs a jig (`jig=`: jig.make_jig):
-  without one the step is skipped and says so.
+  rig: the servo's CAL at 1000 and 2000 us, and its hysteresis (DBAND: each
+  mark is placed coming from below and from above, the line fitted to the
+  middle; the width is the pulses' gap between the two sides corrected by
+  where the feedback pots saw the joint rest, finer than a PWM count). Needs
+  a jig (`jig=`: jig.make_jig): without one the step is skipped and says so.
 
 `calibrate(client, cfg, only, jig=None, rule=RULE)` measures and returns the
 settings (Found); it sends settings only where measuring needs them (RATE
@@ -166,18 +169,34 @@ def identity_cal(cfg: Any, rig: str) -> list[tuple[str, tuple[int, ...]]]:
     return [("CAL", (j + 1, 1000, m - 500, 2000, m + 500)) for j, m in enumerate(mid)]
 
 
+def _servo_line(cfg: Any, j: int) -> tuple[float, float, float]:
+    """(us0, us per rad, us per PCA9685 count) of joint j under the config's SERVO_CAL and
+    SERVO_FREQ_HZ (the firmware's own arithmetic: servos.py, pca9685.py)."""
+    us_a, a, us_b, b = cfg.SERVO_CAL[j]
+    k = (us_b - us_a) * 1000.0 / (b - a)
+    osc = 25_000_000
+    pre = max(3, min(255, int(osc / (4096 * cfg.SERVO_FREQ_HZ) + 0.5) - 1))
+    return us_a - k * a / 1000.0, k, (pre + 1) * 1e6 / osc
+
+
 def pwm_pulse(cfg: Any, j: int, q: float) -> float:
     """The pulse (us) the pca9685 rig sends joint j (0-based) for set point q (rad) under the
     config's SERVO_CAL: servos.py's line, clipped, rounded to the PCA9685's counts at SERVO_FREQ_HZ
     (the firmware's own arithmetic, pca9685.py)."""
-    us_a, a, us_b, b = cfg.SERVO_CAL[j]
-    k = (us_b - us_a) * 1000.0 / (b - a)
-    us = min(2500.0, max(500.0, us_a - k * a / 1000.0 + k * q))
-    osc = 25_000_000
-    pre = max(3, min(255, int(osc / (4096 * cfg.SERVO_FREQ_HZ) + 0.5) - 1))
-    per = (pre + 1) * 4096 * 1e6 / osc / 4096
+    us0, k, per = _servo_line(cfg, j)
+    us = min(2500.0, max(500.0, us0 + k * q))
     c = min(4095, max(1, int(us / per + 0.5)))
     return c * per
+
+
+def count_centres(cfg: Any, q) -> np.ndarray:
+    """Set points (rad) at the middle of the PCA9685 count each joint's q falls in (SERVO_CAL):
+    the same pulses, as far as can be from the next count's."""
+    out = np.asarray(q, float).copy()
+    for j in range(len(out)):
+        us0, k, _ = _servo_line(cfg, j)
+        out[j] = (pwm_pulse(cfg, j, out[j]) - us0) / k
+    return out
 
 
 def readings(client: Any, seconds: float = 0.4, field: str = "q") -> np.ndarray:
@@ -200,24 +219,27 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
     for verb, args in list(identity_cal(cfg, rig)) + list(gains):   # measure against the known defaults (and new gains)
         client.command(verb, *args)
     start = readings(client, 0.1, "target")
-    arm = Jogger(client, start)
-    qs, rs, used, widths = [], [], [], []
+    arm = Jogger(client, start, snap=(lambda q: count_centres(cfg, q)) if rig == "pca9685" else None)
+    qs, rs, used, gaps, rests, pots = [], [], [], [], [], []
     for m in marks:
         if rig == "effort":          # the pots read the joints themselves: one placement
             ok = jig.place(m, arm)
             r = readings(client) if ok else None
         else:                        # the servos rest where they came from: both sides, the middle
-            got = []
+            got, seen = [], []
             for side in (1, -1):
                 arm.side = side
                 if not jig.place(m, arm):
                     break
                 got.append([pwm_pulse(cfg, j, arm.setpoint[j]) for j in range(n)])
+                seen.append(readings(client))     # the feedback pots: where the joint rests
             arm.side = 0
             ok = len(got) == 2
             r = np.mean(got, axis=0) if ok else None
             if ok:
-                widths.append(np.abs(np.subtract(got[0], got[1])))   # us: the hysteresis, per joint
+                gaps.append(np.subtract(got[0], got[1]))     # us: from below less from above
+                rests.append(np.subtract(seen[1], seen[0]))  # rad (pots): from above less from below
+                pots.append(np.mean(seen, axis=0))
         if not ok:
             f.lines.append(f"jig: mark {m.name} skipped")
             continue
@@ -253,7 +275,16 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
                 beta, alpha = (float(x) for x in np.polyfit(wj, qj, 1))
             a, b = alpha + beta * 1000.0, alpha + beta * 2000.0
             f.settings.append(("CAL", (j + 1, 1000, int(round(a * 1000)), 2000, int(round(b * 1000)))))
-            width = float(np.median([w[j] for w in widths])) * abs(beta)    # rad
+            # the hysteresis: from below the joint rests h short of its pulse's angle, from above h
+            # past it, so 2 h = beta (P_below - P_above) + (r_above - r_below) / pot gain: the pulses
+            # alone are whole PWM counts (11.5 mrad at 50 Hz), the pots see where the joint really
+            # rested, and their offset cancels in the difference (their gain: against the marks)
+            pj = np.array([p[j] for p in pots])
+            gain = float(np.polyfit(qj, pj, 1)[0]) if np.ptp(qj) >= MIN_SPREAD else 1.0
+            if not 0.8 <= gain <= 1.25:
+                gain = 1.0
+            width = max(0.0, float(np.median([beta * g[j] + r[j] / gain for g, r in zip(gaps, rests)])))
+            counts = float(np.median([abs(g[j]) for g in gaps])) * abs(beta)
             f.settings.append(("DBAND", (j + 1, int(min(LEAD_MAX_MRAD, round(width * 1000))))))
             us_a, a_cfg, us_b, b_cfg = cfg.SERVO_CAL[j]
             nominal = a_cfg / 1000.0 + (1500.0 - us_a) * (b_cfg - a_cfg) / 1000.0 / (us_b - us_a)
@@ -261,6 +292,7 @@ def jig_step(client: Any, cfg: Any, jig: Any, marks=MARKS, gains=(), rig: str | 
             resid = qj - (alpha + beta * wj)
             per[str(j + 1)] = {"offset_at_1500us_rad": round(horn, 5), "rad_per_us": round(beta, 8),
                                "hysteresis_mrad": round(width * 1000, 2),
+                               "hysteresis_pulses_mrad": round(counts * 1000, 2), "pot_gain": round(gain, 4),
                                "residual_max_mrad": round(float(np.max(np.abs(resid))) * 1000, 2)}
             f.lines.append(f"joint {j + 1}: the servo sits {horn * 1000:+.1f} mrad off at 1500 us, "
                            f"{beta * 1e6:.1f} urad/us; {width * 1000:.1f} mrad between its two sides (DBAND)")

@@ -112,24 +112,34 @@ class Jogger:
 
     The approach is wider than any servo's hysteresis (its dead band both ways
     and its play: up to about 36 mrad), so the joint comes from beyond it and
-    the play is taken up, and it ends slowly (`CREEP`: the last FINE rad at
-    CREEP_SPEED, the FINE before at SLOW_SPEED): the board leads a moving
+    the play is taken up, and it ends slowly (the last FINE rad at CREEP_SPEED,
+    the rest of the approach at SLOW_SPEED): the board leads a moving
     positional servo's set point by SERVO_LEAD_MS along its velocity, so an
     approach at SPEED would overshoot the target by 20 mrad and the servo would
     come to rest from the other side (the width between the two sides measured
-    6 mrad on a servo whose truth was 23); at CREEP_SPEED the lead is 0.5 mrad."""
+    6 mrad on a servo whose truth was 23); at CREEP_SPEED the lead is 0.2 mrad.
+    `setpoint` is what the board was sent (whole mrad), so the pulse the host
+    works out for it is the board's. `snap` (q -> q, optional): where a move
+    really goes; the pca9685 rig's jig step moves to the middle of the PWM
+    count the set point falls in, so that the creep's last lead cannot tip the
+    pulse into the next count (a user's jogs end near a count's edge: on the
+    count beyond it the servo rested a count inside its dead band, and the
+    width read a count short on 2 of 5 marks)."""
 
     SPEED = 0.5       # rad/s of the fastest joint
     SLOW_SPEED = 0.1  # rad/s: the approach's middle (a lead of 4 mrad at 40 ms, within any dead band)
-    CREEP_SPEED = 0.0125   # rad/s: its last FINE rad
+    CREEP_SPEED = 0.005    # rad/s: its last FINE rad (a lead of 0.2 mrad: the pulse that the
+                           # servo ends on is, but for 7 % of a 200 Hz count, the one the host records)
     FINE = 0.005
     SETTLE_S = 0.4
     WID = 60000       # waypoint ids the jig uses (and counts up from)
 
-    def __init__(self, client: Any, start, side: int = 0, approach: float = 0.05) -> None:
+    def __init__(self, client: Any, start, side: int = 0, approach: float = 0.05,
+                 snap: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self.client = client
         self.side = side
         self.approach = approach
+        self.snap = snap
         self.setpoint = np.asarray(start, float).copy()
         self._wid = self.WID
 
@@ -151,6 +161,8 @@ class Jogger:
 
     def move(self, q) -> None:
         q = np.asarray(q, float)
+        if self.snap is not None:
+            q = np.asarray(self.snap(q), float)
         if self.side:
             self._go(q - self.side * self.approach)
             self._go(q - self.side * self.FINE, self.SLOW_SPEED)
@@ -166,7 +178,7 @@ class Jogger:
         self.client.command("W", wid, dur, *P.to_milli(q))
         self.client.drain(dur / 1000.0)
         self.wait(wid, dur / 1000.0)
-        self.setpoint = q
+        self.setpoint = np.asarray(P.to_milli(q), float) / 1000.0     # as the board has it
 
     def nudge(self, j: int, dq: float) -> None:
         q = self.setpoint.copy()
