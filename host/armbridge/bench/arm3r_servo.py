@@ -185,7 +185,8 @@ def summarize(runs: list[dict[str, Any]], label: str) -> dict[str, Any]:
             "stroke_max_mm_median": float(np.median(col("stroke_max_mm"))),
             "track_mean_mrad": float(col("track_mean_mrad").mean()),
             "track_max_mrad": float(col("track_max_mrad").max()),
-            "meet_target": float(np.mean(col("stroke_mean_mm") <= TARGET_MM))}
+            "meet_target": float(np.mean(col("stroke_mean_mm") <= TARGET_MM)),
+            "meet_target_max": float(np.mean(col("stroke_max_mm") <= TARGET_MM))}
 
 
 def run(plants: int, rigs=RIGS, text: str = TEXT, rule: str | None = None, config: dict[str, int] | None = None,
@@ -235,8 +236,8 @@ def arm3r_servo_cmd(
                                                        "'shipped': no gains step, the config's gains)."),
 ) -> None:
     """The drawing arm on N boards of hidden truth per rig, uncalibrated beside calibrated (`armbridge calibrate`'s
-    procedure with the emulated jig): the true pen's stroke error with the pen down and the joints' tracking
-    error."""
+    procedure with the emulated jig): the true pen's stroke error with the pen down (the share of boards whose
+    mean, and whose largest error, is within issue 23's 1.5 mm) and the joints' tracking error."""
     from rich.console import Console
     from rich.table import Table
 
@@ -251,16 +252,17 @@ def arm3r_servo_cmd(
     write_json(result, json_out)
     t = Table(title=f"'{text}' on {plants} drawn boards per rig (true figures)")
     for c in ("rig", "", "runs", "stroke mean (mm)", "stroke max, median / worst (mm)", "tracking mean / max (mrad)",
-              f"stroke mean <= {TARGET_MM:g} mm"):
+              f"stroke mean <= {TARGET_MM:g} mm", f"stroke max <= {TARGET_MM:g} mm"):
         t.add_column(c, justify="left" if c in ("rig", "") else "right")
     for rig in chosen:
         for label in ("uncalibrated", "calibrated"):
             s = result[rig][label]
             if not s.get("completed"):
-                t.add_row(rig, label, f"0/{s['runs']}", *["-"] * 4)
+                t.add_row(rig, label, f"0/{s['runs']}", *["-"] * 5)
                 continue
             t.add_row(rig, label, f"{s['completed']}/{s['runs']}", f"{s['stroke_mean_mm']:.2f}",
                       f"{s['stroke_max_mm_median']:.2f} / {s['stroke_max_mm']:.2f}",
-                      f"{s['track_mean_mrad']:.1f} / {s['track_max_mrad']:.1f}", f"{s['meet_target']:.0%}")
+                      f"{s['track_mean_mrad']:.1f} / {s['track_max_mrad']:.1f}", f"{s['meet_target']:.0%}",
+                      f"{s['meet_target_max']:.0%}")
     console.print(t)
     console.print(f"wrote {json_out}")
