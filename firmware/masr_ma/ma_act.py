@@ -27,7 +27,7 @@ t0_ms, aux]`:
         END_APPROACH_MM short of l arriving at creep; push up at creep, effort
         at most HOME_EFFORT, until the wheel stops: EV ENDSTOP n count (the
         wheel's count from home), d's estimate left as it is. No stop within
-        2 END_APPROACH_MM past the estimate's l: FAULT END:MISSED.
+        3 END_APPROACH_MM of the push (20 mm past l): FAULT END:MISSED.
   LIMIT go                       the board's own move of d into a range a
         SETLIM narrowed (ma.py `limit_to`; id -1: no START or DONE, EV LIMIT n
         when it begins): MV's ramp to the range's nearer end.
