@@ -163,7 +163,8 @@ def make_runner(spec: BoardSpec, interpreter: str | None, root: Path) -> Firmwar
                              f"it runs under: {', '.join(spec.interpreters)}")
     fw = spec.firmware
     if isinstance(fw, ElfFirmware) and choice == "simavr":
-        from armbridge.emulator.simavr_runner import SimavrRunner, firmware_elf
+        from armbridge.emulator.simavr_chip import firmware_elf
+        from armbridge.emulator.simavr_runner import SimavrRunner
         return SimavrRunner(firmware_elf(root / fw.folder, fw.elf))
     if not isinstance(fw, MicroPythonFirmware):
         raise ArmbridgeError(f"the {spec.name} board needs the {choice} runner, which armbridge does not have yet")

@@ -10,7 +10,7 @@ the write (its default). Then the sketch must answer HELLO with the name,
 version and protocol of the config.h it was built from (issue 14 §2).
 
 `emu:arduino_pump` (options `?flash=FILE`, `eeprom=FILE`): the emulated Mega in
-the simavr harness's boot mode (simavr_runner.BootloaderChip), the real
+the simavr harness's boot mode (simavr_chip.BootloaderChip), the real
 bootloader behind a pty; avrdude gets the pty, the HELLO check the same chip.
 """
 from __future__ import annotations
@@ -58,7 +58,7 @@ class AvrResult:
 def build_hex(target: AvrTarget, firmware_root: Path | None) -> tuple[Path, Any]:
     """The .hex and config.h constants of the board's firmware (rebuilt with its Makefile when stale)."""
     from armbridge.boards.config import read_config_h
-    from armbridge.emulator.simavr_runner import firmware_elf
+    from armbridge.emulator.simavr_chip import firmware_elf
     from armbridge.resources import firmware_dir
 
     folder = (firmware_root or firmware_dir()) / target.folder
@@ -201,7 +201,7 @@ def flash_avrdude(target: AvrTarget, port: str, *, firmware_root: Path | None = 
         journal.done()
         res.hello = _hello(port, res, port, timeout)
         return res
-    from armbridge.emulator.simavr_runner import BootloaderChip
+    from armbridge.emulator.simavr_chip import BootloaderChip
 
     opts = _emu_options(port, target.board)
     with tempfile.TemporaryDirectory(prefix="armbridge-avr-") as tmp:

@@ -1,2 +1,2 @@
-"""The simavr harness (harness.c, built on first use by simavr_runner.harness_binary)
+"""The simavr harness (harness.c, built on first use by simavr_chip.harness_binary)
 and the ATmega2560's pin and ELF data (mega2560)."""
