@@ -53,7 +53,7 @@ PORT_KINDS = "a serial device (/dev/ttyUSB0), a pyserial URL (socket://, rfc2217
 SCHEMES: dict[str, str] = {
     "emu": "armbridge.emulator.url:open_emu_port",
     # An emulated board is switched into Modbus through a line session: the executor's.
-    "modbus": "armbridge.executor.modbus_client:open_modbus_port",
+    "modbus": "armbridge.executor.modbus_open:open_modbus_port",
 }
 
 
