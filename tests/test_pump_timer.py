@@ -20,7 +20,7 @@ if shutil.which("avr-gcc") is None or shutil.which("make") is None:
 if not Path("/usr/include/simavr/sim_avr.h").is_file():
     missing("libsimavr-dev missing (scripts/setup.sh as root installs it)")
 
-from armbridge.emulator import simavr_runner as SR  # noqa: E402
+from armbridge.emulator.simavr_chip import firmware_elf  # noqa: E402
 from armbridge.emulator.registry import board_spec  # noqa: E402
 from armbridge.resources import firmware_dir  # noqa: E402
 
@@ -35,7 +35,7 @@ PERIOD_CYCLES = 160_000  # 10 ms at 16 MHz
 @pytest.fixture(scope="module")
 def elf() -> Path:
     fw = board_spec("arduino_pump").firmware
-    return SR.firmware_elf(firmware_dir() / fw.folder, fw.elf)
+    return firmware_elf(firmware_dir() / fw.folder, fw.elf)
 
 
 def _period_ok(r: dict) -> None:

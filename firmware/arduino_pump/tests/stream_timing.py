@@ -17,6 +17,7 @@ import os
 import sys
 from pathlib import Path
 
+import armbridge.emulator.simavr_chip as CH
 import armbridge.emulator.simavr_runner as SR
 from armbridge.bench import link as L
 from armbridge.emulator.pump_hal import _spread, pump_timing
@@ -26,13 +27,13 @@ EXTRA = dict(kv.split("=") for kv in os.environ.get("EXTRA", "").split(",") if k
 
 def run(elf: Path, n: int = 1500, estops: int = 20, mode: str = "line", rate: int = 0) -> dict:
     """The measurement of ELF (tests/test_pump_timer.py calls it with a shorter load)."""
-    saved = SR.DEFAULT_PROBES, SR.firmware_elf
+    saved = SR.DEFAULT_PROBES, CH.firmware_elf
     SR.DEFAULT_PROBES = dict(SR.DEFAULT_PROBES, plan="Traj::plan", **EXTRA)
-    SR.firmware_elf = lambda folder, name: Path(elf).resolve()   # run ELF, do not rebuild the checkout's
+    CH.firmware_elf = lambda folder, name: Path(elf).resolve()   # run ELF, do not rebuild the checkout's
     try:
         return _run(Path(elf).resolve(), n, estops, mode, rate)
     finally:
-        SR.DEFAULT_PROBES, SR.firmware_elf = saved
+        SR.DEFAULT_PROBES, CH.firmware_elf = saved
 
 
 def _run(ELF: Path, n: int, estops: int, mode: str, rate: int) -> dict:
