@@ -55,11 +55,10 @@ from typing import Any, Callable
 
 from armbridge.emulator.lineproc import LineProcess
 from armbridge.emulator.simavr.mega2560 import ElfImage, read_elf
-from armbridge.emulator.simavr_chip import harness_binary
+from armbridge.emulator.simavr_chip import ANSWER_TIMEOUT_S, harness_binary
 from armbridge.errors import ArmbridgeError
 from armbridge.link import protocol as P
 
-ANSWER_TIMEOUT_S = 30.0
 STATES = {7: "done (slept with interrupts off)", 8: "crashed"}
 # Timed whenever the image has them (docs/emulator.md, "Syringe-pump board in simavr"):
 # the control period's work, and the checks of a host line (CRC, then grammar and ranges).
