@@ -76,12 +76,13 @@ def test_device_script_runs_tiny_on_the_cpu_with_only_torch_numpy_scipy(tmp_path
 
 def test_pack_keeps_the_networks_within_int8_rounding_and_splits_files(tmp_path):
     torch.manual_seed(0)
-    lo, hi = np.zeros(4), np.ones(4)
-    clf = SmmClassifier(lo, hi, (8,), 3)
-    regs = {c: SmmRegressor(lo, hi, (64, 64), np.full(200, float(c)), 0.5) for c in (0, 2)}
+    lo, hi, periodic = np.zeros(4), np.ones(4), (False, False, False, True)  # the 7R's azimuth wraps
+    clf = SmmClassifier(lo, hi, (8,), 3, periodic)
+    regs = {c: SmmRegressor(lo, hi, (64, 64), np.full(200, float(c)), 0.5, periodic) for c in (0, 2)}
     files = packed.pack(clf, regs, {"robot": "spatial7r", "lo": lo.tolist()}, tmp_path, max_bytes=40_000)
     assert [f.name for f in files] == ["model.json", "model-0.npz", "model-1.npz"]  # a regressor a file
     c2, r2, _ = packed.unpack(tmp_path)
+    assert c2.periodic == periodic and all(m.periodic == periodic for m in r2.values())
     x = torch.rand(50, 4)
     with torch.no_grad():
         assert torch.equal(c2(x), clf(x))  # the classifier is kept in float32

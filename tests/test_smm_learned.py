@@ -121,6 +121,23 @@ def test_paper_sizes_and_scaled_inputs():
     assert isinstance(clf.body[1], torch.nn.LeakyReLU)
 
 
+def test_a_periodic_coordinate_is_one_place_at_both_ends():
+    """The 7R's azimuth enters as (cos, sin): -pi and pi (and az and az + 2 pi) are the same input,
+    which the raw scaled angle would put at the two ends of the box."""
+    lo, hi = np.array([0.0, 0.0, 0.0, -np.pi]), np.array([1.0, 1.0, np.pi, np.pi])
+    torch.manual_seed(0)
+    clf = nets.SmmClassifier(lo, hi, (8,), 3, periodic=(False, False, False, True))
+    assert clf.body[0].in_features == 5
+    x = torch.tensor([[0.5, 0.5, 1.0, -np.pi], [0.5, 0.5, 1.0, 0.3]])
+    y = x.clone()
+    y[:, 3] += 2 * np.pi  # pi, and 0.3 + 2 pi
+    torch.testing.assert_close(clf(x), clf(y))
+    raw = nets.SmmClassifier(lo, hi, (8,), 3)
+    assert raw.body[0].in_features == 4 and not torch.allclose(raw.features(x[:1]), raw.features(y[:1]))
+    with pytest.raises(ArmbridgeError, match="3 flags for 4"):
+        nets.SmmClassifier(lo, hi, (8,), 3, periodic=(False, False, True))
+
+
 def test_regressor_scaling_keeps_eq17_up_to_a_constant():
     rng = np.random.default_rng(1)
     y = rng.normal(size=(50, 6)) * [10, 10, 1, 1, 0.01, 0.01] + 3
@@ -376,6 +393,12 @@ def test_cli_trains_a_tiny_7r_region_model_whose_smms_follow_both_symmetries(tmp
     ok = np.isfinite(base.points)
     diff = moved.points[ok] - (base.points + shift[:, None, None, :])[ok]
     assert np.abs(np.angle(np.exp(1j * diff))).max() < 1e-5  # float32 networks, wrapped angles
+    turned = c.copy()
+    turned[:, 3] += 2 * np.pi  # the exported graphs take the azimuth as (cos, sin): a turn is no change
+    label = smm.classify(c)
+    assert np.array_equal(smm.classify(turned), label)
+    np.testing.assert_allclose(smm.coefficients(int(label[0]), turned[:1]), smm.coefficients(int(label[0]), c[:1]),
+                               rtol=1e-5, atol=1e-5)
 
 
 def fourier_free_locations(smm: LearnedSmm, count: int) -> np.ndarray:

@@ -75,7 +75,7 @@ def pack(classifier: nets.SmmClassifier, regressors: dict[int, nets.SmmRegressor
         p = out / f"{prefix}-{i}.npz"
         np.savez(p, **arrays)  # type: ignore[arg-type]  # (numpy's stub types **kwds as its keywords)
         paths.append(p)
-    card = {"format": FORMAT, **meta,
+    card = {"format": FORMAT, **meta, "periodic": list(classifier.periodic),
             "classifier": {"hidden": _hidden(classifier), "outputs": _outputs(classifier)},
             "regressors": {str(c): {"hidden": _hidden(m), "outputs": _outputs(m)} for c, m in sorted(regressors.items())},
             "files": [p.name for p in paths]}
@@ -120,11 +120,12 @@ def unpack(folder: Path, prefix: str = "model") -> tuple[nets.SmmClassifier, dic
         return out
 
     lo = np.zeros(len(card["lo"]), np.float32)
-    clf = nets.SmmClassifier(lo, lo + 1, card["classifier"]["hidden"], card["classifier"]["outputs"])
+    periodic = card.get("periodic")  # packs before the (cos, sin) inputs have none: no periodic inputs
+    clf = nets.SmmClassifier(lo, lo + 1, card["classifier"]["hidden"], card["classifier"]["outputs"], periodic)
     clf.load_state_dict(state("classifier"))
     regs = {}
     for c, r in card["regressors"].items():
-        m = nets.SmmRegressor(lo, lo + 1, r["hidden"], np.zeros(r["outputs"], np.float32), 1.0)
+        m = nets.SmmRegressor(lo, lo + 1, r["hidden"], np.zeros(r["outputs"], np.float32), 1.0, periodic)
         m.load_state_dict(state(f"regressor-{c}"))
         regs[int(c)] = m.eval()
     return clf.eval(), regs, card

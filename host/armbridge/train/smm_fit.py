@@ -34,6 +34,7 @@ import torch
 from armbridge.errors import ArmbridgeError
 from armbridge.smm import networks as nets
 from armbridge.smm.dataset import SmmDataset
+from armbridge.smm.grid import PERIODIC
 
 Log = Callable[[str], None]
 CHECKPOINT_SECONDS = 60.0  # write the checkpoint at the first epoch end after this long
@@ -139,8 +140,9 @@ def _jobs(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, device: torch.d
     """The classifier and a regressor per cluster with branches, initialised from the seed."""
     canon, labels = ds.classifier_data(rows)
     lo, hi = nets.input_box(np.asarray(ds.canon[ds.cluster >= 0]))
+    periodic = PERIODIC.get(lo.size)  # the 7R's azimuth wraps around (networks._Scaled)
     torch.manual_seed(cfg.seed)
-    clf = nets.SmmClassifier(lo, hi, cfg.cls_hidden, int(ds.cluster_branches.size)).to(device)
+    clf = nets.SmmClassifier(lo, hi, cfg.cls_hidden, int(ds.cluster_branches.size), periodic).to(device)
     jobs = [_Job("classifier", 0, clf, torch.as_tensor(canon, dtype=torch.float32, device=device),
                  torch.as_tensor(labels, device=device), nets.classifier_loss, cfg.cls_lr)]
     x_all = torch.as_tensor(np.asarray(ds.canon[rows], dtype=np.float64), dtype=torch.float32, device=device)
@@ -151,11 +153,30 @@ def _jobs(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, device: torch.d
         y = cluster_targets(ds, int(c), rows[mine])
         mean, scale = nets.output_scaling(y)
         torch.manual_seed(cfg.seed + 1000 * (int(c) + 1))
-        reg = nets.SmmRegressor(lo, hi, cfg.reg_hidden, mean, scale).to(device)
+        reg = nets.SmmRegressor(lo, hi, cfg.reg_hidden, mean, scale, periodic).to(device)
         yt = reg.normalise(torch.as_tensor(y, dtype=torch.float32, device=device))
         jobs.append(_Job(f"regressor-{c}", int(c) + 1, reg, x_all[torch.as_tensor(mine, device=device)], yt,
                          nets.regressor_loss, cfg.reg_lr))
     return jobs
+
+
+def fit_classifier(canon: np.ndarray, labels: np.ndarray, n_classes: int, cfg: SmmTrainConfig,
+                   periodic: tuple[bool, ...] | None = None, device: torch.device | None = None) -> nets.SmmClassifier:
+    """One classifier (cfg.cls_hidden, cfg.cls_lr) trained on (canon, labels) by the pipeline's own loop
+    (the schedule, the batches, the seed): for measuring how the data, not the loop, limits it (bench smm-data)."""
+    device = device or torch.device("cpu")
+    lo, hi = nets.input_box(np.asarray(canon, dtype=np.float64))
+    torch.manual_seed(cfg.seed)
+    clf = nets.SmmClassifier(lo, hi, cfg.cls_hidden, int(n_classes), periodic).to(device)
+    job = _Job("classifier", 0, clf, torch.as_tensor(np.asarray(canon), dtype=torch.float32, device=device),
+               torch.as_tensor(np.asarray(labels, dtype=np.int64), device=device), nets.classifier_loss, cfg.cls_lr)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _fit(job, cfg, {}, lambda k, loss: None, lambda: None)
+    finally:
+        torch.set_num_threads(threads)
+    return clf.eval().cpu()
 
 
 def _progress_bar(label: str, after: str | None = None) -> Any:
