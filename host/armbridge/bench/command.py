@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "soft-exec": "armbridge.bench.soft_exec:soft_exec_cmd",
     "arm3r-servo": "armbridge.bench.arm3r_servo:arm3r_servo_cmd",
     "smm": "armbridge.bench.smm:smm_cmd",
+    "smm-data": "armbridge.bench.smm_data:smm_data_cmd",
     "firmware": "armbridge.bench.firmware_cost:firmware_cmd",
     "arm3r": "armbridge.bench.arm3r:arm3r_cmd",
     "board-ik": "armbridge.bench.board_ik:board_ik_cmd",
