@@ -11,7 +11,8 @@ files of 16 MiB back. So this script
 - needs only torch, numpy and scipy (checked by tests/test_smm7r_device.py, which runs --tiny with every
   other third-party import blocked);
 - watches its own clock (--budget seconds, default 420): every phase has a share of it, data building
-  stops adding refinement patches at its deadline, training sizes its steps to what is left;
+  stops adding refinement patches at 35 % and margin-sampled points (smm/margin.py) at 50 %, training
+  sizes its steps to what is left;
 - writes results.json after every phase (a run cut short still brings back what it measured), then the
   model packed by armbridge.smm.packed (int8 regressors, files <= 15 MiB, at most 6 of them).
 
@@ -77,11 +78,12 @@ def _settings(args: argparse.Namespace) -> dict[str, Any]:
         return dict(grid=(1, 1, 2, 4), half=0.025, seeds=12, step=0.05, N=32, K=8, chunk=256, batch=256,
                     bench_locations=(2,), bench_check=1, refine=(1, 1, 1, 2), tile=2, min_cells=1,
                     cls_hidden=(16, 16), reg_hidden=(16, 16), epochs=20, min_steps=20, train_batch=32,
-                    random_locations=6, eval_points=16)
+                    random_locations=6, eval_points=16, margin_candidates=3, margin_steps=20, margin_batch=32)
     return dict(grid=tuple(args.grid), half=0.1, seeds=64, step=0.02, N=128, K=args.K, chunk=args.chunk,
                 batch=args.chunk, bench_locations=(256, 1024, 4096), bench_check=32, refine=(1, 1, 2, 2),
                 tile=8, min_cells=4, cls_hidden=(150,) * 4, reg_hidden=(150,) * 6, epochs=200, min_steps=2000,
-                train_batch=256, random_locations=2000, eval_points=64)
+                train_batch=256, random_locations=2000, eval_points=64, margin_candidates=20, margin_steps=4000,
+                margin_batch=1024)
 
 
 class Run:
@@ -213,7 +215,7 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
     seeds = rf.seeds_for(arm, coarse)
     t = time.monotonic()
     ds, parts = rf.refine(arm, coarse, s["refine"], pad=0, per_cell=0, batch=s["batch"], min_cells=s["min_cells"],
-                          tile=s["tile"], deadline=run.at(0.5), **opts)
+                          tile=s["tile"], deadline=run.at(0.35), **opts)
     all_patches = rf.patches(grid, seeds, s["refine"], 0, s["tile"])
     run.results["data"] = {
         "grid": {"lo": list(grid.lo), "hi": list(grid.hi), "shape": list(grid.shape)},
@@ -230,7 +232,41 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
         "coarse_count_histogram": {str(int(b)): int(np.sum(coarse.smms.count == b))
                                    for b in np.unique(coarse.smms.count)},
     }
+    ds, run.results["data"]["margin"] = margin_points(run, s, arm, grid, ds, opts, coarse_s / grid.size, dev)
+    run.results["data"]["locations_traced"] += run.results["data"]["margin"]["traced"]
     return ds
+
+
+def margin_points(run: Run, s: dict[str, Any], arm: Any, grid: Any, ds: Any, opts: dict[str, Any],
+                  per_location: float, dev: Any) -> tuple[Any, dict[str, Any]]:
+    """Classifier-only points where a quick branch-count classifier is least sure (smm/margin.py),
+    traced until the data deadline (half the budget): on the 7R they beat refining where neighbours
+    disagree, which flags nearly every cell (docs/smm.md, "How much data the 7R needs")."""
+    import numpy as np
+    import torch
+
+    from armbridge.smm import margin
+    from armbridge.smm.grid import PERIODIC
+    from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
+
+    t = time.monotonic()
+    canon, label = ds.classifier_data(np.arange(len(ds.canon)))
+    count = ds.cluster_branches[label]
+    per_epoch = max(1, math.ceil(len(canon) / s["margin_batch"]))
+    cfg = SmmTrainConfig(s["cls_hidden"], (1,), epochs=max(1, s["margin_steps"] // per_epoch), min_steps=0,
+                         batch=s["margin_batch"], seed=0)
+    clf = fit_classifier(canon, count, int(count.max()) + 2, cfg, PERIODIC[4], dev).to(dev)
+    train_s = time.monotonic() - t
+
+    def logits(c: Any) -> Any:
+        with torch.no_grad():
+            return clf(torch.as_tensor(c, dtype=torch.float32, device=dev)).cpu().numpy()
+
+    n = int(max(0.0, run.at(0.5) - time.monotonic()) / max(per_location, 1e-6))
+    n = min(n, 2_000_000 // s["margin_candidates"])
+    out, info = margin.grow(arm, ds, grid, logits, n, s["margin_candidates"], run.at(0.5), s["chunk"], **opts)
+    return out, {"classifier_steps": cfg.epochs * per_epoch, "classifier_seconds": round(train_s, 1), **info,
+                 "seconds": round(time.monotonic() - t, 1)}
 
 
 def _fit_size(s: dict[str, Any], ds: Any) -> tuple[int, ...]:

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from armbridge.bench.smm_data import power_law
 from armbridge.cli import build_app
 from armbridge.errors import ArmbridgeError
-from armbridge.smm.refine import least_certain
+from armbridge.smm.margin import least_certain
 
 
 def test_margin_sampling_picks_the_rows_whose_two_likeliest_classes_are_closest():
@@ -52,3 +52,53 @@ def test_bench_smm_data_tiny_cli_writes_every_row(tmp_path):
     assert sum(data["rows"][-1]["picked_count_histogram"].values()) == 12  # traced, not assumed
     bad = CliRunner().invoke(build_app(), ["bench", "smm-data", "--sizes", "12", "--active", "5", "--json", str(out)])
     assert bad.exit_code != 0 and "--active must be one of --sizes" in str(bad.exception or bad.output)
+
+
+def test_margin_points_take_the_nearest_cluster_of_their_own_count_across_the_azimuth_seam():
+    from armbridge.smm.dataset import SmmDataset
+    from armbridge.smm.grid import PERIODIC, GridSpec
+    from armbridge.smm.margin import add_points
+
+    grid = GridSpec((0.0, 0.0, 0.0, -np.pi), (1.0, 1.0, np.pi, np.pi), (1, 1, 2, 8))
+    canon = np.array([[0.5, 0.5, 1.0, -3.0], [0.5, 0.5, 1.0, 0.0], [0.5, 0.5, 1.0, 2.9]])
+    ds = SmmDataset(robot="spatial7r", canon=canon, cluster=np.array([0, 1, 2]), label=np.array([0, 1, 2]),
+                    coeffs=np.zeros((3, 1, 7, 2), complex), cluster_branches=np.array([2, 3, 2]),
+                    boundary_canon=np.zeros((0, 4)), boundary_label=np.zeros(0, np.int64), K=2, N=8)
+    pts = np.array([[0.5, 0.5, 1.0, 3.1],    # count 2: cluster 0 at -3.0 is 0.18 rad away across the seam, 2 is 0.2
+                    [0.5, 0.5, 1.0, 2.8],    # count 2: cluster 2, 0.1 rad away
+                    [0.5, 0.5, 1.0, 3.1],    # count 3: only cluster 1, 3.1 rad (3.9 cells) away: beyond a reach of 2
+                    [0.5, 0.5, 1.0, 0.5]])   # count 3: cluster 1, 0.5 rad away
+    out = add_points(ds, grid, pts, np.array([2, 2, 3, 3]), 2.0, PERIODIC[4])
+    assert out.boundary_label.tolist() == [0, 2, -1, 1]
+    assert out.boundary_canon.shape == (4, 4) and len(out.canon) == 3  # classifier-only: no new grid rows
+    with pytest.raises(ArmbridgeError, match="do not fit"):
+        add_points(ds, grid, pts[:, :3], np.array([2, 2, 3, 3]), 2.0, PERIODIC[4])
+
+
+def test_grow_traces_the_least_sure_candidates_and_stops_at_its_deadline():
+    import time
+
+    from armbridge.smm.arms import get_smm_arm
+    from armbridge.smm.dataset import SmmDataset
+    from armbridge.smm.grid import region_grid
+    from armbridge.smm.margin import grow
+
+    arm = get_smm_arm("spatial7r")
+    grid = region_grid(arm, (1, 1, 2, 4))
+    ds = SmmDataset(robot="spatial7r", canon=grid.centres(), cluster=np.zeros(8, np.int64), label=np.zeros(8, np.int64),
+                    coeffs=np.zeros((8, 1, 7, 2), complex), cluster_branches=np.array([3]),
+                    boundary_canon=np.zeros((0, 4)), boundary_label=np.zeros(0, np.int64), K=2, N=8)
+    seen = []
+
+    def logits(c):
+        seen.append(c)
+        z = np.zeros((len(c), 2))
+        z[:, 1] = c[:, 3]  # least sure where the azimuth is nearest 0
+        return z
+
+    out, info = grow(arm, ds, grid, logits, 2, 5, None, 1, seeds=12, step=0.05, sing_tol=0.005)
+    assert info["candidates"] == 10 and info["traced"] == 2 and sum(info["count_histogram"].values()) == 2
+    cand = np.concatenate(seen)
+    assert np.allclose(np.sort(np.abs(out.boundary_canon[:, 3])), np.sort(np.abs(cand[:, 3]))[:2])
+    late, info = grow(arm, ds, grid, logits, 2, 5, time.monotonic() - 1, 1, seeds=12, step=0.05)
+    assert info["traced"] == 0 and len(late.boundary_canon) == 0

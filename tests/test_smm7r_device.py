@@ -62,7 +62,10 @@ def test_device_script_runs_tiny_on_the_cpu_with_only_torch_numpy_scipy(tmp_path
         assert tr[check]["same_counts"] and tr[check]["same_singular"] and tr[check]["max_point_diff_rad"] < 1e-8
     assert {r["engine"] for r in tr["rows"]} >= {"compact", "fused"} and all(r["s_per_location"] > 0 for r in tr["rows"])
     data = res["data"]
-    assert data["refine"]["patches_traced"] >= 1 and data["locations_traced"] == 8 + data["refine"]["cells_traced"]
+    m = data["margin"]  # margin-sampled points, traced until half the budget
+    assert m["traced"] >= 1 and 0 <= m["labelled"] <= m["traced"] and sum(m["count_histogram"].values()) == m["traced"]
+    assert data["refine"]["patches_traced"] >= 1
+    assert data["locations_traced"] == 8 + data["refine"]["cells_traced"] + m["traced"]
     rnd = res["accuracy"]["random_locations"]
     assert rnd["locations"] == 6 and 0 <= rnd["branch_count_mismatch_pct"] <= 100
     files = sorted(p.name for p in out.iterdir())

@@ -17,7 +17,7 @@ locations a target takes. This bench measures it on the one region:
    azimuth (no (cos, sin), networks._Scaled) to measure that choice.
 3. Margin sampling (`--active n`, n one of the sizes): from `candidates` x n
    untraced uniform locations, the n where the size-n classifier is least
-   sure (refine.least_certain) are traced and added; trained on those 2n, it
+   sure (margin.least_certain) are traced and added; trained on those 2n, it
    is compared with the uniform 2n (when 2n is one of the sizes).
 4. A power law mismatch = a n^-b fitted to the uniform sizes (log-log least
    squares) and the n it gives for the paper's 6.02 %: an extrapolation, so
@@ -74,7 +74,7 @@ def run(sizes: Sequence[int] = (5500, 11000, 22000), test: int = 2000, active: i
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.grid import PERIODIC, region_grid, region_locations
     from armbridge.smm.networks import default_architecture
-    from armbridge.smm.refine import least_certain
+    from armbridge.smm.margin import least_certain
     from armbridge.smm.trace import trace_smms
     from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
 

@@ -129,28 +129,6 @@ def seeds_for(arm: SmmArm, coarse: Build) -> np.ndarray:
     return mask
 
 
-def least_certain(logits: np.ndarray, k: int) -> np.ndarray:
-    """Indices of the k rows (of (M, C) class logits) whose two likeliest classes are closest: margin sampling.
-
-    Where the 7R's branch count changes on a finer scale than its grid, almost
-    every cell has a neighbour of another count (`disagree` flags 92 % of the
-    3 x 3 x 24 x 48 region), so refining where neighbours disagree is
-    refining everywhere. A classifier trained on what is traced so far says
-    where it is unsure; tracing there puts the tracer's time where the count
-    changes (docs/smm.md, "How much data the 7R needs": measured against
-    uniform locations of the same number).
-    """
-    z = np.asarray(logits, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] < 2:
-        raise ArmbridgeError(f"logits must be (rows, classes >= 2), got shape {z.shape}")
-    if not 0 <= k <= len(z):
-        raise ArmbridgeError(f"can pick 0 to {len(z)} rows, asked for {k}")
-    p = np.exp(z - z.max(axis=1, keepdims=True))
-    p /= p.sum(axis=1, keepdims=True)
-    top = np.sort(p, axis=1)[:, -2:]
-    return np.argsort(top[:, 1] - top[:, 0], kind="stable")[:k]
-
-
 def factors(grid: GridSpec, factor: Factor) -> tuple[int, ...]:
     """One refinement factor per grid axis, each an integer >= 1 and at least one >= 2."""
     if isinstance(factor, (int, np.integer)):
