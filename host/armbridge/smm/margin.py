@@ -30,7 +30,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm
 from armbridge.smm.dataset import LABEL_REACH, SmmDataset
 from armbridge.smm.grid import PERIODIC, GridSpec, region_locations
+
+if TYPE_CHECKING:
+    from armbridge.shards import Runner
 
 
 def least_certain(logits: np.ndarray, k: int) -> np.ndarray:
@@ -100,32 +103,35 @@ def add_points(ds: SmmDataset, grid: GridSpec, canon: np.ndarray, count: np.ndar
 
 
 def grow(arm: SmmArm, ds: SmmDataset, grid: GridSpec, logits: Callable[[np.ndarray], np.ndarray], n: int,
-         candidates: int, deadline: float | None, batch: int, seed: int = 1, **nullspace_options: Any
-         ) -> tuple[SmmDataset, dict[str, Any]]:
+         candidates: int, deadline: float | None, batch: int, seed: int = 1, runner: Runner | None = None,
+         shard: int | None = None, **nullspace_options: Any) -> tuple[SmmDataset, dict[str, Any]]:
     """ds with up to n margin-sampled points of a 7R region grid (add_points, LABEL_REACH cells).
 
     logits(canon) -> (M, classes): the caller's branch-count classifier (trained on ds, e.g. by
     train.smm_fit.fit_classifier). Of `candidates` x n uniform locations the n least sure are
-    traced (nullspace.compute, counts only), `batch` a call, none started after `deadline`
+    traced (smm.trace.trace_smms, counts only: jobs "smm-margin-<i>" of `batch` locations in
+    shards of `shard`, where `runner` says), no batch started after `deadline`
     (time.monotonic()); what was traced joins. Returns (the data set, what was done).
     """
-    from armbridge.smm import nullspace
+    from armbridge.smm.trace import trace_smms
 
     if n < 0 or candidates < 1 or batch < 1:
         raise ArmbridgeError(f"n >= 0, candidates >= 1 and batch >= 1, got {n}, {candidates}, {batch}")
     cand = region_locations(grid, candidates * n, seed=seed)
     scores = np.concatenate([logits(c) for c in np.array_split(cand, max(1, len(cand) // 65536))]) if n else None
     picked = cand[least_certain(scores, n)] if scores is not None else cand
-    done_c, done_n = [picked[:0]], [np.zeros(0, np.int64)]
-    for start in range(0, len(picked), batch):
+    done_c, done_n, jobs = [picked[:0]], [np.zeros(0, np.int64)], []
+    for i, start in enumerate(range(0, len(picked), batch)):
         if deadline is not None and time.monotonic() > deadline:
             break
         c = picked[start : start + batch]
-        s = nullspace.compute(arm, np.asarray(arm.uncanonical(c)), n_points=16, seed=seed, **nullspace_options)
+        jobs.append(f"smm-margin-{i}")
+        s = trace_smms(arm, np.asarray(arm.uncanonical(c)), 16, shard or batch, runner=runner, job=jobs[-1], seed=seed,
+                       **nullspace_options)
         done_c.append(c)
         done_n.append(s.count)
     c, count = np.concatenate(done_c), np.concatenate(done_n)
     out = add_points(ds, grid, c, count, LABEL_REACH, PERIODIC[len(grid.shape)])
     labelled = int((out.boundary_label[len(ds.boundary_label):] >= 0).sum())
     return out, {"candidates": int(len(cand)), "planned": int(n), "traced": int(len(c)), "labelled": labelled,
-                 "count_histogram": {str(int(b)): int(np.sum(count == b)) for b in np.unique(count)}}
+                 "count_histogram": {str(int(b)): int(np.sum(count == b)) for b in np.unique(count)}, "jobs": jobs}

@@ -194,6 +194,7 @@ def smm_cmd(
     sing_tol: float = typer.Option(0.02, "--sing-tol", help="Singular flag of the nullspace tracer when building the data set (smallest singular value of the weighted Jacobian; flagged cells separate clusters)."),
     boundary_points: int = typer.Option(4, "--boundary-points", help="Random points traced per cluster-boundary cell when building the data set, classifier-only (0: none)."),
     refine: int = typer.Option(0, "--refine", min=0, help="When building the data set, grid the boxes around the cells no cluster can label (e.g. the 4R's three-branch slivers) this many times finer per axis (0: no refinement; docs/smm.md)."),
+    margin: int = typer.Option(0, "--margin", min=0, help="7R: after the grid (and --refine), trace this many more classifier-only locations where a branch-count classifier trained on the grid is least sure (margin sampling; docs/smm.md)."),
     cls_hidden: str = typer.Option("", "--cls-hidden", help="Classifier hidden layers, e.g. 5,5 or 3x50 [default: section VI-A]."),
     reg_hidden: str = typer.Option("", "--reg-hidden", help="Regressor hidden layers, e.g. 4x150 [default: section VI-A]."),
     epochs: int = typer.Option(200, "--epochs", help="Epochs over each network's training locations."),
@@ -250,7 +251,7 @@ def smm_cmd(
     command = " ".join(["armbridge", "train", kind, *(shlex.quote(a) for a in argv if a != "--resume")])
     with shard_options.runner(ray, workers, checkpoint or work / "shards", progress) as runner:
         ds, info = load_or_build(arm, data_path, grid, k, 128, seed, progress, log, boundary_points, sing_tol,
-                                 runner, refine)
+                                 runner, refine, margin)
     pcfg = tr.PipelineConfig(robot=arm.name, train=cfg, dataset=data_path, out=model_dir,
                              work_dir=work, correct_iters=correct_iters, command=command, dataset_info=info)
     card = tr.run(pcfg, ds, resume=resume, progress=progress, log=log)

@@ -72,11 +72,14 @@ def grid_for(arm: SmmArm, text: str) -> GridSpec:
 
 def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int, progress: bool,
                   log: Log | None, per_cell: int = 4, sing_tol: float = 0.02,
-                  runner: Runner | None = None, refine: int = 0) -> tuple[SmmDataset, dict[str, Any]]:
+                  runner: Runner | None = None, refine: int = 0, margin: int = 0
+                  ) -> tuple[SmmDataset, dict[str, Any]]:
     """The data set at `path`, or a new one built over --grid and saved there; and its card entry.
 
     refine > 1: the grid is refined that many times per axis where its cells
-    cannot be labelled (armbridge.smm.refine). The SMMs are traced in shards
+    cannot be labelled (armbridge.smm.refine). margin > 0 (the 7R): that many
+    classifier-only locations more, where a branch-count classifier trained on
+    the grid is least sure (armbridge.smm.margin). The SMMs are traced in shards
     where `runner` says (armbridge.shards; None: here, serially), with one
     progress bar per sharded job; their checkpoints are deleted once the data
     set is saved.
@@ -86,6 +89,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     from armbridge.smm.dataset import build_dataset
     from armbridge.smm.grid import REGION_REFINE_TILE
 
+    if margin and not arm.tool_roll:
+        raise ArmbridgeError(f"--margin samples the 7R's region (tool directions); robot {arm.name!r} has none")
     if path.exists():
         if log:
             log(f"data set: {path}")
@@ -101,10 +106,14 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
         tile = REGION_REFINE_TILE if arm.tool_roll else None
         ds, parts = rf.refine(arm, build, factor, per_cell=per_cell, runner=runner, sing_tol=sing_tol, seed=seed,
                               tile=tile)
+    margin_info: dict[str, Any] = {}
+    if margin:
+        ds, margin_info = _margin(arm, ds, g, margin, seed, sing_tol, runner, log)
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save(path)
     jobs = ["smm-grid", "smm-boundary"] + [f"smm-patch-{i}{end}" for i in range(len(parts)) for end in ("", "-boundary")]
+    jobs += margin_info.get("jobs", [])
     for job in jobs:  # the data set holds what their shards did
         runner.discard(job)
     if log:
@@ -116,4 +125,46 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
     if refine:
         info["refine"] = {"factor": list(factor) if not isinstance(factor, int) else factor, "tile": tile,
                           "how": "armbridge.smm.refine", "patches": rf.summary(parts)}
+    if margin:
+        info["margin"] = {k: v for k, v in margin_info.items() if k != "jobs"}
     return ds, info
+
+
+MARGIN_STEPS = 4000  # the quick classifier's optimiser steps: where it is unsure, not its best accuracy
+MARGIN_BATCH = 1024
+MARGIN_CANDIDATES = 20  # candidates scored per location traced
+
+
+def _margin(arm: SmmArm, ds: SmmDataset, g: GridSpec, n: int, seed: int, sing_tol: float, runner: Runner,
+            log: Log | None) -> tuple[SmmDataset, dict[str, Any]]:
+    """n margin-sampled classifier-only locations (armbridge.smm.margin), by a branch-count classifier
+    of the paper's size trained on ds's labelled rows."""
+    import math
+
+    import torch
+
+    from armbridge.smm import margin
+    from armbridge.smm.grid import PERIODIC
+    from armbridge.smm.networks import default_architecture
+    from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
+
+    canon, label = ds.classifier_data(np.arange(len(ds.canon)))
+    if not len(canon):
+        raise ArmbridgeError(f"--margin: the {g.shape} grid has no labelled cell to train its classifier on "
+                             "(every cluster was too small); use a finer --grid")
+    count = ds.cluster_branches[label]
+    per_epoch = max(1, math.ceil(len(canon) / MARGIN_BATCH))
+    cfg = SmmTrainConfig(default_architecture(arm.n).classifier, (1,), epochs=max(1, MARGIN_STEPS // per_epoch),
+                         min_steps=0, batch=MARGIN_BATCH, seed=seed)
+    if log:
+        log(f"margin sampling: a branch-count classifier on {len(canon)} rows, then {n} of {MARGIN_CANDIDATES * n} "
+            "candidates traced")
+    clf = fit_classifier(canon, count, int(count.max()) + 2, cfg, PERIODIC[4])
+
+    def logits(c: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return clf(torch.as_tensor(c, dtype=torch.float32)).numpy()
+
+    workers = max(1, runner.workers)
+    return margin.grow(arm, ds, g, logits, n, MARGIN_CANDIDATES, None, 2048 * workers, seed + 1, runner, 2048,
+                       sing_tol=sing_tol)

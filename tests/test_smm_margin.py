@@ -1,8 +1,10 @@
-"""`armbridge bench smm-data` in a reduced size, and the pieces it is made of.
+"""Margin sampling (smm/margin.py, `train smm-7r --margin`) and `armbridge bench smm-data`, which
+measures it, in reduced sizes.
 
 Correctness only (no wall-clock targets): the margin rule picks the least
-sure rows, the power law recovers a known one, and the CLI traces, trains
-and writes every row with the counts it traced.
+sure rows, points take the nearest cluster of their own count, the build
+traces what it picked, the power law recovers a known one, and the bench
+traces, trains and writes every row with the counts it traced.
 """
 import json
 
@@ -102,3 +104,20 @@ def test_grow_traces_the_least_sure_candidates_and_stops_at_its_deadline():
     assert np.allclose(np.sort(np.abs(out.boundary_canon[:, 3])), np.sort(np.abs(cand[:, 3]))[:2])
     late, info = grow(arm, ds, grid, logits, 2, 5, time.monotonic() - 1, 1, seeds=12, step=0.05)
     assert info["traced"] == 0 and len(late.boundary_canon) == 0
+
+
+def test_train_smm_7r_margin_adds_traced_classifier_only_locations(tmp_path):
+    from armbridge.smm.arms import get_smm_arm
+    from armbridge.train.smm_data import load_or_build
+
+    arm = get_smm_arm("spatial7r")
+    ds, info = load_or_build(arm, tmp_path / "ds.npz", "1x1x4x8", 8, 32, 0, False, None, per_cell=0, sing_tol=0.005,
+                             margin=5)
+    assert len(ds.canon) == 32 and len(ds.boundary_canon) == 5  # the grid's rows, and the margin's points
+    m = info["margin"]
+    assert m["traced"] == 5 and m["candidates"] == 100 and sum(m["count_histogram"].values()) == 5
+    assert (ds.boundary_label >= -1).all() and int((ds.boundary_label >= 0).sum()) == m["labelled"]
+    with pytest.raises(ArmbridgeError, match="no labelled cell"):
+        load_or_build(arm, tmp_path / "tiny.npz", "1x1x2x4", 8, 32, 0, False, None, per_cell=0, sing_tol=0.005, margin=5)
+    with pytest.raises(ArmbridgeError, match="--margin samples the 7R"):
+        load_or_build(get_smm_arm("planar3r"), tmp_path / "3r.npz", "", 8, 32, 0, False, None, margin=5)
