@@ -240,33 +240,15 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
 def margin_points(run: Run, s: dict[str, Any], arm: Any, grid: Any, ds: Any, opts: dict[str, Any],
                   per_location: float, dev: Any) -> tuple[Any, dict[str, Any]]:
     """Classifier-only points where a quick branch-count classifier is least sure (smm/margin.py),
-    traced until the data deadline (half the budget): on the 7R they beat refining where neighbours
-    disagree, which flags nearly every cell (docs/smm.md, "How much data the 7R needs")."""
-    import numpy as np
-    import torch
-
-    from armbridge.smm import margin
-    from armbridge.smm.grid import PERIODIC
-    from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
-
-    t = time.monotonic()
-    canon, label = ds.classifier_data(np.arange(len(ds.canon)))
-    count = ds.cluster_branches[label]
-    per_epoch = max(1, math.ceil(len(canon) / s["margin_batch"]))
-    cfg = SmmTrainConfig(s["cls_hidden"], (1,), epochs=max(1, s["margin_steps"] // per_epoch), min_steps=0,
-                         batch=s["margin_batch"], seed=0)
-    clf = fit_classifier(canon, count, int(count.max()) + 2, cfg, PERIODIC[4], dev).to(dev)
-    train_s = time.monotonic() - t
-
-    def logits(c: Any) -> Any:
-        with torch.no_grad():
-            return clf(torch.as_tensor(c, dtype=torch.float32, device=dev)).cpu().numpy()
+    as many as the time to half the budget allows and traced until then: on the 7R they beat refining
+    where neighbours disagree, which flags nearly every cell (docs/smm.md, "How much data the 7R needs")."""
+    from armbridge.train.smm_data import add_margin
 
     n = int(max(0.0, run.at(0.5) - time.monotonic()) / max(per_location, 1e-6))
     n = min(n, 2_000_000 // s["margin_candidates"])
-    out, info = margin.grow(arm, ds, grid, logits, n, s["margin_candidates"], run.at(0.5), s["chunk"], **opts)
-    return out, {"classifier_steps": cfg.epochs * per_epoch, "classifier_seconds": round(train_s, 1), **info,
-                 "seconds": round(time.monotonic() - t, 1)}
+    return add_margin(arm, ds, grid, n, 0, hidden=s["cls_hidden"], steps=s["margin_steps"], batch=s["margin_batch"],
+                      candidates=s["margin_candidates"], deadline=run.at(0.5), classifier_device=dev,
+                      trace_batch=s["chunk"], **opts)
 
 
 def _fit_size(s: dict[str, Any], ds: Any) -> tuple[int, ...]:

@@ -108,7 +108,8 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
                               tile=tile)
     margin_info: dict[str, Any] = {}
     if margin:
-        ds, margin_info = _margin(arm, ds, g, margin, seed, sing_tol, runner, log)
+        ds, margin_info = add_margin(arm, ds, g, margin, seed, runner=runner, trace_batch=2048 * max(1, runner.workers),
+                                     shard=2048, log=log, sing_tol=sing_tol)
     seconds = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save(path)
@@ -135,10 +136,14 @@ MARGIN_BATCH = 1024
 MARGIN_CANDIDATES = 20  # candidates scored per location traced
 
 
-def _margin(arm: SmmArm, ds: SmmDataset, g: GridSpec, n: int, seed: int, sing_tol: float, runner: Runner,
-            log: Log | None) -> tuple[SmmDataset, dict[str, Any]]:
-    """n margin-sampled classifier-only locations (armbridge.smm.margin), by a branch-count classifier
-    of the paper's size trained on ds's labelled rows."""
+def add_margin(arm: SmmArm, ds: SmmDataset, g: GridSpec, n: int, seed: int = 0, *,
+               hidden: tuple[int, ...] | None = None, steps: int = MARGIN_STEPS, batch: int = MARGIN_BATCH,
+               candidates: int = MARGIN_CANDIDATES, deadline: float | None = None, classifier_device: Any = None,
+               runner: Runner | None = None, trace_batch: int = 2048, shard: int | None = None,
+               log: Log | None = None, **nullspace_options: Any) -> tuple[SmmDataset, dict[str, Any]]:
+    """ds with up to n margin-sampled classifier-only locations (armbridge.smm.margin.grow), picked by
+    a branch-count classifier (`hidden`, default the paper's) trained for about `steps` steps on ds's
+    labelled rows; traced `trace_batch` a job in shards of `shard`, none started after `deadline`."""
     import math
 
     import torch
@@ -148,23 +153,27 @@ def _margin(arm: SmmArm, ds: SmmDataset, g: GridSpec, n: int, seed: int, sing_to
     from armbridge.smm.networks import default_architecture
     from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
 
+    t = time.perf_counter()
     canon, label = ds.classifier_data(np.arange(len(ds.canon)))
     if not len(canon):
         raise ArmbridgeError(f"--margin: the {g.shape} grid has no labelled cell to train its classifier on "
                              "(every cluster was too small); use a finer --grid")
     count = ds.cluster_branches[label]
-    per_epoch = max(1, math.ceil(len(canon) / MARGIN_BATCH))
-    cfg = SmmTrainConfig(default_architecture(arm.n).classifier, (1,), epochs=max(1, MARGIN_STEPS // per_epoch),
-                         min_steps=0, batch=MARGIN_BATCH, seed=seed)
+    per_epoch = max(1, math.ceil(len(canon) / batch))
+    cfg = SmmTrainConfig(hidden or default_architecture(arm.n).classifier, (1,), epochs=max(1, steps // per_epoch),
+                         min_steps=0, batch=batch, seed=seed)
     if log:
-        log(f"margin sampling: a branch-count classifier on {len(canon)} rows, then {n} of {MARGIN_CANDIDATES * n} "
+        log(f"margin sampling: a branch-count classifier on {len(canon)} rows, then {n} of {candidates * n} "
             "candidates traced")
-    clf = fit_classifier(canon, count, int(count.max()) + 2, cfg, PERIODIC[4])
+    dev = torch.device(classifier_device or "cpu")
+    clf = fit_classifier(canon, count, int(count.max()) + 2, cfg, PERIODIC[4], dev).to(dev)
+    trained_s = time.perf_counter() - t
 
     def logits(c: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return clf(torch.as_tensor(c, dtype=torch.float32)).numpy()
+            return clf(torch.as_tensor(c, dtype=torch.float32, device=dev)).cpu().numpy()
 
-    workers = max(1, runner.workers)
-    return margin.grow(arm, ds, g, logits, n, MARGIN_CANDIDATES, None, 2048 * workers, seed + 1, runner, 2048,
-                       sing_tol=sing_tol)
+    out, info = margin.grow(arm, ds, g, logits, n, candidates, deadline, trace_batch, seed + 1, runner, shard,
+                            **nullspace_options)
+    return out, {"classifier_steps": cfg.epochs * per_epoch, "classifier_seconds": round(trained_s, 1), **info,
+                 "seconds": round(time.perf_counter() - t, 1)}

@@ -163,7 +163,8 @@ def _jobs(ds: SmmDataset, rows: np.ndarray, cfg: SmmTrainConfig, device: torch.d
 def fit_classifier(canon: np.ndarray, labels: np.ndarray, n_classes: int, cfg: SmmTrainConfig,
                    periodic: tuple[bool, ...] | None = None, device: torch.device | None = None) -> nets.SmmClassifier:
     """One classifier (cfg.cls_hidden, cfg.cls_lr) trained on (canon, labels) by the pipeline's own loop
-    (the schedule, the batches, the seed): for measuring how the data, not the loop, limits it (bench smm-data)."""
+    (the schedule, the batches, the seed): the branch-count classifier of margin sampling (train smm-7r
+    --margin, the device script) and of bench smm-data, which measures the data, not the loop."""
     device = device or torch.device("cpu")
     lo, hi = nets.input_box(np.asarray(canon, dtype=np.float64))
     torch.manual_seed(cfg.seed)
