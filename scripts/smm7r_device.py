@@ -240,8 +240,8 @@ def build_data(run: Run, s: dict[str, Any], arm: Any, grid: Any, dev: Any) -> An
 def margin_points(run: Run, s: dict[str, Any], arm: Any, grid: Any, ds: Any, opts: dict[str, Any],
                   per_location: float, dev: Any) -> tuple[Any, dict[str, Any]]:
     """Classifier-only points where a quick branch-count classifier is least sure (smm/margin.py),
-    as many as the time to half the budget allows and traced until then: on the 7R they beat refining
-    where neighbours disagree, which flags nearly every cell (docs/smm.md, "How much data the 7R needs")."""
+    as many as the time to half the budget allows and traced until then: refining where neighbours
+    disagree flags nearly every 7R cell, so it hardly focuses (docs/smm.md, "How much data the 7R needs")."""
     from armbridge.train.smm_data import add_margin
 
     n = int(max(0.0, run.at(0.5) - time.monotonic()) / max(per_location, 1e-6))

@@ -2,14 +2,15 @@
 
 Why: on the 7R the branch count changes on a finer scale than the region's
 grid, so almost every cell has a neighbour of another count (`refine.disagree`
-flags 92 % of the 3 x 3 x 24 x 48 cells) and refining where neighbours
-disagree is refining everywhere: measured on held-out uniform locations, the
-grid plus its refinement (21,888 locations) came to 26.8 % branch-count
-mismatch, uniform locations of the same number 25.1 %, and 11,000 uniform
-plus 11,000 margin-sampled 22.1 % (docs/smm.md, "How much data the 7R
-needs"; `armbridge bench smm-data`). A classifier trained on what is traced
-so far says where it is unsure; tracing there puts the tracer's time where
-the count changes, as active learning's margin sampling does.
+flagged 9,577 of the 3 x 3 x 24 x 48 cells, 92 %; the device script reports
+this count for its grid), and refining where neighbours disagree is
+refining nearly everywhere. A classifier trained on what is traced so far
+says where it is unsure; tracing there puts the tracer's time where the
+count changes, as active learning's margin sampling does. Measured by
+`armbridge bench smm-data` (docs/smm.md, "How much data the 7R needs"): on
+held-out uniform locations, 11,000 uniform plus 11,000 margin-sampled came
+to 24.7 % branch-count mismatch against 25.6 % for 22,000 uniform; a gain,
+but a small one beside what more data buys.
 
 1. `least_certain`: of many untraced candidates, the ones whose two likeliest
    classes are closest.

@@ -75,9 +75,10 @@ class _Scaled(nn.Module):
     tool azimuth, grid.PERIODIC): the network sees (cos, sin) of it instead.
     On the raw angle, -pi and pi are the two ends of the input box, so the
     network has to learn twice over what is one place, and the branch count
-    is not continuous across the seam. Measured on the 7R region (22,000
-    traced locations, the paper's 4 x 150 classifier): held-out branch-count
-    mismatch 27.6 % on the raw angle, 24.1 % on (cos, sin) (docs/smm.md).
+    is not continuous across the seam. Measured on the 7R region (44,000
+    traced locations, the paper's 4 x 150 classifier, `bench smm-data`):
+    held-out branch-count mismatch 22.6 % on the raw angle, 20.4 % on
+    (cos, sin) (docs/smm.md).
     """
 
     lo: torch.Tensor
