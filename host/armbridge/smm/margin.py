@@ -2,8 +2,8 @@
 
 Why: on the 7R the branch count changes on a finer scale than the region's
 grid, so almost every cell has a neighbour of another count (`refine.disagree`
-flagged 9,577 of the 3 x 3 x 24 x 48 cells, 92 %; the device script reports
-this count for its grid), and refining where neighbours disagree is
+flagged 9,574 of the 3 x 3 x 24 x 48 cells, 92 %, in a scratch count; the
+device script reports it for its grid), and refining where neighbours disagree is
 refining nearly everywhere. A classifier trained on what is traced so far
 says where it is unsure; tracing there puts the tracer's time where the
 count changes, as active learning's margin sampling does. Measured by
@@ -13,8 +13,7 @@ to 24.7 % branch-count mismatch against 25.6 % for 22,000 uniform; a gain,
 but a small one beside what more data buys.
 
 1. `least_certain`: of many untraced candidates, the ones whose two likeliest
-   classes are closest.
-   The classifier predicts the branch count itself
+   classes are closest. The classifier predicts the branch count itself
    (train.smm_fit.fit_classifier), since two clusters of one count are no
    uncertainty about the count.
 2. `grow`: scores candidates uniform over the region, picks the least
