@@ -242,10 +242,11 @@ def margin_points(run: Run, s: dict[str, Any], arm: Any, grid: Any, ds: Any, opt
     """Classifier-only points where a quick branch-count classifier is least sure (smm/margin.py),
     as many as the time to half the budget allows and traced until then: refining where neighbours
     disagree flags nearly every 7R cell, so it hardly focuses (docs/smm.md, "How much data the 7R needs")."""
+    from armbridge.smm import margin
     from armbridge.train.smm_data import add_margin
 
     n = int(max(0.0, run.at(0.5) - time.monotonic()) / max(per_location, 1e-6))
-    n = min(n, 2_000_000 // s["margin_candidates"])
+    n = min(n, margin.MAX_CANDIDATES // s["margin_candidates"])
     return add_margin(arm, ds, grid, n, 0, hidden=s["cls_hidden"], steps=s["margin_steps"], batch=s["margin_batch"],
                       candidates=s["margin_candidates"], deadline=run.at(0.5), classifier_device=dev,
                       trace_batch=s["chunk"], **opts)

@@ -104,6 +104,8 @@ def test_grow_traces_the_least_sure_candidates_and_stops_at_its_deadline():
     assert np.allclose(np.sort(np.abs(out.boundary_canon[:, 3])), np.sort(np.abs(cand[:, 3]))[:2])
     late, info = grow(arm, ds, grid, logits, 2, 5, time.monotonic() - 1, 1, seeds=12, step=0.05)
     assert info["traced"] == 0 and len(late.boundary_canon) == 0
+    with pytest.raises(ArmbridgeError, match=r"at most 4000000 at once \(n <= 200000\)"):
+        grow(arm, ds, grid, logits, 200_001, 20, None, 1)
 
 
 def test_train_smm_7r_margin_adds_traced_classifier_only_locations(tmp_path):
@@ -119,5 +121,8 @@ def test_train_smm_7r_margin_adds_traced_classifier_only_locations(tmp_path):
     assert (ds.boundary_label >= -1).all() and int((ds.boundary_label >= 0).sum()) == m["labelled"]
     with pytest.raises(ArmbridgeError, match="no labelled cell"):
         load_or_build(arm, tmp_path / "tiny.npz", "1x1x2x4", 8, 32, 0, False, None, per_cell=0, sing_tol=0.005, margin=5)
+    with pytest.raises(ArmbridgeError, match="--margin must be at most 200000"):
+        load_or_build(arm, tmp_path / "big.npz", "1x1x4x8", 8, 32, 0, False, None, margin=200_001)
+    assert not (tmp_path / "big.npz").exists()
     with pytest.raises(ArmbridgeError, match="--margin samples the 7R"):
         load_or_build(get_smm_arm("planar3r"), tmp_path / "3r.npz", "", 8, 32, 0, False, None, margin=5)

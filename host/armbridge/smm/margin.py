@@ -42,6 +42,8 @@ from armbridge.smm.grid import PERIODIC, GridSpec, region_locations
 if TYPE_CHECKING:
     from armbridge.shards import Runner
 
+MAX_CANDIDATES = 4_000_000  # scored at once: 128 MB of locations and their float64 probabilities besides
+
 
 def least_certain(logits: np.ndarray, k: int) -> np.ndarray:
     """Indices of the k rows of (M, C) class logits whose two likeliest classes are closest."""
@@ -117,6 +119,9 @@ def grow(arm: SmmArm, ds: SmmDataset, grid: GridSpec, logits: Callable[[np.ndarr
 
     if n < 0 or candidates < 1 or batch < 1:
         raise ArmbridgeError(f"n >= 0, candidates >= 1 and batch >= 1, got {n}, {candidates}, {batch}")
+    if candidates * n > MAX_CANDIDATES:
+        raise ArmbridgeError(f"margin sampling of {n} locations scores {candidates * n} candidates; at most "
+                             f"{MAX_CANDIDATES} at once (n <= {MAX_CANDIDATES // candidates})")
     cand = region_locations(grid, candidates * n, seed=seed)
     scores = np.concatenate([logits(c) for c in np.array_split(cand, max(1, len(cand) // 65536))]) if n else None
     picked = cand[least_certain(scores, n)] if scores is not None else cand

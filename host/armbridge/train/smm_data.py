@@ -22,6 +22,7 @@ from armbridge.errors import ArmbridgeError
 from armbridge.smm.arms import SmmArm
 from armbridge.smm.dataset import SmmDataset
 from armbridge.smm.grid import GridSpec
+from armbridge.smm.margin import MAX_CANDIDATES
 from armbridge.train.smm_fit import Log
 
 if TYPE_CHECKING:
@@ -91,6 +92,9 @@ def load_or_build(arm: SmmArm, path: Path, grid: str, K: int, N: int, seed: int,
 
     if margin and not arm.tool_roll:
         raise ArmbridgeError(f"--margin samples the 7R's region (tool directions); robot {arm.name!r} has none")
+    if margin * MARGIN_CANDIDATES > MAX_CANDIDATES:  # before the grid's hours, not after
+        raise ArmbridgeError(f"--margin must be at most {MAX_CANDIDATES // MARGIN_CANDIDATES} (each location is picked "
+                             f"from {MARGIN_CANDIDATES} candidates scored at once), got {margin}")
     if path.exists():
         if log:
             log(f"data set: {path}")
