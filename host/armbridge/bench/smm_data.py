@@ -17,7 +17,7 @@ locations a target takes. This bench measures it on the one region:
    azimuth (no (cos, sin), networks._Scaled) to measure that choice.
 3. Margin sampling (`--active n`, n one of the sizes): from `candidates` x n
    untraced uniform locations, the n where the size-n classifier is least
-   sure (margin.least_certain) are traced and added; trained on those 2n, it
+   sure (smm.margin.pick) are traced and added; trained on those 2n, it
    is compared with the uniform 2n (when 2n is one of the sizes).
 4. A power law mismatch = a n^-b fitted to the uniform sizes (log-log least
    squares) and the n it gives for the paper's 6.02 %: an extrapolation, so
@@ -74,7 +74,7 @@ def run(sizes: Sequence[int] = (5500, 11000, 22000), test: int = 2000, active: i
     from armbridge.smm.arms import get_smm_arm
     from armbridge.smm.grid import PERIODIC, region_grid, region_locations
     from armbridge.smm.networks import default_architecture
-    from armbridge.smm.margin import least_certain
+    from armbridge.smm.margin import pick
     from armbridge.smm.trace import trace_smms
     from armbridge.train.smm_fit import SmmTrainConfig, fit_classifier
 
@@ -116,32 +116,35 @@ def run(sizes: Sequence[int] = (5500, 11000, 22000), test: int = 2000, active: i
 
         rows: list[dict[str, Any]] = []
         models: dict[int, Any] = {}
+
+        def row(sampling: str, n: int, azimuth: str, clf: Any, c: np.ndarray, m: np.ndarray) -> dict[str, Any]:
+            rows.append({"sampling": sampling, "locations": n, "azimuth": azimuth,
+                         "train_mismatch_pct": _mismatch(clf, c, m),
+                         "held_out_mismatch_pct": _mismatch(clf, held_c, held_n)})
+            return rows[-1]
+
         for n in sizes:
             models[n] = fit(pool_c[:n], pool_n[:n], periodic, f"{n} uniform")
-            rows.append({"sampling": "uniform", "locations": n, "azimuth": "cos, sin",
-                         "train_mismatch_pct": _mismatch(models[n], pool_c[:n], pool_n[:n]),
-                         "held_out_mismatch_pct": _mismatch(models[n], held_c, held_n)})
+            row("uniform", n, "cos, sin", models[n], pool_c[:n], pool_n[:n])
         n = sizes[-1]
         raw = fit(pool_c[:n], pool_n[:n], None, f"{n} uniform, raw azimuth")
-        rows.append({"sampling": "uniform", "locations": n, "azimuth": "raw",
-                     "train_mismatch_pct": _mismatch(raw, pool_c[:n], pool_n[:n]),
-                     "held_out_mismatch_pct": _mismatch(raw, held_c, held_n)})
+        row("uniform", n, "raw", raw, pool_c[:n], pool_n[:n])
         if active is not None:
             import torch
 
             progress(f"margin sampling: {active} of {candidates * active} candidates")
-            cand = region_locations(grid, candidates * active, seed=seed + 1)
-            with torch.no_grad():
-                logits = models[active](torch.as_tensor(cand, dtype=torch.float32)).numpy()
-            picked = cand[least_certain(logits, active)]
+
+            def logits(c: np.ndarray) -> np.ndarray:
+                with torch.no_grad():
+                    return models[active](torch.as_tensor(c, dtype=torch.float32)).numpy()
+
+            picked = pick(grid, logits, active, candidates, seed + 1)
             picked_n = counts(picked, "smm-data-margin")
             c = np.concatenate([pool_c[:active], picked])
             m = np.concatenate([pool_n[:active], picked_n])
             clf = fit(c, m, periodic, f"{active} uniform + {active} margin-sampled")
-            rows.append({"sampling": f"uniform {active} + margin {active}", "locations": 2 * active, "azimuth": "cos, sin",
-                         "train_mismatch_pct": _mismatch(clf, c, m),
-                         "held_out_mismatch_pct": _mismatch(clf, held_c, held_n),
-                         "picked_count_histogram": {str(int(b)): int(np.sum(picked_n == b)) for b in np.unique(picked_n)}})
+            row(f"uniform {active} + margin {active}", 2 * active, "cos, sin", clf, c, m)["picked_count_histogram"] = {
+                str(int(b)): int(np.sum(picked_n == b)) for b in np.unique(picked_n)}
     uniform = [r for r in rows if r["sampling"] == "uniform" and r["azimuth"] != "raw"]
     return {"benchmark": "smm-data (7R branch-count mismatch against locations traced)", "robot": arm.name,
             "region": {"lo": list(grid.lo), "hi": list(grid.hi)}, "held_out_locations": test,

@@ -16,9 +16,9 @@ but a small one beside what more data buys.
    classes are closest. The classifier predicts the branch count itself
    (train.smm_fit.fit_classifier), since two clusters of one count are no
    uncertainty about the count.
-2. `grow`: scores candidates uniform over the region, picks the least
-   sure and traces them in batches until a deadline; `add_points` joins
-   them to the data set.
+2. `pick` scores candidates uniform over the region and picks the least
+   sure; `grow` traces them in batches until a deadline and `add_points`
+   joins them to the data set.
 3. `add_points`: the picked points, their counts traced, join the data set
    as classifier-only points (the data set's boundary points): each takes
    the cluster of the nearest labelled row with its own count, within
@@ -104,27 +104,38 @@ def add_points(ds: SmmDataset, grid: GridSpec, canon: np.ndarray, count: np.ndar
                    boundary_label=np.concatenate([ds.boundary_label, label]))
 
 
+def pick(grid: GridSpec, logits: Callable[[np.ndarray], np.ndarray], n: int, candidates: int, seed: int = 1
+         ) -> np.ndarray:
+    """The n of `candidates` x n untraced locations uniform over a region grid (grid.region_locations)
+    where logits(canon) -> (M, classes) is least sure (least_certain), scored 65,536 at a time."""
+    if n < 0 or candidates < 1:
+        raise ArmbridgeError(f"n >= 0 and candidates >= 1, got {n} and {candidates}")
+    if candidates * n > MAX_CANDIDATES:
+        raise ArmbridgeError(f"margin sampling of {n} locations scores {candidates * n} candidates; at most "
+                             f"{MAX_CANDIDATES} at once (n <= {MAX_CANDIDATES // candidates})")
+    cand = region_locations(grid, candidates * n, seed=seed)
+    if not n:
+        return cand
+    scores = np.concatenate([logits(c) for c in np.array_split(cand, max(1, len(cand) // 65536))])
+    return cand[least_certain(scores, n)]
+
+
 def grow(arm: SmmArm, ds: SmmDataset, grid: GridSpec, logits: Callable[[np.ndarray], np.ndarray], n: int,
          candidates: int, deadline: float | None, batch: int, seed: int = 1, runner: Runner | None = None,
          shard: int | None = None, **nullspace_options: Any) -> tuple[SmmDataset, dict[str, Any]]:
     """ds with up to n margin-sampled points of a 7R region grid (add_points, LABEL_REACH cells).
 
     logits(canon) -> (M, classes): the caller's branch-count classifier (trained on ds, e.g. by
-    train.smm_fit.fit_classifier). Of `candidates` x n uniform locations the n least sure are
+    train.smm_fit.fit_classifier). The n that `pick` picks are
     traced (smm.trace.trace_smms, counts only: jobs "smm-margin-<i>" of `batch` locations in
     shards of `shard`, where `runner` says), no batch started after `deadline`
     (time.monotonic()); what was traced joins. Returns (the data set, what was done).
     """
     from armbridge.smm.trace import trace_smms
 
-    if n < 0 or candidates < 1 or batch < 1:
-        raise ArmbridgeError(f"n >= 0, candidates >= 1 and batch >= 1, got {n}, {candidates}, {batch}")
-    if candidates * n > MAX_CANDIDATES:
-        raise ArmbridgeError(f"margin sampling of {n} locations scores {candidates * n} candidates; at most "
-                             f"{MAX_CANDIDATES} at once (n <= {MAX_CANDIDATES // candidates})")
-    cand = region_locations(grid, candidates * n, seed=seed)
-    scores = np.concatenate([logits(c) for c in np.array_split(cand, max(1, len(cand) // 65536))]) if n else None
-    picked = cand[least_certain(scores, n)] if scores is not None else cand
+    if batch < 1:
+        raise ArmbridgeError(f"batch must be >= 1, got {batch}")
+    picked = pick(grid, logits, n, candidates, seed)
     done_c, done_n, jobs = [picked[:0]], [np.zeros(0, np.int64)], []
     for i, start in enumerate(range(0, len(picked), batch)):
         if deadline is not None and time.monotonic() > deadline:
@@ -138,5 +149,5 @@ def grow(arm: SmmArm, ds: SmmDataset, grid: GridSpec, logits: Callable[[np.ndarr
     c, count = np.concatenate(done_c), np.concatenate(done_n)
     out = add_points(ds, grid, c, count, LABEL_REACH, PERIODIC[len(grid.shape)])
     labelled = int((out.boundary_label[len(ds.boundary_label):] >= 0).sum())
-    return out, {"candidates": int(len(cand)), "planned": int(n), "traced": int(len(c)), "labelled": labelled,
+    return out, {"candidates": candidates * n, "planned": int(n), "traced": int(len(c)), "labelled": labelled,
                  "count_histogram": {str(int(b)): int(np.sum(count == b)) for b in np.unique(count)}, "jobs": jobs}
